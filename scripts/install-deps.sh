@@ -1,0 +1,41 @@
+#!/usr/bin/env bash
+# Installs pp5echo's build and test dependencies from Debian's packages.
+# Idempotent: packages that are already installed are skipped, and apt is not
+# touched at all when nothing is missing.
+# Usage: scripts/install-deps.sh [--tests]
+set -euo pipefail
+
+pkgs=(
+  build-essential cmake ninja-build pkg-config
+  libopenmpi-dev openmpi-bin
+  libglm-dev
+  libopenimageio-dev openimageio-tools
+  libusb-1.0-0-dev
+  libcli11-dev
+  libtomlplusplus-dev
+  libpugixml-dev
+  libspdlog-dev libfmt-dev
+  zlib1g-dev
+  nlohmann-json3-dev
+  libgtest-dev libgmock-dev
+  libbenchmark-dev
+)
+
+missing=()
+for p in "${pkgs[@]}"; do
+  if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then
+    missing+=("$p")
+  fi
+done
+
+if [ ${#missing[@]} -eq 0 ]; then
+  echo "install-deps: all ${#pkgs[@]} packages already installed"
+  exit 0
+fi
+
+echo "install-deps: installing ${missing[*]}"
+SUDO=""
+if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
+export DEBIAN_FRONTEND=noninteractive
+$SUDO apt-get update -qq
+$SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"

@@ -1,0 +1,13 @@
+#pragma once
+// Each subcommand of `pp5echo` lives in its own cmd_*.cpp and registers itself
+// on the CLI11 app. The callback stores the process exit code in `exitCode`.
+// Input errors are thrown as pp5::InputError and printed by main() as one line.
+#include <CLI/CLI.hpp>
+
+namespace pp5::app {
+
+void addConfigCommand(CLI::App& app, int& exitCode);
+void addInfoCommand(CLI::App& app, int& exitCode);
+void addSimulateCommand(CLI::App& app, int& exitCode);
+
+}  // namespace pp5::app

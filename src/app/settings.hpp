@@ -1,0 +1,44 @@
+#pragma once
+// Everything a pp5echo run can be configured with, one struct per TOML section.
+// Each module registers its own section; registerAll() puts them together, and
+// the same schema parses files and writes docs/configuration.md.
+#include <string>
+
+#include "core/config.hpp"
+#include "core/grid.hpp"
+#include "sim/sim_settings.hpp"
+
+namespace pp5::app {
+
+// [grid]: the reconstruction grid (also the grid of the simulated truth volume).
+struct GridSettings {
+  bool autoExtent = true;        // fit the grid around the sweep (PLUS's rule)
+  glm::dvec3 origin{0.0};        // centre of voxel 0, mm (when auto_extent = false)
+  glm::dvec3 spacing{1.0};       // mm
+  glm::ivec3 dims{256, 256, 256};
+  double marginMm = 2.0;         // added around an automatic extent
+  double memoryLimitGiB = 0.0;   // 0 = what the machine has available
+
+  std::uint64_t memoryLimitBytes() const {
+    return static_cast<std::uint64_t>(memoryLimitGiB * 1024.0 * 1024.0 * 1024.0);
+  }
+};
+
+// [output]
+struct OutputSettings {
+  std::string dir = "out/doll";  // where results go, unless -o says otherwise
+  int previewFrames = 4;         // frames written as PNG by `simulate`
+};
+
+struct Settings {
+  sim::SimSettings sim;
+  GridSettings grid;
+  OutputSettings output;
+};
+
+void registerAll(ConfigSchema& schema, Settings& s);
+
+// Defaults, then the file (if any), then `key=value` overrides, in that order.
+void loadSettings(ConfigSchema& schema, const std::string& file, const std::vector<std::string>& overrides);
+
+}  // namespace pp5::app

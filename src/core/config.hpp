@@ -1,0 +1,80 @@
+#pragma once
+// TOML configuration with a schema. Every option is registered once, with its
+// type, default, range and one line of documentation; the same registry
+// parses files, rejects unknown keys, wrong types and out-of-range values
+// (InputError "FILE:LINE: ..."), and generates docs/configuration.md
+// (`pp5echo config --markdown`), so the docs cannot drift from the code.
+//
+// Each module registers its own section into a ConfigSchema that binds keys to
+// fields of that module's settings struct (e.g. sim::registerOptions).
+#include <cstdint>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include <glm/glm.hpp>
+
+namespace toml {
+inline namespace v3 {
+class node;
+}
+}  // namespace toml
+
+namespace pp5 {
+
+class ConfigSchema {
+public:
+  // Describes one section ("[sim]") for the docs.
+  void section(const std::string& name, const std::string& doc);
+
+  void option(const std::string& key, bool* field, bool def, const std::string& doc);
+  void option(const std::string& key, int* field, int def, int lo, int hi, const std::string& doc);
+  void option(const std::string& key, std::uint64_t* field, std::uint64_t def, std::uint64_t lo, std::uint64_t hi,
+              const std::string& doc);
+  void option(const std::string& key, double* field, double def, double lo, double hi, const std::string& doc);
+  void option(const std::string& key, std::string* field, const std::string& def, const std::string& doc);
+  // A string restricted to `choices`.
+  void choice(const std::string& key, std::string* field, const std::string& def,
+              const std::vector<std::string>& choices, const std::string& doc);
+  // Fixed-length number arrays, each element within [lo, hi].
+  void option(const std::string& key, glm::dvec3* field, glm::dvec3 def, double lo, double hi, const std::string& doc);
+  void option(const std::string& key, glm::ivec3* field, glm::ivec3 def, int lo, int hi, const std::string& doc);
+  void option(const std::string& key, glm::ivec2* field, glm::ivec2 def, int lo, int hi, const std::string& doc);
+
+  // Sets every field to its default.
+  void applyDefaults() const;
+  // Parses a TOML file over the current values. Unknown keys, wrong types and
+  // out-of-range values throw InputError naming the file, the key and the line.
+  void loadFile(const std::string& path) const;
+  void loadString(const std::string& text, const std::string& sourceName) const;
+  // One `key=value` override from the command line (value in TOML syntax).
+  void set(const std::string& assignment) const;
+
+  // docs/configuration.md content.
+  std::string markdown() const;
+  // The current values as a TOML document (what a run used; written beside outputs).
+  std::string toToml() const;
+
+  struct Entry {
+    std::string key;      // "sim.seed"
+    std::string type;     // for the docs: "integer", "float", "string", "bool", "[float, float, float]", ...
+    std::string def;      // default, as TOML text
+    std::string range;    // "0 .. 100", "one of: a, b", or ""
+    std::string doc;
+    std::function<void()> reset;
+    // Reads the node into the field; returns an error message (without location) or "".
+    std::function<std::string(const toml::node&)> assign;
+    std::function<std::string()> current;  // current value as TOML text
+  };
+  const std::vector<Entry>& entries() const { return entries_; }
+
+private:
+  struct Section {
+    std::string name, doc;
+  };
+  std::vector<Section> sections_;
+  std::vector<Entry> entries_;
+  void add(Entry e);
+};
+
+}  // namespace pp5
