@@ -1,0 +1,101 @@
+// The command line, end to end: runs the real pp5echo binary.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <array>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+#include <sys/wait.h>
+#include <unistd.h>
+
+namespace {
+
+struct Result {
+  int status;
+  std::string out;
+};
+
+// Runs pp5echo with `args`; stdout+stderr captured.
+Result run(const std::string& args) {
+  const std::string cmd = std::string(PP5_BINARY) + " " + args + " 2>&1";
+  FILE* p = popen(cmd.c_str(), "r");
+  EXPECT_NE(p, nullptr);
+  std::string out;
+  std::array<char, 4096> buf{};
+  while (std::size_t n = fread(buf.data(), 1, buf.size(), p)) out.append(buf.data(), n);
+  const int st = pclose(p);
+  return {WIFEXITED(st) ? WEXITSTATUS(st) : -1, out};
+}
+
+std::string readFile(const std::filesystem::path& p) {
+  std::ifstream in(p);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+std::filesystem::path tempDir(const std::string& name) {
+  auto d = std::filesystem::temp_directory_path() / ("pp5cli-" + name + "-" + std::to_string(::getpid()));
+  std::filesystem::remove_all(d);
+  std::filesystem::create_directories(d);
+  return d;
+}
+
+TEST(Cli, HelpListsSubcommands) {
+  const auto r = run("--help");
+  EXPECT_EQ(r.status, 0);
+  for (const char* c : {"config", "info", "simulate"}) EXPECT_NE(r.out.find(c), std::string::npos) << c;
+}
+
+TEST(Cli, UnknownSubcommandFails) { EXPECT_NE(run("frobnicate").status, 0); }
+
+TEST(Cli, ConfigurationDocsMatchTheSchema) {
+  // docs/configuration.md carries the generated option tables verbatim, so a new
+  // or changed option without a docs update fails here.
+  const auto r = run("config --markdown");
+  ASSERT_EQ(r.status, 0) << r.out;
+  const std::string docs = readFile(std::filesystem::path(PP5_SOURCE_DIR) / "docs" / "configuration.md");
+  EXPECT_NE(docs.find(r.out), std::string::npos)
+      << "docs/configuration.md is out of date: run scripts/gen-docs.sh";
+}
+
+TEST(Cli, ShippedConfigsAreValid) {
+  for (const auto& e : std::filesystem::directory_iterator(std::filesystem::path(PP5_SOURCE_DIR) / "configs")) {
+    if (e.path().extension() != ".toml") continue;
+    const auto r = run("config " + e.path().string());
+    EXPECT_EQ(r.status, 0) << e.path() << ": " << r.out;
+  }
+}
+
+TEST(Cli, BadConfigGivesOneLineWithFileKeyAndLine) {
+  const auto d = tempDir("badcfg");
+  const auto cfg = d / "bad.toml";
+  std::ofstream(cfg) << "[grid]\nspacing = [1, 1, 1]\nmargin_mm = -3\n";
+  auto r = run("config " + cfg.string());
+  EXPECT_EQ(r.status, 1);
+  EXPECT_NE(r.out.find(cfg.string() + ":3:"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("grid.margin_mm"), std::string::npos) << r.out;
+  EXPECT_EQ(std::count(r.out.begin(), r.out.end(), '\n'), 1) << r.out;
+
+  std::ofstream(cfg) << "[grid]\nspaceing = [1, 1, 1]\n";
+  r = run("config " + cfg.string());
+  EXPECT_EQ(r.status, 1);
+  EXPECT_NE(r.out.find("unknown key 'grid.spaceing'"), std::string::npos) << r.out;
+
+  r = run("config " + (d / "missing.toml").string());
+  EXPECT_EQ(r.status, 1);
+  EXPECT_NE(r.out.find("missing.toml"), std::string::npos) << r.out;
+  std::filesystem::remove_all(d);
+}
+
+TEST(Cli, SetOverridesAreApplied) {
+  const auto r = run("config --set grid.margin_mm=7.5 --set output.dir=elsewhere");
+  ASSERT_EQ(r.status, 0) << r.out;
+  EXPECT_NE(r.out.find("margin_mm = 7.5"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("dir = 'elsewhere'"), std::string::npos) << r.out;
+}
+
+}  // namespace

@@ -9,5 +9,6 @@ namespace pp5::app {
 void addConfigCommand(CLI::App& app, int& exitCode);
 void addInfoCommand(CLI::App& app, int& exitCode);
 void addSimulateCommand(CLI::App& app, int& exitCode);
+void addFrameCommand(CLI::App& app, int& exitCode);
 
 }  // namespace pp5::app

@@ -13,11 +13,13 @@ int main(int argc, char** argv) {
   app.set_version_flag("--version", "pp5echo 0.1.0");
   bool verbose = false;
   app.add_flag("-v,--verbose", verbose, "Log debugging detail");
+  app.parse_complete_callback([&verbose] { spdlog::set_level(verbose ? spdlog::level::debug : spdlog::level::info); });
 
   int exitCode = 0;
   pp5::app::addConfigCommand(app, exitCode);
   pp5::app::addInfoCommand(app, exitCode);
   pp5::app::addSimulateCommand(app, exitCode);
+  pp5::app::addFrameCommand(app, exitCode);
 
   try {
     app.parse(argc, argv);
@@ -33,6 +35,5 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "pp5echo: error: %s\n", e.what());
     return 1;
   }
-  (void)verbose;
   return exitCode;
 }

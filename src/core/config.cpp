@@ -1,0 +1,321 @@
+#include "core/config.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <map>
+#include <sstream>
+
+#include <fmt/format.h>
+#include <toml++/toml.h>
+
+#include "core/error.hpp"
+
+namespace pp5 {
+namespace {
+
+std::string formatDouble(double v) {
+  if (std::isnan(v)) return "nan";
+  if (std::isinf(v)) return v > 0 ? "inf" : "-inf";
+  std::string s = fmt::format("{}", v);
+  // TOML reads "1" as an integer; keep floats recognisable as floats.
+  if (s.find_first_of(".eE") == std::string::npos) s += ".0";
+  return s;
+}
+
+std::string quote(const std::string& s) {
+  std::ostringstream os;
+  os << toml::value<std::string>(s);
+  return os.str();
+}
+
+template <typename T>
+std::string formatArray(const T* v, int n, std::string (*one)(const T&)) {
+  std::string s = "[";
+  for (int i = 0; i < n; ++i) s += (i ? ", " : "") + one(v[i]);
+  return s + "]";
+}
+std::string fmtD(const double& d) { return formatDouble(d); }
+std::string fmtI(const int& i) { return std::to_string(i); }
+
+// Reads a number (integer or float) from a node.
+std::optional<double> asNumber(const toml::node& n) {
+  if (auto f = n.as_floating_point()) return f->get();
+  if (auto i = n.as_integer()) return static_cast<double>(i->get());
+  return std::nullopt;
+}
+
+template <typename Vec>
+std::string readFloatArray(const toml::node& n, Vec* out, int len, double lo, double hi) {
+  const auto* arr = n.as_array();
+  if (!arr || static_cast<int>(arr->size()) != len) return fmt::format("must be an array of {} numbers", len);
+  Vec v{};
+  for (int i = 0; i < len; ++i) {
+    auto x = asNumber(*arr->get(static_cast<std::size_t>(i)));
+    if (!x) return fmt::format("must be an array of {} numbers", len);
+    if (!(*x >= lo && *x <= hi)) return fmt::format("element {} = {} is out of range [{}, {}]", i, *x, lo, hi);
+    v[i] = *x;
+  }
+  *out = v;
+  return "";
+}
+
+template <typename Vec>
+std::string readIntArray(const toml::node& n, Vec* out, int len, int lo, int hi) {
+  const auto* arr = n.as_array();
+  if (!arr || static_cast<int>(arr->size()) != len) return fmt::format("must be an array of {} integers", len);
+  Vec v{};
+  for (int i = 0; i < len; ++i) {
+    const auto* x = arr->get(static_cast<std::size_t>(i))->as_integer();
+    if (!x) return fmt::format("must be an array of {} integers", len);
+    if (x->get() < lo || x->get() > hi)
+      return fmt::format("element {} = {} is out of range [{}, {}]", i, x->get(), lo, hi);
+    v[i] = static_cast<int>(x->get());
+  }
+  *out = v;
+  return "";
+}
+
+}  // namespace
+
+void ConfigSchema::section(const std::string& name, const std::string& doc) { sections_.push_back({name, doc}); }
+
+void ConfigSchema::add(Entry e) {
+  for (const auto& x : entries_) PP5_CHECK(x.key != e.key);
+  e.reset();
+  entries_.push_back(std::move(e));
+}
+
+void ConfigSchema::option(const std::string& key, bool* field, bool def, const std::string& doc) {
+  add({key, "bool", def ? "true" : "false", "", doc, [=] { *field = def; },
+       [=](const toml::node& n) -> std::string {
+         const auto* b = n.as_boolean();
+         if (!b) return "must be true or false";
+         *field = b->get();
+         return "";
+       },
+       [=] { return std::string(*field ? "true" : "false"); }});
+}
+
+void ConfigSchema::option(const std::string& key, int* field, int def, int lo, int hi, const std::string& doc) {
+  add({key, "integer", std::to_string(def), fmt::format("{} .. {}", lo, hi), doc, [=] { *field = def; },
+       [=](const toml::node& n) -> std::string {
+         const auto* i = n.as_integer();
+         if (!i) return "must be an integer";
+         if (i->get() < lo || i->get() > hi) return fmt::format("= {} is out of range [{}, {}]", i->get(), lo, hi);
+         *field = static_cast<int>(i->get());
+         return "";
+       },
+       [=] { return std::to_string(*field); }});
+}
+
+void ConfigSchema::option(const std::string& key, std::uint64_t* field, std::uint64_t def, std::uint64_t lo,
+                          std::uint64_t hi, const std::string& doc) {
+  add({key, "integer", std::to_string(def), fmt::format("{} .. {}", lo, hi), doc, [=] { *field = def; },
+       [=](const toml::node& n) -> std::string {
+         const auto* i = n.as_integer();
+         if (!i) return "must be an integer";
+         if (i->get() < 0 || static_cast<std::uint64_t>(i->get()) < lo || static_cast<std::uint64_t>(i->get()) > hi)
+           return fmt::format("= {} is out of range [{}, {}]", i->get(), lo, hi);
+         *field = static_cast<std::uint64_t>(i->get());
+         return "";
+       },
+       [=] { return std::to_string(*field); }});
+}
+
+void ConfigSchema::option(const std::string& key, double* field, double def, double lo, double hi,
+                          const std::string& doc) {
+  add({key, "float", formatDouble(def), fmt::format("{} .. {}", lo, hi), doc, [=] { *field = def; },
+       [=](const toml::node& n) -> std::string {
+         auto x = asNumber(n);
+         if (!x) return "must be a number";
+         if (!(*x >= lo && *x <= hi)) return fmt::format("= {} is out of range [{}, {}]", *x, lo, hi);
+         *field = *x;
+         return "";
+       },
+       [=] { return formatDouble(*field); }});
+}
+
+void ConfigSchema::option(const std::string& key, std::string* field, const std::string& def,
+                          const std::string& doc) {
+  add({key, "string", quote(def), "", doc, [=] { *field = def; },
+       [=](const toml::node& n) -> std::string {
+         const auto* s = n.as_string();
+         if (!s) return "must be a string";
+         *field = s->get();
+         return "";
+       },
+       [=] { return quote(*field); }});
+}
+
+void ConfigSchema::choice(const std::string& key, std::string* field, const std::string& def,
+                          const std::vector<std::string>& choices, const std::string& doc) {
+  PP5_CHECK(std::find(choices.begin(), choices.end(), def) != choices.end());
+  std::string list;
+  for (const auto& c : choices) list += (list.empty() ? "" : ", ") + c;
+  add({key, "string", quote(def), "one of: " + list, doc, [=] { *field = def; },
+       [=](const toml::node& n) -> std::string {
+         const auto* s = n.as_string();
+         if (!s) return "must be a string";
+         if (std::find(choices.begin(), choices.end(), s->get()) == choices.end())
+           return fmt::format("= \"{}\" is not one of: {}", s->get(), list);
+         *field = s->get();
+         return "";
+       },
+       [=] { return quote(*field); }});
+}
+
+void ConfigSchema::option(const std::string& key, glm::dvec3* field, glm::dvec3 def, double lo, double hi,
+                          const std::string& doc) {
+  add({key, "[float, float, float]", formatArray(&def[0], 3, fmtD), fmt::format("each {} .. {}", lo, hi), doc,
+       [=] { *field = def; }, [=](const toml::node& n) { return readFloatArray(n, field, 3, lo, hi); },
+       [=] { return formatArray(&(*field)[0], 3, fmtD); }});
+}
+
+void ConfigSchema::option(const std::string& key, glm::dvec2* field, glm::dvec2 def, double lo, double hi,
+                          const std::string& doc) {
+  add({key, "[float, float]", formatArray(&def[0], 2, fmtD), fmt::format("each {} .. {}", lo, hi), doc,
+       [=] { *field = def; }, [=](const toml::node& n) { return readFloatArray(n, field, 2, lo, hi); },
+       [=] { return formatArray(&(*field)[0], 2, fmtD); }});
+}
+
+void ConfigSchema::option(const std::string& key, glm::ivec3* field, glm::ivec3 def, int lo, int hi,
+                          const std::string& doc) {
+  add({key, "[int, int, int]", formatArray(&def[0], 3, fmtI), fmt::format("each {} .. {}", lo, hi), doc,
+       [=] { *field = def; }, [=](const toml::node& n) { return readIntArray(n, field, 3, lo, hi); },
+       [=] { return formatArray(&(*field)[0], 3, fmtI); }});
+}
+
+void ConfigSchema::option(const std::string& key, glm::ivec2* field, glm::ivec2 def, int lo, int hi,
+                          const std::string& doc) {
+  add({key, "[int, int]", formatArray(&def[0], 2, fmtI), fmt::format("each {} .. {}", lo, hi), doc,
+       [=] { *field = def; }, [=](const toml::node& n) { return readIntArray(n, field, 2, lo, hi); },
+       [=] { return formatArray(&(*field)[0], 2, fmtI); }});
+}
+
+void ConfigSchema::applyDefaults() const {
+  for (const auto& e : entries_) e.reset();
+}
+
+namespace {
+
+struct Loader {
+  const std::vector<ConfigSchema::Entry>& entries;
+  const std::string& source;
+
+  bool isTablePrefix(const std::string& path) const {
+    const std::string p = path + ".";
+    return std::any_of(entries.begin(), entries.end(), [&](const auto& e) { return e.key.rfind(p, 0) == 0; });
+  }
+  const ConfigSchema::Entry* find(const std::string& key) const {
+    for (const auto& e : entries)
+      if (e.key == key) return &e;
+    return nullptr;
+  }
+  long lineOf(const toml::node& n) const { return static_cast<long>(n.source().begin.line); }
+
+  void walk(const toml::table& t, const std::string& prefix) const {
+    for (const auto& [k, node] : t) {
+      const std::string key = prefix.empty() ? std::string(k.str()) : prefix + "." + std::string(k.str());
+      if (const auto* e = find(key)) {
+        const std::string why = e->assign(node);
+        if (!why.empty()) inputErrorAt(source, lineOf(node), "key '{}' {}", key, why);
+        continue;
+      }
+      if (const auto* sub = node.as_table(); sub && isTablePrefix(key)) {
+        walk(*sub, key);
+        continue;
+      }
+      inputErrorAt(source, lineOf(node), "unknown key '{}' (see docs/configuration.md for every option)", key);
+    }
+  }
+};
+
+}  // namespace
+
+void ConfigSchema::loadString(const std::string& text, const std::string& sourceName) const {
+  toml::table tbl;
+  try {
+    tbl = toml::parse(text, sourceName);
+  } catch (const toml::parse_error& err) {
+    inputErrorAt(sourceName, static_cast<long>(err.source().begin.line), "{}", err.description());
+  }
+  Loader{entries_, sourceName}.walk(tbl, "");
+}
+
+void ConfigSchema::loadFile(const std::string& path) const {
+  toml::table tbl;
+  try {
+    tbl = toml::parse_file(path);
+  } catch (const toml::parse_error& err) {
+    // A missing file also lands here, at line 0.
+    if (err.source().begin.line == 0) inputError(path, "{}", err.description());
+    inputErrorAt(path, static_cast<long>(err.source().begin.line), "{}", err.description());
+  }
+  Loader{entries_, path}.walk(tbl, "");
+}
+
+void ConfigSchema::set(const std::string& assignment) const {
+  const auto eq = assignment.find('=');
+  if (eq == std::string::npos || eq == 0)
+    throw InputError(fmt::format("--set '{}': expected key=value", assignment));
+  auto trim = [](std::string s) {
+    const auto b = s.find_first_not_of(" \t");
+    const auto e = s.find_last_not_of(" \t");
+    return b == std::string::npos ? std::string() : s.substr(b, e - b + 1);
+  };
+  const std::string key = trim(assignment.substr(0, eq));
+  const std::string value = trim(assignment.substr(eq + 1));
+  const std::string source = "--set " + key;
+  // A bare word (sim.phantom=forearm) is taken as a string when it is not valid TOML.
+  try {
+    auto probe = toml::parse(key + " = " + value, source);
+    (void)probe;
+  } catch (const toml::parse_error&) {
+    loadString(key + " = " + quote(value), source);
+    return;
+  }
+  loadString(key + " = " + value, source);
+}
+
+std::string ConfigSchema::markdown() const {
+  std::ostringstream os;
+  auto sectionOf = [&](const std::string& key) {
+    std::string best;
+    for (const auto& s : sections_)
+      if (key.rfind(s.name + ".", 0) == 0 && s.name.size() > best.size()) best = s.name;
+    return best;
+  };
+  for (const auto& s : sections_) {
+    os << "## [" << s.name << "]\n\n" << s.doc << "\n\n";
+    os << "| key | type | default | range | meaning |\n|---|---|---|---|---|\n";
+    for (const auto& e : entries_) {
+      if (sectionOf(e.key) != s.name) continue;
+      os << "| `" << e.key << "` | " << e.type << " | `" << e.def << "` | " << e.range << " | " << e.doc << " |\n";
+    }
+    os << "\n";
+  }
+  for (const auto& e : entries_)
+    PP5_CHECK(!sectionOf(e.key).empty());  // every option belongs to a documented section
+  return os.str();
+}
+
+std::string ConfigSchema::toToml() const {
+  // Group by table in registration order so the file reads like the docs.
+  std::vector<std::string> tables;
+  std::map<std::string, std::vector<const Entry*>> byTable;
+  for (const auto& e : entries_) {
+    const auto dot = e.key.rfind('.');
+    const std::string table = dot == std::string::npos ? "" : e.key.substr(0, dot);
+    if (!byTable.count(table)) tables.push_back(table);
+    byTable[table].push_back(&e);
+  }
+  std::ostringstream os;
+  os << "# pp5echo settings as used (defaults included)\n";
+  for (const auto& t : tables) {
+    if (!t.empty()) os << "\n[" << t << "]\n";
+    for (const auto* e : byTable[t]) os << e->key.substr(t.empty() ? 0 : t.size() + 1) << " = " << e->current() << "\n";
+  }
+  return os.str();
+}
+
+}  // namespace pp5

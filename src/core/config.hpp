@@ -38,6 +38,7 @@ public:
               const std::vector<std::string>& choices, const std::string& doc);
   // Fixed-length number arrays, each element within [lo, hi].
   void option(const std::string& key, glm::dvec3* field, glm::dvec3 def, double lo, double hi, const std::string& doc);
+  void option(const std::string& key, glm::dvec2* field, glm::dvec2 def, double lo, double hi, const std::string& doc);
   void option(const std::string& key, glm::ivec3* field, glm::ivec3 def, int lo, int hi, const std::string& doc);
   void option(const std::string& key, glm::ivec2* field, glm::ivec2 def, int lo, int hi, const std::string& doc);
 

@@ -2,8 +2,10 @@
 // PLUS device-set configuration XML (PlusConfiguration): CoordinateDefinitions
 // and the VolumeReconstruction element. Reading uses pugixml; errors are
 // InputError naming the file and the element or attribute.
+#include <array>
 #include <optional>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include <glm/glm.hpp>
@@ -23,67 +25,110 @@ enum class PlusHoleFillingType {
   DistanceWeightInverse,
 };
 
+// One <HoleFillingElement>. PLUS has no defaults here: Type is required, and
+// so is each parameter that the type uses (GAUSSIAN, GAUSSIAN_ACCUMULATION:
+// Size, Stdev, MinimumKnownVoxelsRatio; NEAREST_NEIGHBOR, DISTANCE_WEIGHT_INVERSE:
+// Size, MinimumKnownVoxelsRatio; STICK: StickLengthLimit, NumberOfSticksToUse).
+// The values below only fill the fields a type does not use.
 struct PlusHoleFillingElement {
   PlusHoleFillingType type = PlusHoleFillingType::Gaussian;
-  int size = 3;              // Size (kernel width in voxels)
+  int size = 3;              // Size (odd kernel width in voxels)
   double stdev = 1.0;        // Stdev
-  double minRatio = 0.5;     // MinRatio
+  double minRatio = 0.5;     // MinimumKnownVoxelsRatio, 0..1
   int stickLengthLimit = 9;  // StickLengthLimit
-  int numberOfSticksToUse = 1;
+  int numberOfSticksToUse = 1;  // NumberOfSticksToUse
+  bool operator==(const PlusHoleFillingElement&) const = default;
 };
 
-// Every attribute of <VolumeReconstruction> in the PLUS documentation. Optional
-// fields are empty when the attribute is absent, so callers can tell "not given"
-// from a default.
+// Every attribute of <VolumeReconstruction> that PLUS reads
+// (vtkPlusVolumeReconstructor / vtkIGSIOVolumeReconstructor::ReadConfiguration).
+// Optional fields are empty when the attribute is absent, so callers can tell
+// "not given" from a default; PLUS's value for "not given" is in the comment.
+// Deprecated PLUS spellings are read too and land in the same field: FanAngles
+// (-> FanAnglesDeg), FanOrigin (-> FanOriginPixel), FanDepth (-> FanRadiusStopPixel),
+// Compounding="ON|OFF" and Calculation="WEIGHTED_AVERAGE|MAXIMUM" (-> CompoundingMode
+// when that is absent). Enumerated values are matched case-insensitively, as PLUS does.
 struct PlusVolumeReconstruction {
-  std::string imageCoordinateFrame = "Image";
-  std::string referenceCoordinateFrame = "Reference";
-  Vec3 outputSpacing{1.0};
-  std::optional<Vec3> outputOrigin;
-  std::optional<std::array<int, 6>> outputExtent;  // x0 x1 y0 y1 z0 z1 (inclusive voxel indices)
-  std::optional<glm::ivec2> clipRectangleOrigin;
-  std::optional<glm::ivec2> clipRectangleSize;
-  std::optional<glm::dvec2> fanAnglesDeg;          // FanAngles (min max), degrees
-  std::optional<glm::dvec2> fanOriginPixel;        // FanOrigin
-  std::optional<double> fanRadiusStartPixel;       // FanRadiusStart
-  std::optional<double> fanRadiusStopPixel;        // FanRadiusStop
-  bool enableFanAnglesAutoDetect = false;          // EnableFanAnglesAutoDetect
-  int skipInterval = 1;                            // SkipInterval
-  PlusInterpolation interpolation = PlusInterpolation::NearestNeighbor;
-  PlusCompounding compounding = PlusCompounding::Mean;  // CompoundingMode (or legacy Compounding="ON")
-  PlusOptimization optimization = PlusOptimization::Full;
-  int numberOfThreads = 0;                         // 0 = automatic
-  bool fillHoles = false;                          // FillHoles
-  std::optional<double> pixelRejectionThreshold;   // PixelRejectionThreshold
-  std::string importanceMaskFile;                  // ImportanceMask (file name), for IMPORTANCE_MASK
-  std::vector<PlusHoleFillingElement> holeFilling; // <HoleFilling><HoleFillingElement .../>
+  std::string imageCoordinateFrame = "Image";          // ImageCoordinateFrame
+  std::string referenceCoordinateFrame = "Reference";  // ReferenceCoordinateFrame
+  Vec3 outputSpacing{1.0};                         // OutputSpacing (required by PLUS), > 0
+  std::optional<Vec3> outputOrigin;                // OutputOrigin (PLUS: fit to the frames)
+  std::optional<std::array<int, 6>> outputExtent;  // OutputExtent x0 x1 y0 y1 z0 z1 (inclusive voxel indices)
+  std::optional<glm::ivec2> clipRectangleOrigin;   // ClipRectangleOrigin (PLUS: 0 0)
+  std::optional<glm::ivec2> clipRectangleSize;     // ClipRectangleSize (PLUS: 0 0 = whole frame)
+  std::optional<glm::dvec2> fanAnglesDeg;          // FanAnglesDeg (min max), degrees (PLUS: 0 0 = no fan)
+  std::optional<glm::dvec2> fanOriginPixel;        // FanOriginPixel (PLUS: 0 0)
+  std::optional<double> fanRadiusStartPixel;       // FanRadiusStartPixel (PLUS: 0)
+  std::optional<double> fanRadiusStopPixel;        // FanRadiusStopPixel (PLUS: 500)
+  bool enableFanAnglesAutoDetect = false;          // EnableFanAnglesAutoDetect TRUE|FALSE
+  double fanAnglesAutoDetectBrightnessThreshold = 30.0;  // FanAnglesAutoDetectBrightnessThreshold
+  int fanAnglesAutoDetectFilterRadiusPixel = 10;         // FanAnglesAutoDetectFilterRadiusPixel
+  int skipInterval = 1;                            // SkipInterval, >= 1
+  PlusInterpolation interpolation = PlusInterpolation::NearestNeighbor;  // Interpolation
+  PlusCompounding compounding = PlusCompounding::Mean;  // CompoundingMode (or legacy Compounding / Calculation)
+  PlusOptimization optimization = PlusOptimization::Full;  // Optimization
+  int numberOfThreads = 0;                         // NumberOfThreads, 0 = automatic
+  bool fillHoles = false;                          // FillHoles ON|OFF
+  std::optional<double> pixelRejectionThreshold;   // PixelRejectionThreshold (PLUS: disabled)
+  std::string importanceMaskFile;                  // ImportanceMaskFilename; required for IMPORTANCE_MASK
+  std::vector<PlusHoleFillingElement> holeFilling; // <HoleFilling><HoleFillingElement .../>; required if FillHoles
+  bool operator==(const PlusVolumeReconstruction&) const = default;
+};
+
+// The spelling PLUS writes for each value (Optimization GPU is "OPENCL").
+std::string_view toPlusString(PlusInterpolation v);
+std::string_view toPlusString(PlusCompounding v);
+std::string_view toPlusString(PlusOptimization v);
+std::string_view toPlusString(PlusHoleFillingType v);
+
+// One <Transform From=... To=... Matrix=.../> of <CoordinateDefinitions>.
+struct PlusConfigTransform {
+  std::string from, to;
+  Mat4 matrix{1.0};
+  bool operator==(const PlusConfigTransform&) const = default;
 };
 
 struct PlusConfig {
   std::string path;
   TransformRepository coordinates;  // from <CoordinateDefinitions>
+  std::vector<PlusConfigTransform> transforms;  // the same, as written, in file order
   std::optional<PlusVolumeReconstruction> volumeReconstruction;  // first one found anywhere
+  std::string deviceSetName;         // DataCollection/DeviceSet Name, if any
+  std::string deviceSetDescription;  // DataCollection/DeviceSet Description, if any
 
   // ImageToReference needs per-frame transforms from the sequence (e.g.
   // ProbeToTracker, ReferenceToTracker) plus the fixed ones here. Given the
-  // names of the per-frame transforms available, returns the static part of the
-  // chain: ImageToX where X is the first frame on a path to Reference that the
-  // sequence provides. Throws InputError naming the file when Image cannot reach
-  // Reference through the config and the given frame names.
+  // names of the per-frame transforms a sequence provides, returns the shortest
+  // chain of frames from Image to Reference (the VolumeReconstruction's
+  // ImageCoordinateFrame / ReferenceCoordinateFrame) and which per-frame
+  // transforms it uses. A sequence transform replaces a config one between the
+  // same two frames, as in PLUS. Names that do not split into AToB are skipped.
+  // Throws InputError naming the file, the sequence's transforms and the known
+  // frames when Image cannot reach Reference.
   struct ChainPlan {
     std::vector<std::string> frames;  // Image ... Reference
+    // The per-frame transforms the chain uses, as named by the sequence
+    // ("ProbeToTracker", ...), in chain order. Each frame must carry them (valid).
+    std::vector<std::string> perFrameTransforms;
   };
   ChainPlan planImageToReference(const std::vector<std::string>& perFrameTransformNames) const;
+
+  // ImageCoordinateFrame / ReferenceCoordinateFrame of the VolumeReconstruction
+  // element, or "Image" / "Reference" without one.
+  std::string imageFrame() const;
+  std::string referenceFrame() const;
 };
 
+// Reads a PLUS device-set configuration. Throws InputError naming the file (and
+// line) on unreadable or malformed XML, a bad Matrix, or a bad attribute value.
 PlusConfig readPlusConfig(const std::string& path);
 
-// Writes a minimal device-set config: CoordinateDefinitions (each transform
-// From/To/Matrix) and a VolumeReconstruction element.
-struct PlusConfigTransform {
-  std::string from, to;
-  Mat4 matrix;
-};
+// Writes a minimal PLUS 2.1 device-set config: DataCollection/DeviceSet
+// (Name "pp5echo", Description `description`), CoordinateDefinitions (each
+// transform From/To/Matrix, row-major) and a top-level VolumeReconstruction
+// element (optional attributes only when set). Numbers are written with
+// enough digits to read back exactly. The file is replaced atomically (written
+// beside it, then renamed); throws InputError when it cannot be written.
 void writePlusConfig(const std::string& path, const std::vector<PlusConfigTransform>& transforms,
                      const PlusVolumeReconstruction& recon, const std::string& description);
 

@@ -47,6 +47,11 @@ public:
   // Reads the next frame into `f` (reusing its buffer); false at the end.
   // A short or corrupt data block is an InputError naming the frame.
   virtual bool next(Frame& f) = 0;
+  // Frame i's tracking data (index, timestamp, statuses, transforms, custom
+  // fields) without its pixels. The header holds every frame's fields, so this
+  // needs no data reading: callers can plan (e.g. fit a grid to all poses)
+  // before streaming the pixels once.
+  virtual Frame metadata(std::uint64_t i) const = 0;
 };
 
 struct SequenceWriteOptions {
@@ -69,6 +74,12 @@ public:
   // so a crash never leaves a half-written sequence under the final name.
   virtual void close() = 0;
 };
+
+// What a .mha/.mhd/.nrrd file holds, judged from its header alone: a volume
+// when its third axis is of kind "domain" (or "space") or it has no per-frame
+// Seq_Frame fields; otherwise a tracked-frame sequence. Used by `pp5echo info`.
+enum class ImageFileKind { Sequence, Volume };
+ImageFileKind probeImageFile(const std::string& path);
 
 // Convenience: whole file into memory (tests, small files).
 std::vector<Frame> readAllFrames(const std::string& path, SequenceInfo* info = nullptr);

@@ -32,9 +32,11 @@ inline Vec3 transformPoint(const Mat4& m, const Vec3& p) { return Vec3(m * Vec4(
 inline Vec3 transformVector(const Mat4& m, const Vec3& v) { return Vec3(m * Vec4(v, 0.0)); }
 
 bool isFinite(const Mat4& m);
-// Rotation part orthonormal (within tol) and last row (0 0 0 1).
+// Rotation part orthonormal (within tol) and proper (no reflection), last row (0 0 0 1).
 bool isRigid(const Mat4& m, double tol = 1e-6);
-// Inverse of an affine matrix (last row 0 0 0 1); exact for rigid ones.
+// Inverse of an affine matrix (last row 0 0 0 1); exact for rigid ones. A
+// singular matrix gives non-finite entries (check with isFinite); a non-affine
+// one falls back to the general inverse.
 Mat4 affineInverse(const Mat4& m);
 
 // Rigid helpers.
@@ -55,10 +57,13 @@ struct CalibrationChain {
 // their inverses can be asked for.
 class TransformRepository {
 public:
-  // Adds or replaces From->To. Replacing keeps the inverse consistent.
+  // Adds or replaces From->To. Replacing keeps the inverse consistent: one edge
+  // is kept per pair of frames, so setting BToA replaces an earlier AToB.
+  // From and To must be non-empty and differ (InvariantError otherwise).
   void set(const std::string& from, const std::string& to, const Mat4& m, bool valid = true);
-  // From->To through any chain of known transforms (breadth-first over frames).
-  // nullopt when no chain exists or a link on the chain is invalid.
+  // From->To through any chain of known transforms (breadth-first over frames,
+  // so the chain with the fewest links). Identity when From == To. nullopt when
+  // no chain exists or a link on the chain is invalid.
   std::optional<Mat4> get(const std::string& from, const std::string& to) const;
   // The frames on the chain From..To (inclusive), empty when none.
   std::vector<std::string> path(const std::string& from, const std::string& to) const;
@@ -74,6 +79,10 @@ private:
 };
 
 // Splits "ProbeToTracker" into {"Probe", "Tracker"}; nullopt when there is no "To".
+// Only a "To" followed by an uppercase letter separates the frames, so
+// "StylusTipToReference" and "ToolToReference" split as expected. When several
+// such "To"s give a non-empty From that starts with an uppercase letter
+// ("ImageToTorsoToReference"), the name is ambiguous and, as in PLUS, nullopt.
 std::optional<std::pair<std::string, std::string>> splitTransformName(const std::string& name);
 
 }  // namespace pp5

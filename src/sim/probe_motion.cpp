@@ -1,0 +1,371 @@
+#include "sim/probe_motion.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <numbers>
+#include <optional>
+#include <string>
+
+#include <fmt/format.h>
+
+#include "core/error.hpp"
+#include "sim/random.hpp"
+
+namespace pp5::sim {
+
+namespace {
+
+constexpr double kDeg = std::numbers::pi / 180.0;
+// The hand crank is uneven: the speed varies by this fraction around its mean.
+constexpr double kSpeedWobble = 0.15;
+// Repositioning between parallel passes (capture off) is faster than a pass.
+constexpr double kRepositionSpeedFactor = 3.0;
+constexpr double kTurnDegPerS = 10.0;
+
+// Position along a move, 0..1, for elapsed fraction tau: monotone (the
+// derivative is 1 +- kSpeedWobble), exactly 0 at the start and 1 at the end.
+double wobbly(double tau, int wobbles, double phase) {
+  const double w = 2.0 * std::numbers::pi * wobbles;
+  return tau + kSpeedWobble * (std::sin(w * tau + phase) - std::sin(phase)) / w;
+}
+
+ArmPose lerp(const ArmPose& a, const ArmPose& b, double s) {
+  return {a.xMm + s * (b.xMm - a.xMm), a.yMm + s * (b.yMm - a.yMm), a.thetaDeg + s * (b.thetaDeg - a.thetaDeg)};
+}
+
+}  // namespace
+
+// ---- kinematics and A/D ----------------------------------------------------------
+
+Mat4 probeMountRotation() {
+  Mat4 m(1.0);
+  m[0] = Vec4(0.0, -1.0, 0.0, 0.0);  // lateral
+  m[1] = Vec4(0.0, 0.0, -1.0, 0.0);  // axial: down into the tank
+  m[2] = Vec4(1.0, 0.0, 0.0, 0.0);   // elevation
+  return m;
+}
+
+Mat4 armProbeToTracker(const ArmPose& p, double probeZ) {
+  return translation(Vec3(p.xMm, p.yMm, probeZ)) * rotationAxisAngle(Vec3(0, 0, 1), p.thetaDeg * kDeg) *
+         probeMountRotation();
+}
+
+ArmAdc::ArmAdc(const ArmSettings& s) {
+  perCount_ = {s.xSpanMm / kMaxCount, s.ySpanMm / kMaxCount, s.thetaSpanDeg / kMaxCount};
+  // Theta's zero sits exactly on count 2048, so a straight probe reads straight.
+  origin_ = {0.0, 0.0, -0.5 * (kMaxCount + 1) * perCount_[2]};
+}
+
+std::array<double, 3> ArmAdc::idealCounts(const ArmPose& p) const {
+  const std::array<double, 3> v = {p.xMm, p.yMm, p.thetaDeg};
+  std::array<double, 3> c{};
+  for (std::size_t i = 0; i < 3; ++i) c[i] = (v[i] - origin_[i]) / perCount_[i];
+  return c;
+}
+
+std::array<int, 3> ArmAdc::read(const ArmPose& p, const std::array<double, 3>& noiseCounts) const {
+  const auto ideal = idealCounts(p);
+  std::array<int, 3> c{};
+  for (std::size_t i = 0; i < 3; ++i)
+    c[i] = static_cast<int>(std::clamp(std::lround(ideal[i] + noiseCounts[i]), 0L, static_cast<long>(kMaxCount)));
+  return c;
+}
+
+ArmPose ArmAdc::calibrate(const std::array<double, 3>& counts) const {
+  return {origin_[0] + counts[0] * perCount_[0], origin_[1] + counts[1] * perCount_[1],
+          origin_[2] + counts[2] * perCount_[2]};
+}
+
+// ---- arm trajectory -------------------------------------------------------------------
+
+void ArmTrajectory::add(const ArmPose& from, const ArmPose& to, double speed, bool capture, int pass,
+                        std::uint64_t key) {
+  const double dist = std::hypot(to.xMm - from.xMm, to.yMm - from.yMm);
+  const double turn = std::abs(to.thetaDeg - from.thetaDeg);
+  const double span = std::max({dist / speed, turn / kTurnDegPerS, 0.1});
+  Segment s;
+  s.from = from;
+  s.to = to;
+  s.t0 = duration();
+  s.t1 = s.t0 + span;
+  s.capture = capture;
+  s.pass = pass;
+  s.wobbles = std::max(1, static_cast<int>(std::lround(span / 4.0)));
+  s.wobblePhase = 2.0 * std::numbers::pi * unitFromBits(mix64(key));
+  segments_.push_back(s);
+}
+
+const ArmTrajectory::Segment& ArmTrajectory::segmentAt(double t) const {
+  PP5_CHECK(!segments_.empty());
+  for (const Segment& s : segments_)
+    if (t < s.t1) return s;
+  return segments_.back();
+}
+
+ArmPose ArmTrajectory::pose(double t) const {
+  const Segment& s = segmentAt(t);
+  const double tau = std::clamp((t - s.t0) / (s.t1 - s.t0), 0.0, 1.0);
+  return lerp(s.from, s.to, wobbly(tau, s.wobbles, s.wobblePhase));
+}
+
+// ---- freehand path ------------------------------------------------------------------------
+
+FreehandPath::FreehandPath(const FreehandSettings& s, const Vec3& start, const Vec3& end, double surfaceZ,
+                           double headingDeg, double speed, std::uint64_t seed)
+    : s_(s), start_(start), end_(end), surfaceZ_(surfaceZ), headingRad_(headingDeg * kDeg) {
+  duration_ = std::max(glm::length(end - start) / speed, 0.1);
+  std::uint64_t salt = 0;
+  // Slow wander: three waves of 0.05..0.3 Hz whose amplitudes add up to `peak`.
+  auto slow = [&](double peak) {
+    std::vector<Wave> w(3);
+    double total = 0.0;
+    const std::uint64_t key = mixSeed(seed, 0xF4EE0000u + salt++);
+    for (std::size_t i = 0; i < w.size(); ++i) {
+      const std::uint64_t h = latticeHash(key, static_cast<std::int64_t>(i), 0, 0);
+      w[i] = {0.3 + unitFromBits(h), 0.05 + 0.25 * unitFromBits(h >> 16), 2.0 * std::numbers::pi * unitFromBits(h >> 32)};
+      total += w[i].amp;
+    }
+    for (auto& x : w) x.amp *= peak / total;
+    return w;
+  };
+  // Physiological tremor: two waves of 8..12 Hz.
+  auto tremor = [&](double peak) {
+    std::vector<Wave> w(2);
+    const std::uint64_t key = mixSeed(seed, 0x7E3303u + salt++);
+    for (std::size_t i = 0; i < w.size(); ++i) {
+      const std::uint64_t h = latticeHash(key, static_cast<std::int64_t>(i), 0, 0);
+      w[i] = {0.5 * peak, 8.0 + 4.0 * unitFromBits(h), 2.0 * std::numbers::pi * unitFromBits(h >> 16)};
+    }
+    return w;
+  };
+  drift_ = slow(s.driftMm);
+  heave_ = slow(s.heaveMm);
+  tilt_ = slow(s.tiltDeg);
+  roll_ = slow(s.rollDeg);
+  yaw_ = slow(s.yawDeg);
+  along_ = slow(0.1 * speed);  // uneven pace; slow enough never to go backwards
+  for (int i = 0; i < 3; ++i) tremor_[i] = tremor(s.tremorMm);
+  for (int i = 3; i < 6; ++i) tremor_[i] = tremor(s.tremorDeg);
+}
+
+double FreehandPath::sum(const std::vector<Wave>& w, double t) {
+  double v = 0.0;
+  for (const Wave& x : w) v += x.amp * std::sin(2.0 * std::numbers::pi * x.freq * t + x.phase);
+  return v;
+}
+
+Mat4 FreehandPath::probeToReference(double t) const {
+  const double tau = std::clamp(t / duration_, 0.0, 1.0);
+  const Vec3 dir = end_ - start_;
+  const double len = glm::length(dir);
+  const Vec3 d = len > 0.0 ? dir / len : Vec3(1, 0, 0);
+  const Vec3 side(-d.y, d.x, 0.0);
+  // The pace wanders but the path still starts and ends where it should.
+  const double along = tau * len + (sum(along_, t) - (1.0 - tau) * sum(along_, 0.0) - tau * sum(along_, duration_));
+  Vec3 p = start_ + along * d + sum(drift_, t) * side;
+  // Never above the water surface: the probe must stay coupled.
+  p.z = surfaceZ_ - s_.heaveMm - s_.tremorMm + sum(heave_, t);
+  p += Vec3(sum(tremor_[0], t), sum(tremor_[1], t), sum(tremor_[2], t));
+  const double yaw = headingRad_ + (sum(yaw_, t) + sum(tremor_[5], t)) * kDeg;
+  const double tilt = (sum(tilt_, t) + sum(tremor_[3], t)) * kDeg;
+  const double roll = (sum(roll_, t) + sum(tremor_[4], t)) * kDeg;
+  return translation(p) * rotationAxisAngle(Vec3(0, 0, 1), yaw) * probeMountRotation() *
+         rotationAxisAngle(Vec3(1, 0, 0), tilt) * rotationAxisAngle(Vec3(0, 0, 1), roll);
+}
+
+// ---- sweeps ----------------------------------------------------------------------------------
+
+double largestDisplacement(const Mat4& a, const Mat4& b, const std::vector<Vec3>& points) {
+  double d = 0.0;
+  for (const Vec3& p : points) d = std::max(d, glm::length(transformPoint(a, p) - transformPoint(b, p)));
+  return d;
+}
+
+namespace {
+
+struct Pass {
+  Vec3 from, to;  // Reference frame, z ignored
+};
+
+// The straight passes of an arm sweep, in the Reference frame.
+std::vector<Pass> armPasses(const SweepSettings& sw, const Vec3& center, const Vec3& d, const Vec3& side, double len) {
+  std::vector<Pass> passes;
+  const Vec3 half = 0.5 * len * d;
+  if (sw.kind == "parallel") {
+    for (int k = 0; k < sw.passes; ++k) {
+      const Vec3 c = center + (k - 0.5 * (sw.passes - 1)) * sw.passSpacingMm * side;
+      passes.push_back({c - half, c + half});
+    }
+  } else if (sw.kind == "angled") {
+    passes.push_back({center - half, center + half});
+  } else if (sw.kind == "back_and_forth") {
+    for (int k = 0; k < sw.repeats; ++k) {
+      if (k % 2 == 0)
+        passes.push_back({center - half, center + half});
+      else
+        passes.push_back({center + half, center - half});
+    }
+  }
+  return passes;
+}
+
+void checkArmRange(const ArmAdc& adc, const ArmSettings& arm, const ArmPose& p) {
+  const auto c = adc.idealCounts(p);
+  const char* names[3] = {"x", "y", "theta"};
+  const double values[3] = {p.xMm, p.yMm, p.thetaDeg};
+  const std::string ranges[3] = {fmt::format("0..{} mm (sim.arm.x_span_mm)", arm.xSpanMm),
+                                 fmt::format("0..{} mm (sim.arm.y_span_mm)", arm.ySpanMm),
+                                 fmt::format("+-{} degrees (sim.arm.theta_span_deg)", 0.5 * arm.thetaSpanDeg)};
+  for (int i = 0; i < 3; ++i)
+    if (c[static_cast<std::size_t>(i)] < 0.0 || c[static_cast<std::size_t>(i)] > ArmAdc::kMaxCount)
+      throw InputError(fmt::format(
+          "sim.sweep: the sweep takes the arm to {} = {:.1f}, outside its range {}; shorten sim.sweep.length_mm "
+          "or move sim.arm.reference_to_tracker_mm",
+          names[i], values[i], ranges[i]));
+}
+
+// A frame's A/D reading noise: a hash of (seed, sample number, channel).
+std::array<double, 3> adcNoise(std::uint64_t key, std::int64_t sample, double sigma) {
+  std::array<double, 3> n{};
+  for (std::size_t i = 0; i < 3; ++i)
+    n[i] = sigma * gaussianFromHash(latticeHash(key, sample, static_cast<std::int64_t>(i), 0));
+  return n;
+}
+
+Sweep captureArmSweep(const SimSettings& s, const ArmTrajectory& traj, double probeZ, const Mat4& refToTracker,
+                      const std::vector<Vec3>& corners) {
+  const ArmAdc adc(s.arm);
+  const std::uint64_t noiseKey = mixSeed(s.seed, 0xADC0u);
+  const double rate = s.arm.sampleRateHz;
+  auto reading = [&](std::int64_t n) {
+    return adc.read(traj.pose(static_cast<double>(n) / rate), adcNoise(noiseKey, n, s.arm.noiseCounts));
+  };
+
+  Sweep sweep;
+  sweep.referenceToTracker = refToTracker;
+  sweep.duration = traj.duration();
+  const double fps = s.sweep.frameRateHz;
+  sweep.videoFrames = static_cast<std::uint64_t>(std::floor(sweep.duration * fps)) + 1;
+  std::optional<Mat4> last;
+  for (std::uint64_t k = 0; k < sweep.videoFrames; ++k) {
+    const double t = static_cast<double>(k) / fps;
+    const ArmTrajectory::Segment& seg = traj.segmentAt(t);
+    if (!seg.capture) {
+      last.reset();  // the switch was off: the next pass starts afresh
+      continue;
+    }
+    // The two A/D readings around t, interpolated to the frame's time.
+    const double x = t * rate;
+    const auto n0 = static_cast<std::int64_t>(std::floor(x));
+    const double frac = x - static_cast<double>(n0);
+    const auto c0 = reading(n0), c1 = reading(n0 + 1);
+    std::array<double, 3> counts{};
+    for (std::size_t i = 0; i < 3; ++i) counts[i] = c0[i] + frac * (c1[i] - c0[i]);
+    const ArmPose reported = adc.calibrate(counts);
+    const Mat4 reportedM = armProbeToTracker(reported, probeZ);
+    const bool capture = s.sweep.capture == "every_frame" || !last ||
+                         largestDisplacement(*last, reportedM, corners) >= s.sweep.captureIntervalMm;
+    if (!capture) continue;
+    CapturedFrame f;
+    f.videoFrame = k;
+    f.timestamp = t;
+    f.pass = seg.pass;
+    f.trueProbeToTracker = armProbeToTracker(traj.pose(t), probeZ);
+    f.probeToTracker = reportedM;
+    f.hasArm = true;
+    f.armCounts = frac < 0.5 ? c0 : c1;
+    f.armReported = reported;
+    sweep.frames.push_back(f);
+    last = reportedM;
+    if (s.sweep.maxFrames > 0 && static_cast<int>(sweep.frames.size()) >= s.sweep.maxFrames) break;
+  }
+  return sweep;
+}
+
+// A tracker's reading: the true pose with a small random rotation (random
+// axis) and translation, hashed from (seed, video frame).
+Mat4 trackerReading(const Mat4& truth, const FreehandSettings& f, std::uint64_t key, std::uint64_t frame) {
+  const auto k = static_cast<std::int64_t>(frame);
+  Vec3 axis(gaussianFromHash(latticeHash(key, k, 0, 0)), gaussianFromHash(latticeHash(key, k, 1, 0)),
+            gaussianFromHash(latticeHash(key, k, 2, 0)));
+  const double len = glm::length(axis);
+  axis = len > 0.0 ? axis / len : Vec3(0, 0, 1);
+  const double angle = f.trackerNoiseDeg * kDeg * gaussianFromHash(latticeHash(key, k, 3, 0));
+  const Vec3 shift(f.trackerNoiseMm * gaussianFromHash(latticeHash(key, k, 4, 0)),
+                   f.trackerNoiseMm * gaussianFromHash(latticeHash(key, k, 5, 0)),
+                   f.trackerNoiseMm * gaussianFromHash(latticeHash(key, k, 6, 0)));
+  const Vec3 origin(truth[3]);
+  // Rotate about the probe's own origin, then shift.
+  return translation(origin + shift) * rotationAxisAngle(axis, angle) * translation(-origin) * truth;
+}
+
+Sweep captureFreehandSweep(const SimSettings& s, const FreehandPath& path, const Mat4& refToTracker,
+                           const std::vector<Vec3>& corners) {
+  const std::uint64_t key = mixSeed(s.seed, 0x7EAC3Eu);
+  Sweep sweep;
+  sweep.referenceToTracker = refToTracker;
+  sweep.duration = path.duration();
+  const double fps = s.sweep.frameRateHz;
+  sweep.videoFrames = static_cast<std::uint64_t>(std::floor(sweep.duration * fps)) + 1;
+  std::optional<Mat4> last;
+  for (std::uint64_t k = 0; k < sweep.videoFrames; ++k) {
+    const double t = static_cast<double>(k) / fps;
+    const Mat4 truth = refToTracker * path.probeToReference(t);
+    const Mat4 reported = trackerReading(truth, s.freehand, key, k);
+    const bool capture = s.sweep.capture == "every_frame" || !last ||
+                         largestDisplacement(*last, reported, corners) >= s.sweep.captureIntervalMm;
+    if (!capture) continue;
+    CapturedFrame f;
+    f.videoFrame = k;
+    f.timestamp = t;
+    f.trueProbeToTracker = truth;
+    f.probeToTracker = reported;
+    sweep.frames.push_back(f);
+    last = reported;
+    if (s.sweep.maxFrames > 0 && static_cast<int>(sweep.frames.size()) >= s.sweep.maxFrames) break;
+  }
+  return sweep;
+}
+
+}  // namespace
+
+Sweep planSweep(const SimSettings& s, const ScanSetup& scan, const std::vector<Vec3>& imageCorners) {
+  const SweepSettings& sw = s.sweep;
+  const double len = sw.lengthMm > 0.0 ? sw.lengthMm : scan.sweepLengthMm;
+  const double heading = sw.kind == "angled" ? sw.angleDeg : 0.0;
+  const Vec3 d(std::cos(heading * kDeg), std::sin(heading * kDeg), 0.0);
+  const Vec3 side(-d.y, d.x, 0.0);
+  const Vec3 center = Vec3(scan.sweepCenter.x, scan.sweepCenter.y, 0.0) + sw.lateralOffsetMm * side;
+  const Vec3 offset = s.arm.referenceToTrackerMm;
+  const Mat4 refToTracker = translation(offset);
+
+  if (sw.kind == "freehand") {
+    const FreehandPath path(s.freehand, center - 0.5 * len * d, center + 0.5 * len * d, scan.surfaceZ, heading,
+                            sw.speedMmPerS, s.seed);
+    return captureFreehandSweep(s, path, refToTracker, imageCorners);
+  }
+  if (sw.kind != "parallel" && sw.kind != "angled" && sw.kind != "back_and_forth")
+    throw InputError("sim.sweep.kind: unknown sweep '" + sw.kind + "'");
+
+  const ArmAdc adc(s.arm);
+  auto toArm = [&](const Vec3& p) { return ArmPose{p.x + offset.x, p.y + offset.y, heading}; };
+  ArmTrajectory traj;
+  const std::uint64_t key = mixSeed(s.seed, 0xA53u);
+  const auto passes = armPasses(sw, center, d, side, len);
+  for (std::size_t k = 0; k < passes.size(); ++k) {
+    const ArmPose a = toArm(passes[k].from), b = toArm(passes[k].to);
+    checkArmRange(adc, s.arm, a);
+    checkArmRange(adc, s.arm, b);
+    if (k > 0) {
+      const ArmPose prev = traj.segments().back().to;
+      const bool contiguous = std::hypot(prev.xMm - a.xMm, prev.yMm - a.yMm) < 1e-9;
+      if (!contiguous)
+        traj.add(prev, a, kRepositionSpeedFactor * sw.speedMmPerS, false, static_cast<int>(k),
+                 latticeHash(key, static_cast<std::int64_t>(k), 1, 0));
+    }
+    traj.add(a, b, sw.speedMmPerS, true, static_cast<int>(k), latticeHash(key, static_cast<std::int64_t>(k), 0, 0));
+  }
+  return captureArmSweep(s, traj, scan.surfaceZ + offset.z, refToTracker, imageCorners);
+}
+
+}  // namespace pp5::sim
