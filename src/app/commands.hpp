@@ -10,5 +10,7 @@ void addConfigCommand(CLI::App& app, int& exitCode);
 void addInfoCommand(CLI::App& app, int& exitCode);
 void addSimulateCommand(CLI::App& app, int& exitCode);
 void addFrameCommand(CLI::App& app, int& exitCode);
+void addReconstructCommand(CLI::App& app, int& exitCode);
+void addEvaluateCommand(CLI::App& app, int& exitCode);
 
 }  // namespace pp5::app

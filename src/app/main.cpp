@@ -20,6 +20,8 @@ int main(int argc, char** argv) {
   pp5::app::addInfoCommand(app, exitCode);
   pp5::app::addSimulateCommand(app, exitCode);
   pp5::app::addFrameCommand(app, exitCode);
+  pp5::app::addReconstructCommand(app, exitCode);
+  pp5::app::addEvaluateCommand(app, exitCode);
 
   try {
     app.parse(argc, argv);

@@ -24,6 +24,8 @@ void registerAll(ConfigSchema& schema, Settings& s) {
                 "Largest grid memory allowed, in GiB; 0 means the memory the machine has available. "
                 "A grid over the limit is refused before anything is allocated.");
 
+  gp::registerOptions(schema, s.recon);
+
   schema.section("output", "Where results are written.");
   schema.option("output.dir", &s.output.dir, "out/doll", "Output folder, unless the command line gives `-o`.");
   schema.option("output.preview_frames", &s.output.previewFrames, 4, 0, 1000,

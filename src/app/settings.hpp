@@ -6,6 +6,7 @@
 
 #include "core/config.hpp"
 #include "core/grid.hpp"
+#include "gp/reconstruction.hpp"
 #include "sim/sim_settings.hpp"
 
 namespace pp5::app {
@@ -33,6 +34,7 @@ struct OutputSettings {
 struct Settings {
   sim::SimSettings sim;
   GridSettings grid;
+  gp::ReconSettings recon;
   OutputSettings output;
 };
 

@@ -115,43 +115,34 @@ double smoothUnion(double a, double b, double k) {
 
 // ---- Phantom ------------------------------------------------------------------
 
+namespace {
+// One body's part of a sample: bodies listed later override earlier ones.
+void accumulate(Phantom::Sample& s, const Body& b, int index, const Vec3& p) {
+  const double boxDist = b.box.distance(p);
+  if (boxDist > 0.0) {
+    s.clearance = std::min(s.clearance, boxDist);
+    return;
+  }
+  const double f = b.distance(p);
+  s.clearance = std::min(s.clearance, std::abs(f));
+  if (f < 0.0) {
+    s.tissue = b.tissue;
+    s.body = index;
+  }
+}
+}  // namespace
+
 Phantom::Sample Phantom::sample(const Vec3& p) const {
   Sample s;
   s.tissue = background;
-  for (std::size_t i = 0; i < bodies.size(); ++i) {
-    const Body& b = bodies[i];
-    const double boxDist = b.box.distance(p);
-    if (boxDist > 0.0) {
-      s.clearance = std::min(s.clearance, boxDist);
-      continue;
-    }
-    const double f = b.distance(p);
-    s.clearance = std::min(s.clearance, std::abs(f));
-    if (f < 0.0) {
-      s.tissue = b.tissue;
-      s.body = static_cast<int>(i);
-    }
-  }
+  for (std::size_t i = 0; i < bodies.size(); ++i) accumulate(s, bodies[i], static_cast<int>(i), p);
   return s;
 }
 
 Phantom::Sample Phantom::sample(const Vec3& p, const std::vector<int>& bodyIndices) const {
   Sample s;
   s.tissue = background;
-  for (int i : bodyIndices) {
-    const Body& b = bodies[static_cast<std::size_t>(i)];
-    const double boxDist = b.box.distance(p);
-    if (boxDist > 0.0) {
-      s.clearance = std::min(s.clearance, boxDist);
-      continue;
-    }
-    const double f = b.distance(p);
-    s.clearance = std::min(s.clearance, std::abs(f));
-    if (f < 0.0) {
-      s.tissue = b.tissue;
-      s.body = i;
-    }
-  }
+  for (int i : bodyIndices) accumulate(s, bodies[static_cast<std::size_t>(i)], i, p);
   return s;
 }
 

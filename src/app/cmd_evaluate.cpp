@@ -1,0 +1,194 @@
+// `pp5echo evaluate truth|leave-out ...`: reconstruction accuracy.
+#include <cstdio>
+#include <fstream>
+#include <memory>
+
+#include <nlohmann/json.hpp>
+#include <spdlog/spdlog.h>
+
+#include "app/commands.hpp"
+#include "app/recon_run.hpp"
+#include "app/settings.hpp"
+#include "core/error.hpp"
+#include "core/volume_io.hpp"
+#include "gp/evaluation.hpp"
+
+namespace pp5::app {
+
+namespace {
+
+struct CommonOpts {
+  std::string sequence, plusConfig, config, json;
+  std::vector<std::string> overrides;
+  int threads = -1;
+};
+
+void addCommon(CLI::App* cmd, CommonOpts& o) {
+  cmd->add_option("SEQUENCE", o.sequence, "PLUS sequence")->required();
+  cmd->add_option("--plus-config", o.plusConfig, "PLUS device-set XML (calibration; settings unless --config)")
+      ->required();
+  cmd->add_option("-c,--config", o.config, "TOML settings ([recon], [grid])");
+  cmd->add_option("--set", o.overrides, "Override a TOML option: key=value (repeatable)");
+  cmd->add_option("--threads", o.threads, "Threads (0 = every core)");
+  cmd->add_option("--json", o.json, "Also write the results as JSON to this file ('-' = standard output)");
+}
+
+// Reconstruction settings: TOML when given, else the PLUS config's element.
+gp::ReconSettings reconSettings(const CommonOpts& o, const PosedSequence& seq, Settings& s, Vec3* spacing,
+                                double* margin) {
+  gp::ReconSettings rs;
+  if (!o.config.empty() || !o.overrides.empty()) {
+    ConfigSchema schema;
+    registerAll(schema, s);
+    loadSettings(schema, o.config, o.overrides);
+    rs = s.recon;
+    *spacing = s.grid.spacing;
+    *margin = s.grid.marginMm;
+  } else {
+    if (!seq.config.volumeReconstruction)
+      inputError(o.plusConfig, "has no VolumeReconstruction element; give the settings with --config");
+    rs = gp::fromPlus(*seq.config.volumeReconstruction);
+    *spacing = seq.config.volumeReconstruction->outputSpacing;
+    *margin = 0.0;
+  }
+  if (o.threads >= 0) rs.threads = o.threads;
+  return rs;
+}
+
+void emitJson(const std::string& where, const nlohmann::ordered_json& j) {
+  if (where.empty()) return;
+  if (where == "-") {
+    std::printf("%s\n", j.dump(2).c_str());
+    return;
+  }
+  std::ofstream out(where);
+  if (!out) throw InputError(where + ": cannot write the JSON results");
+  out << j.dump(2) << "\n";
+}
+
+std::string describe(const gp::ReconSettings& rs) {
+  std::string d = rs.method;
+  if (rs.method != "tent") d += "/" + rs.compounding;
+  if (rs.method == "tent" && rs.fillIn) d += "+fill-in";
+  if (rs.fillHoles) d += "+holes";
+  return d + " (" + rs.arithmetic + ")";
+}
+
+}  // namespace
+
+void addEvaluateCommand(CLI::App& app, int& exitCode) {
+  auto* eval = app.add_subcommand("evaluate", "Measure reconstruction accuracy (ground truth or leave-out)");
+  eval->require_subcommand(1);
+
+  // --- ground truth ---
+  struct TruthOpts : CommonOpts {
+    std::string truth;
+  };
+  auto t = std::make_shared<TruthOpts>();
+  auto* truth = eval->add_subcommand("truth", "Reconstruct on the truth volume's grid and compare voxel by voxel");
+  addCommon(truth, *t);
+  truth->add_option("--truth", t->truth, "Ground-truth volume (from `pp5echo simulate`)")->required();
+  truth->callback([t, &exitCode] {
+    PosedSequence seq = openPosedSequence(t->sequence, t->plusConfig);
+    Settings s;
+    Vec3 spacing;
+    double margin = 0;
+    const gp::ReconSettings rs = reconSettings(*t, seq, s, &spacing, &margin);
+    const Volume truthVol = readVolume(t->truth);
+    auto recon = gp::makeReconstructor(truthVol.grid, rs, 0, t->truth);
+    const ReconRunStats st = runReconstruction(seq, *recon);
+    std::vector<Mat4> poses;
+    for (const auto& p : seq.poses)
+      if (p) poses.push_back(*p);
+    const auto swept = gp::sweptRegion(truthVol.grid, poses, seq.reader->info().width, seq.reader->info().height);
+    const auto cov = [&](std::size_t i) { return recon->covered(i); };
+    const gp::TruthMetrics m = gp::compareWithTruth(recon->output(), cov, truthVol, swept);
+    std::printf("ground truth: %s\n", t->truth.c_str());
+    std::printf("  method            %s\n", describe(rs).c_str());
+    std::printf("  frames            %llu inserted, %llu skipped\n", static_cast<unsigned long long>(st.inserted),
+                static_cast<unsigned long long>(st.skipped));
+    std::printf("  RMSE              %.3f grey levels (covered voxels in the swept region)\n", m.rmse);
+    std::printf("  MAE               %.3f grey levels\n", m.mae);
+    std::printf("  PSNR              %.2f dB\n", m.psnrDb);
+    std::printf("  coverage          %.4f of %llu voxels\n", m.coverage(), static_cast<unsigned long long>(m.voxels));
+    std::printf("  holes in sweep    %.5f (%llu of %llu swept voxels)\n", m.holeFraction(),
+                static_cast<unsigned long long>(m.sweptHoles), static_cast<unsigned long long>(m.swept));
+    nlohmann::ordered_json j;
+    j["protocol"] = "truth";
+    j["sequence"] = t->sequence;
+    j["truth"] = t->truth;
+    j["method"] = describe(rs);
+    j["frames_inserted"] = st.inserted;
+    j["frames_skipped"] = st.skipped;
+    j["rmse"] = m.rmse;
+    j["mae"] = m.mae;
+    j["psnr_db"] = m.psnrDb;
+    j["coverage"] = m.coverage();
+    j["voxels"] = m.voxels;
+    j["swept_voxels"] = m.swept;
+    j["swept_holes"] = m.sweptHoles;
+    j["hole_fraction"] = m.holeFraction();
+    emitJson(t->json, j);
+    exitCode = 0;
+  });
+
+  // --- leave-out ---
+  struct LeaveOpts : CommonOpts {
+    int keepEvery = 2;
+  };
+  auto l = std::make_shared<LeaveOpts>();
+  auto* leave = eval->add_subcommand(
+      "leave-out", "Rohling, Gee & Berman 1999: reconstruct from every k-th frame, compare with the held-out frames");
+  addCommon(leave, *l);
+  leave->add_option("--keep-every", l->keepEvery, "Keep every k-th frame: 2 removes 50%, 4 removes 75%")
+      ->check(CLI::Range(2, 1000));
+  leave->callback([l, &exitCode] {
+    PosedSequence seq = openPosedSequence(l->sequence, l->plusConfig);
+    Settings s;
+    Vec3 spacing;
+    double margin = 0;
+    gp::ReconSettings rs = reconSettings(*l, seq, s, &spacing, &margin);
+    // The leave-out stride replaces SkipInterval: every frame not kept is held out.
+    rs.skipInterval = 1;
+    const auto k = static_cast<std::uint64_t>(l->keepEvery);
+    const Grid grid = chooseGrid(seq, rs, spacing, margin, true);
+    auto recon = gp::makeReconstructor(grid, rs, 0, l->plusConfig);
+    const ReconRunStats st = runReconstruction(seq, *recon, [k](std::uint64_t i) { return i % k == 0; });
+
+    // Second pass over the file for the held-out frames.
+    auto reader = SequenceReader::open(l->sequence);
+    const auto cov = [&](std::size_t i) { return recon->covered(i); };
+    gp::LeaveOutMetrics m;
+    Frame f;
+    for (std::uint64_t i = 0; reader->next(f); ++i)
+      if (i % k != 0 && seq.poses[i]) gp::compareHeldOutFrame(recon->output(), cov, f, *seq.poses[i], m);
+    m.finish();
+    if (m.framesHeldOut == 0) inputError(l->sequence, "has no placeable frame to hold out with --keep-every {}", k);
+
+    std::printf("leave-out: %s, keep every %llu%s frame (%.0f%% removed)\n", l->sequence.c_str(),
+                static_cast<unsigned long long>(k), k == 2 ? "nd" : "th", 100.0 * (1.0 - 1.0 / static_cast<double>(k)));
+    std::printf("  method            %s\n", describe(rs).c_str());
+    std::printf("  frames            %llu kept, %llu held out, %llu skipped\n",
+                static_cast<unsigned long long>(st.inserted), static_cast<unsigned long long>(m.framesHeldOut),
+                static_cast<unsigned long long>(st.skipped));
+    std::printf("  MAE               %.3f grey levels\n", m.mae);
+    std::printf("  RMSE              %.3f grey levels\n", m.rmse);
+    std::printf("  pixels compared   %llu\n", static_cast<unsigned long long>(m.pixelsCompared));
+    std::printf("  pixels skipped    %llu (not covered)\n", static_cast<unsigned long long>(m.pixelsSkipped));
+    nlohmann::ordered_json j;
+    j["protocol"] = "leave-out";
+    j["sequence"] = l->sequence;
+    j["method"] = describe(rs);
+    j["keep_every"] = k;
+    j["frames_kept"] = st.inserted;
+    j["frames_held_out"] = m.framesHeldOut;
+    j["mae"] = m.mae;
+    j["rmse"] = m.rmse;
+    j["pixels_compared"] = m.pixelsCompared;
+    j["pixels_skipped"] = m.pixelsSkipped;
+    emitJson(l->json, j);
+    exitCode = 0;
+  });
+}
+
+}  // namespace pp5::app

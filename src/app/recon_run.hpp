@@ -1,0 +1,52 @@
+#pragma once
+// Shared by `reconstruct` and `evaluate`: stream a PLUS sequence through a
+// reconstructor, with poses from a PLUS config, skipping and counting frames
+// that cannot be placed, and showing progress on long input.
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "core/plus_config.hpp"
+#include "core/sequence_io.hpp"
+#include "gp/reconstruction.hpp"
+
+namespace pp5::app {
+
+struct PosedSequence {
+  std::string path;
+  std::unique_ptr<SequenceReader> reader;
+  PlusConfig config;
+  // Per frame: ImageToReference, or nullopt when the frame cannot be placed
+  // (an INVALID image or transform status, or a non-finite pose).
+  std::vector<std::optional<Mat4>> poses;
+  std::uint64_t invalidStatus = 0;  // frames whose image or transform status is not OK
+  std::uint64_t nonFinite = 0;      // frames whose pose has a NaN or infinity
+};
+
+// Opens the sequence and computes every frame's pose from the header alone.
+// Empty sequences and sequences with no placeable frame are InputErrors.
+PosedSequence openPosedSequence(const std::string& sequencePath, const std::string& plusConfigPath);
+
+struct ReconRunStats {
+  std::uint64_t frames = 0;    // in the file
+  std::uint64_t inserted = 0;
+  std::uint64_t skipped = 0;   // not placeable (see PosedSequence)
+  std::uint64_t notSelected = 0;  // left out by skip_interval or the caller's filter
+  double seconds = 0.0;
+};
+
+// Inserts the selected frames in file order. `keep(i)` (when set) further
+// selects frames (e.g. the leave-out protocol). Progress goes to the log about
+// once a second when there is more than a few seconds of work.
+ReconRunStats runReconstruction(PosedSequence& seq, gp::Reconstructor& recon,
+                                const std::function<bool(std::uint64_t)>& keep = {});
+
+// The grid a run uses: OutputOrigin/OutputExtent when the PLUS config gives
+// both (PLUS's own tool ignores them; pp5echo honours them), otherwise PLUS's
+// automatic extent over every placeable frame, grown by `marginMm`.
+Grid chooseGrid(const PosedSequence& seq, const gp::ReconSettings& s, const Vec3& spacing, double marginMm,
+                bool useConfigExtent);
+
+}  // namespace pp5::app

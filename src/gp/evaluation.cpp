@@ -1,0 +1,136 @@
+#include "gp/evaluation.hpp"
+
+#include <cmath>
+
+#include "core/error.hpp"
+
+namespace pp5::gp {
+
+std::vector<std::uint8_t> sweptRegion(const Grid& g, const std::vector<Mat4>& poses, int width, int height) {
+  std::vector<std::uint8_t> mask(g.voxelCount(), 0);
+  struct Plane {
+    Vec3 origin, u, v, n;  // u, v: pixel step vectors; n: unit normal
+    double uu, vv;
+  };
+  auto plane = [](const Mat4& m) {
+    Plane p;
+    p.origin = transformPoint(m, Vec3(0.0));
+    p.u = transformVector(m, Vec3(1, 0, 0));
+    p.v = transformVector(m, Vec3(0, 1, 0));
+    p.n = glm::normalize(glm::cross(p.u, p.v));
+    p.uu = glm::dot(p.u, p.u);
+    p.vv = glm::dot(p.v, p.v);
+    return p;
+  };
+  // Inside the image rectangle when projected along the normal.
+  auto inside = [&](const Plane& p, const Vec3& x) {
+    const Vec3 d = x - p.origin;
+    const double i = glm::dot(d, p.u) / p.uu, j = glm::dot(d, p.v) / p.vv;
+    return i >= 0.0 && j >= 0.0 && i <= width - 1 && j <= height - 1;
+  };
+  for (std::size_t f = 0; f + 1 < poses.size(); ++f) {
+    const Plane a = plane(poses[f]), b = plane(poses[f + 1]);
+    // Only voxels inside the pair's bounding box can be between them.
+    Vec3 lo(1e300), hi(-1e300);
+    for (const Mat4* m : {&poses[f], &poses[f + 1]})
+      for (const Vec3 c : {Vec3(0, 0, 0), Vec3(width - 1, 0, 0), Vec3(0, height - 1, 0), Vec3(width - 1, height - 1, 0)}) {
+        lo = glm::min(lo, transformPoint(*m, c));
+        hi = glm::max(hi, transformPoint(*m, c));
+      }
+    const Index3 vlo = glm::max(Index3(glm::floor(g.worldToVoxel(lo))), Index3(0));
+    const Index3 vhi = glm::min(Index3(glm::ceil(g.worldToVoxel(hi))), g.dims - Index3(1));
+    for (std::int64_t k = vlo.z; k <= vhi.z; ++k)
+      for (std::int64_t j = vlo.y; j <= vhi.y; ++j)
+        for (std::int64_t i = vlo.x; i <= vhi.x; ++i) {
+          const Vec3 x = g.voxelToWorld(Vec3(i, j, k));
+          const double sa = glm::dot(x - a.origin, a.n), sb = glm::dot(x - b.origin, b.n);
+          // Between the planes: the signed distances differ in sign (normals of
+          // consecutive frames point the same way for any sensible sweep).
+          if (sa * sb > 0.0) continue;
+          if (inside(a, x) && inside(b, x)) mask[g.linear(i, j, k)] = 1;
+        }
+  }
+  return mask;
+}
+
+TruthMetrics compareWithTruth(const Volume& recon, const CoveredFn& covered, const Volume& truth,
+                              const std::vector<std::uint8_t>& swept) {
+  const Grid& g = recon.grid;
+  const Grid& t = truth.grid;
+  const bool same = g.dims == t.dims && glm::all(glm::lessThan(glm::abs(g.origin - t.origin), Vec3(1e-6))) &&
+                    glm::all(glm::lessThan(glm::abs(g.spacing - t.spacing), Vec3(1e-9)));
+  if (!same)
+    throw InputError(fmt::format(
+        "the reconstruction grid ({}x{}x{} at {} {} {} mm) differs from the truth volume's ({}x{}x{} at {} {} {} mm)",
+        g.dims.x, g.dims.y, g.dims.z, g.origin.x, g.origin.y, g.origin.z, t.dims.x, t.dims.y, t.dims.z, t.origin.x,
+        t.origin.y, t.origin.z));
+  PP5_CHECK(swept.empty() || swept.size() == g.voxelCount());
+  TruthMetrics m;
+  m.voxels = g.voxelCount();
+  double sumSq = 0.0, sumAbs = 0.0;
+  std::uint64_t n = 0;
+  for (std::size_t i = 0; i < m.voxels; ++i) {
+    const bool c = covered(i);
+    const bool s = swept.empty() || swept[i];
+    if (c) ++m.covered;
+    if (!swept.empty() && swept[i]) {
+      ++m.swept;
+      if (!c) ++m.sweptHoles;
+    }
+    if (c && s) {
+      const double d = recon.value(i) - truth.value(i);
+      sumSq += d * d;
+      sumAbs += std::abs(d);
+      ++n;
+    }
+  }
+  if (n > 0) {
+    m.rmse = std::sqrt(sumSq / static_cast<double>(n));
+    m.mae = sumAbs / static_cast<double>(n);
+  }
+  m.psnrDb = m.rmse > 0.0 ? 20.0 * std::log10(255.0 / m.rmse) : INFINITY;
+  return m;
+}
+
+std::optional<double> sampleCovered(const Volume& v, const CoveredFn& covered, const Vec3& world) {
+  const Grid& g = v.grid;
+  const Vec3 p = g.worldToVoxel(world);
+  const Vec3 f0 = glm::floor(p);
+  const Index3 i0(f0);
+  if (i0.x < 0 || i0.y < 0 || i0.z < 0 || i0.x + 1 >= g.dims.x || i0.y + 1 >= g.dims.y || i0.z + 1 >= g.dims.z)
+    return std::nullopt;
+  const Vec3 t = p - f0;
+  double sum = 0.0;
+  for (int c = 0; c < 8; ++c) {
+    const Index3 d(c & 1, (c >> 1) & 1, (c >> 2) & 1);
+    const std::size_t idx = g.linear(i0.x + d.x, i0.y + d.y, i0.z + d.z);
+    if (!covered(idx)) return std::nullopt;
+    const double w = (d.x ? t.x : 1 - t.x) * (d.y ? t.y : 1 - t.y) * (d.z ? t.z : 1 - t.z);
+    sum += w * v.value(idx);
+  }
+  return sum;
+}
+
+void LeaveOutMetrics::finish() {
+  if (pixelsCompared == 0) return;
+  mae = sumAbs_ / static_cast<double>(pixelsCompared);
+  rmse = std::sqrt(sumSq_ / static_cast<double>(pixelsCompared));
+}
+
+void compareHeldOutFrame(const Volume& v, const CoveredFn& covered, const Frame& f, const Mat4& m,
+                         LeaveOutMetrics& out) {
+  ++out.framesHeldOut;
+  const Vec3 o = transformPoint(m, Vec3(0.0));
+  const Vec3 du = transformVector(m, Vec3(1, 0, 0)), dv = transformVector(m, Vec3(0, 1, 0));
+  for (int y = 0; y < f.height; ++y)
+    for (int x = 0; x < f.width; ++x) {
+      const auto s = sampleCovered(v, covered, o + du * static_cast<double>(x) + dv * static_cast<double>(y));
+      if (!s) {
+        ++out.pixelsSkipped;
+        continue;
+      }
+      out.add(*s - f.value(x, y));
+    }
+}
+
+}  // namespace pp5::gp

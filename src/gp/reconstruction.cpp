@@ -1,0 +1,157 @@
+#include "gp/reconstruction.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "core/config.hpp"
+#include "core/error.hpp"
+#include "gp/splat_pixel.hpp"
+#include "gp/splat_tent.hpp"
+
+namespace pp5::gp {
+
+Method ReconSettings::methodEnum() const {
+  if (method == "tent") return Method::Tent;
+  if (method == "nearest") return Method::Nearest;
+  if (method == "trilinear") return Method::Trilinear;
+  throw InputError("recon.method = \"" + method + "\" is not one of: tent, nearest, trilinear");
+}
+
+Compounding ReconSettings::compoundingEnum() const {
+  if (compounding == "mean") return Compounding::Mean;
+  if (compounding == "latest") return Compounding::Latest;
+  if (compounding == "maximum") return Compounding::Maximum;
+  throw InputError("recon.compounding = \"" + compounding + "\" is not one of: mean, latest, maximum");
+}
+
+Replacement ReconSettings::replacementEnum() const {
+  if (replacement == "accumulate") return Replacement::Accumulate;
+  if (replacement == "motion_vector") return Replacement::MotionVector;
+  if (replacement == "decay") return Replacement::Decay;
+  throw InputError("recon.replacement = \"" + replacement + "\" is not one of: accumulate, motion_vector, decay");
+}
+
+Arithmetic ReconSettings::arithmeticEnum() const {
+  if (arithmetic == "float") return Arithmetic::Float;
+  if (arithmetic == "plus") return Arithmetic::Plus;
+  throw InputError("recon.arithmetic = \"" + arithmetic + "\" is not one of: float, plus");
+}
+
+void registerOptions(ConfigSchema& schema, ReconSettings& s) {
+  schema.section("recon", "Incremental reconstruction of each frame into the grid (`reconstruct`, the GP stage).");
+  schema.choice("recon.method", &s.method, "tent", {"tent", "nearest", "trilinear"},
+                "`tent`: the 1990 paper's forward mapping with an asymmetric tent kernel, fill-in and "
+                "replacement; `nearest` / `trilinear`: PLUS's pixel nearest neighbour and trilinear splatting.");
+  schema.choice("recon.compounding", &s.compounding, "mean", {"mean", "latest", "maximum"},
+                "How `nearest` and `trilinear` combine several hits on a voxel (PLUS's CompoundingMode).");
+  schema.choice("recon.arithmetic", &s.arithmetic, "float", {"float", "plus"},
+                "`float`: exact weighted means in float accumulators; `plus`: PLUS's 14-bit fixed point, "
+                "truncating 8-bit running mean and 16-bit accumulator, to reproduce PLUS bit for bit.");
+  schema.option("recon.threads", &s.threads, 0, 0, 1024, "Threads; 0 = every core. The result does not depend on it.");
+  schema.option("recon.skip_interval", &s.skipInterval, 1, 1, 100000, "Insert every n-th frame (PLUS's SkipInterval).");
+  schema.option("recon.kernel_lateral_mm", &s.kernelLateralMm, 1.0, 0.01, 50.0,
+                "Tent kernel half-width along the slice's lateral axis (image x), mm.");
+  schema.option("recon.kernel_axial_mm", &s.kernelAxialMm, 0.75, 0.01, 50.0,
+                "Tent kernel half-width along the slice's axial axis (image y, depth), mm.");
+  schema.option("recon.kernel_elevation_mm", &s.kernelElevationMm, 1.5, 0.01, 50.0,
+                "Tent kernel half-width across the slice (elevation), mm.");
+  schema.option("recon.fill_in", &s.fillIn, true,
+                "Interpolate intermediate slices between consecutive frames that are farther apart than the "
+                "kernel reaches (tent method).");
+  schema.option("recon.fill_in_max_gap_mm", &s.fillInMaxGapMm, 12.0, 0.0, 1000.0,
+                "No fill-in across a larger displacement of any image corner (the probe jumped), mm.");
+  schema.option("recon.fill_in_max_angle_deg", &s.fillInMaxAngleDeg, 20.0, 0.0, 180.0,
+                "No fill-in across a larger rotation between consecutive frames, degrees.");
+  schema.choice("recon.replacement", &s.replacement, "accumulate", {"accumulate", "motion_vector", "decay"},
+                "Replacement of aging data when a region is scanned again (tent method): plain accumulation, "
+                "the paper's motion vectors, or exponential decay.");
+  schema.option("recon.motion_vector_new_weight", &s.motionVectorNewWeight, 0.8, 0.5, 1.0,
+                "Motion vectors: share of the new sweep in a voxel re-scanned from the opposite direction.");
+  schema.option("recon.motion_vector_brick", &s.motionVectorBrick, 8, 1, 256,
+                "Motion vectors: voxels per side of the cell that remembers its last sweep direction.");
+  schema.option("recon.decay_tau_s", &s.decayTauS, 5.0, 0.01, 1e6,
+                "Decay: time constant tau of the fading of old contributions, seconds.");
+  schema.option("recon.clip_origin", &s.clipOrigin, {0, 0}, 0, 100000, "Clip rectangle origin, pixels.");
+  schema.option("recon.clip_size", &s.clipSize, {0, 0}, 0, 100000, "Clip rectangle size, pixels; 0 0 = whole frame.");
+  schema.option("recon.fan_angles_deg", &s.fanAnglesDeg, {0.0, 0.0}, -90.0, 90.0,
+                "Fan clipping: min and max angle from the image's y axis, degrees; 0 0 = no fan.");
+  schema.option("recon.fan_origin_px", &s.fanOriginPx, {0.0, 0.0}, -100000.0, 100000.0, "Fan apex, pixels.");
+  schema.option("recon.fan_radius_start_px", &s.fanRadiusStartPx, 0.0, 0.0, 100000.0, "Fan inner radius, pixels.");
+  schema.option("recon.fan_radius_stop_px", &s.fanRadiusStopPx, 500.0, 0.0, 100000.0, "Fan outer radius, pixels.");
+  schema.option("recon.pixel_rejection_threshold", &s.pixelRejectionThreshold, -1.0, -1.0, 65535.0,
+                "Pixels darker than this are not inserted; -1 = off.");
+  schema.option("recon.fill_holes", &s.fillHoles, false,
+                "Fill holes (voxels no pixel reached) with a STICK kernel of length 9 (nearest/trilinear); "
+                "PLUS configs may name other kernels.");
+  schema.option("recon.fill_holes_incremental", &s.fillHolesIncremental, false,
+                "Keep holes filled inside each frame's dirty region as frames arrive, instead of one final pass.");
+}
+
+namespace {
+glm::dvec2 toVec2(const std::optional<glm::dvec2>& v, glm::dvec2 def) { return v ? *v : def; }
+}  // namespace
+
+ReconSettings fromPlus(const PlusVolumeReconstruction& v) {
+  ReconSettings s;
+  s.method = v.interpolation == PlusInterpolation::Linear ? "trilinear" : "nearest";
+  switch (v.compounding) {
+    case PlusCompounding::Mean: s.compounding = "mean"; break;
+    case PlusCompounding::Latest: s.compounding = "latest"; break;
+    case PlusCompounding::Maximum: s.compounding = "maximum"; break;
+    case PlusCompounding::ImportanceMask:
+      throw InputError("CompoundingMode IMPORTANCE_MASK is not supported by pp5echo");
+  }
+  s.arithmetic = "plus";
+  s.threads = v.numberOfThreads;
+  s.skipInterval = std::max(1, v.skipInterval);
+  if (v.clipRectangleOrigin) s.clipOrigin = *v.clipRectangleOrigin;
+  if (v.clipRectangleSize) s.clipSize = *v.clipRectangleSize;
+  s.fanAnglesDeg = toVec2(v.fanAnglesDeg, {0.0, 0.0});
+  s.fanOriginPx = toVec2(v.fanOriginPixel, {0.0, 0.0});
+  if (v.fanRadiusStartPixel) s.fanRadiusStartPx = *v.fanRadiusStartPixel;
+  if (v.fanRadiusStopPixel) s.fanRadiusStopPx = *v.fanRadiusStopPixel;
+  if (v.pixelRejectionThreshold) s.pixelRejectionThreshold = *v.pixelRejectionThreshold;
+  s.fillHoles = v.fillHoles;
+  s.holeFilling = v.holeFilling;
+  return s;
+}
+
+std::unique_ptr<Reconstructor> makeReconstructor(const Grid& g, const ReconSettings& s,
+                                                 std::uint64_t memoryLimitBytes, const std::string& what) {
+  const Method m = s.methodEnum();
+  (void)s.compoundingEnum();
+  (void)s.replacementEnum();
+  (void)s.arithmeticEnum();
+  const std::uint64_t bpv = m == Method::Tent ? tentBytesPerVoxel(s) : pixelBytesPerVoxel(s);
+  checkGridFits(g, bpv, what, memoryLimitBytes);
+  return m == Method::Tent ? makeTentReconstructor(g, s) : makePixelReconstructor(g, s);
+}
+
+Grid plusOutputGrid(const std::vector<Mat4>& imageToReference, int width, int height, const ReconSettings& s,
+                    const Vec3& spacing) {
+  PP5_CHECK(!imageToReference.empty());
+  // Corners in pixel-centre coordinates of the clipped frame. PLUS clamps the
+  // clip end to clipOrigin + clipSize (no -1), which the baselines confirm.
+  double x0 = 0, y0 = 0, x1 = width - 1, y1 = height - 1;
+  if (s.clipSize.x > 0 && s.clipSize.y > 0) {
+    x0 = std::max(x0, static_cast<double>(s.clipOrigin.x));
+    y0 = std::max(y0, static_cast<double>(s.clipOrigin.y));
+    x1 = std::min(x1, static_cast<double>(s.clipOrigin.x + s.clipSize.x));
+    y1 = std::min(y1, static_cast<double>(s.clipOrigin.y + s.clipSize.y));
+  }
+  Vec3 lo(std::numeric_limits<double>::infinity()), hi(-std::numeric_limits<double>::infinity());
+  for (const Mat4& m : imageToReference)
+    for (const Vec3 c : {Vec3(x0, y0, 0), Vec3(x0, y1, 0), Vec3(x1, y0, 0), Vec3(x1, y1, 0)}) {
+      const Vec3 p = transformPoint(m, c);
+      lo = glm::min(lo, p);
+      hi = glm::max(hi, p);
+    }
+  Grid g;
+  g.origin = lo;
+  g.spacing = spacing;
+  for (int a = 0; a < 3; ++a) g.dims[a] = static_cast<std::int64_t>(std::llround((hi[a] - lo[a]) / spacing[a])) + 1;
+  return g;
+}
+
+}  // namespace pp5::gp

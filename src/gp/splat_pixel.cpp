@@ -1,0 +1,1091 @@
+// PLUS-compatible pixel splatting (nearest neighbour and trilinear) with
+// MEAN / LATEST / MAXIMUM compounding, in PLUS's own arithmetic ("plus") or in
+// exact float arithmetic ("float"). The PLUS behaviour reproduced here is
+// specified in docs/notes/plus-reconstruction.md (sections cited as §n).
+//
+// Threads. For each frame the grid is cut into slabs along one axis, one slab
+// per thread. Every thread walks the frame's pixels in the same row-major
+// order but writes only the voxels of its own slab, so each voxel sees its
+// updates in exactly the single-threaded order: any thread count gives the
+// same bits (and, in "plus", PLUS's single-threaded result). A thread skips
+// most pixels outside its slab by solving, per row, for the columns that can
+// reach it; the exact ownership test is inside the kernels.
+//
+// Walking. Along a row every voxel coordinate is a monotonic step function of
+// the column, so a run of pixels is cut into segments that share one voxel
+// (nearest) or one lower corner (trilinear). A segment's update is gathered
+// in registers and written once; PLUS's per-pixel arithmetic is applied pixel
+// by pixel in registers. Segments are defined by the row alone, not by where
+// a thread starts, so they are the same for every thread count.
+//
+// Incremental output. The kernels flag the voxels they write (one byte per
+// voxel). The bricks the frame can reach are found geometrically (its
+// rectangle spread by the kernel's reach); those holding flagged voxels are
+// the returned DirtyRegion, and output() is recomputed at the flagged voxels
+// only. Hole filling then refreshes the holes near it.
+#include "gp/splat_pixel.hpp"
+
+#include <omp.h>
+
+#include <algorithm>
+#include <bit>
+#include <cmath>
+#include <cstring>
+#include <limits>
+
+#include <fmt/format.h>
+
+#include "core/error.hpp"
+#include "gp/fan_mask.hpp"
+#include "gp/fixed_point.hpp"
+#include "gp/hole_fill.hpp"
+
+namespace pp5::gp {
+
+namespace {
+
+// "plus" state: PLUS's 8-bit value and 16-bit accumulator (256 = one full
+// pixel), side by side so one cache line holds both.
+struct PlusCell {
+  std::uint8_t v;
+  std::uint8_t pad;
+  std::uint16_t a;
+};
+// "float" state: MEAN keeps the weighted sum in `s`; LATEST and MAXIMUM keep
+// the value. `w` is the total weight (0 = not covered). Sums of 8-bit values
+// with unit weights stay exact up to 65793 hits.
+struct FloatCell {
+  float s;
+  float w;
+};
+static_assert(sizeof(PlusCell) == 4 && sizeof(FloatCell) == 8);
+
+// Trilinear LATEST / MAXIMUM: a pixel sets a voxel only where its weight there
+// is at least 1/8 (PLUS's rule, §4).
+constexpr float kMinWeightFloat = 0.125f;
+constexpr std::int32_t kMinWeightFixed = plusmath::kOne / 8;
+
+// Voxel coordinates of pixel (i, j): O + j*Y + i*X.
+struct PixelMap {
+  double O[3], X[3], Y[3];
+};
+struct FixedMap {
+  std::int64_t O[3], X[3], Y[3];
+};
+
+// Voxels [lo, hi) along `axis` belong to one thread.
+struct Slab {
+  int axis = 2;
+  std::int64_t lo = 0, hi = 0;
+};
+
+struct SlabOut {
+  std::uint64_t pixels = 0;
+  std::vector<std::uint64_t> prefix;  // scratch: per-row prefix sums
+  std::vector<std::uint32_t> count;
+};
+
+// What every kernel reads, for one frame.
+struct Job {
+  Index3 dims{0};
+  std::int64_t sy = 0, sz = 0;  // voxel strides
+  const std::vector<PixelRun>* runs = nullptr;
+  const std::uint8_t* pixels = nullptr;  // row-major; U16 little-endian on a little-endian host
+  int width = 0;
+  bool u16 = false;
+  int rejectBelow = 0;  // pixels darker than this are not inserted
+  PixelMap map{};
+  FixedMap fmap{};
+  std::uint8_t* touched = nullptr;
+};
+
+template <class Pix>
+const Pix* rowPtr(const Job& job, int y) {
+  return reinterpret_cast<const Pix*>(job.pixels) + static_cast<std::size_t>(y) * static_cast<std::size_t>(job.width);
+}
+
+// Columns of [x0, x1] whose slab-axis coordinate b + i*g can fall in [pa, pb).
+// A superset (two columns of margin): the kernels test every pixel exactly, so
+// this only saves work and never decides anything.
+void columnRange(double b, double g, double pa, double pb, int x0, int x1, int& ia, int& ib) {
+  ia = x0;
+  ib = x1;
+  if (!(std::abs(g) > 1e-9)) return;  // the row runs along the slab
+  double t0 = (pa - b) / g, t1 = (pb - b) / g;
+  if (t0 > t1) std::swap(t0, t1);
+  const double lo = std::floor(t0) - 2.0, hi = std::ceil(t1) + 2.0;
+  if (lo > x0) ia = lo > x1 ? x1 + 1 : static_cast<int>(lo);
+  if (hi < x1) ib = hi < x0 ? x0 - 1 : static_cast<int>(hi);
+}
+
+// Per-axis bounds of the voxels a thread may write: the grid, except its slab
+// along the split axis.
+struct Bounds {
+  std::int64_t lo[3], hi[3];
+  Bounds(const Job& job, const Slab& s) {
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = 0;
+      hi[a] = job.dims[a];
+    }
+    lo[s.axis] = s.lo;
+    hi[s.axis] = s.hi;
+  }
+  bool owns(int a, std::int64_t n) const { return n >= lo[a] && n < hi[a]; }
+};
+
+// ---------------------------------------------------------------------------
+// Float positions carry this offset, so that truncation toward zero is floor
+// for every coordinate that matters (>= -1), and one unsigned compare per axis
+// tests the bounds. Positions keep a resolution of 2^-32 voxel.
+constexpr double kOffset = 1048576.0;
+constexpr std::int64_t kOffsetI = std::int64_t{1} << 20;
+// Positions are checked to stay below this (insert), so every conversion to
+// int64 is defined.
+constexpr double kPositionLimit = 1125899906842624.0;  // 2^50
+
+// ---------------------------------------------------------------------------
+// Walking a run voxel by voxel (see the top of the file).
+
+// Float rows: p(i) = b + i*X in offset voxel units. The voxel coordinate of
+// column i is decided by the columns where the row crosses integers: integer c
+// is crossed at column ceil((c - b) / X) when X > 0 (the first column with
+// p >= c) and at floor((c - b) / X) + 1 when X < 0 (the first with p < c).
+// That is floor(p(i)) up to double rounding, monotonic by construction, and it
+// cuts a run into voxel segments with a few operations per segment. A row
+// that moves less than 1e-12 voxel per pixel along an axis stays in floor(b).
+struct FloatStep {
+  double b = 0, X = 0, invX = 0;
+  int dir = 0;           // sign of X
+  std::int64_t m = 0;    // voxel coordinate (offset) of the current segment
+  int t = 0;             // first column past it
+  FloatStep() = default;
+  FloatStep(double b0, double x) : b(b0), X(x) {
+    if (std::abs(x) > 1e-12) {
+      invX = 1.0 / x;
+      dir = x > 0 ? 1 : -1;
+    }
+  }
+  // The first column past voxel mm, in the direction of the walk.
+  int exit(std::int64_t mm) const {
+    if (dir == 0) return std::numeric_limits<int>::max();
+    double r = (double(dir > 0 ? mm + 1 : mm) - b) * invX;
+    r = std::min(std::max(r, -1e9), 1e9);
+    const int c = static_cast<int>(r);
+    return dir > 0 ? c + (double(c) < r) : c - (double(c) > r) + 1;
+  }
+  void start(int i0) {
+    if (dir == 0) {
+      m = static_cast<std::int64_t>(b);
+      t = exit(m);
+      return;
+    }
+    m = static_cast<std::int64_t>(b + double(i0) * X);
+    if (dir > 0) {
+      while (exit(m) <= i0) ++m;
+      while (exit(m - 1) > i0) --m;
+    } else {
+      while (exit(m) <= i0) --m;
+      while (exit(m + 1) > i0) ++m;
+    }
+    t = exit(m);
+  }
+  // (A branch here is cheaper than computing every axis's exit branch-free:
+  // the predictor learns the row's stepping pattern.)
+  void advance(int e) {
+    if (t != e) return;
+    m += dir;
+    t = exit(m);
+  }
+};
+
+// Calls seg(i, e, mx, my, mz) for each non-empty column range [i, e) of
+// [ia, ib] in voxel (mx, my, mz) (offset coordinates).
+template <class Seg>
+void walkRunFloat(FloatStep (&st)[3], int ia, int ib, Seg&& seg) {
+  if (ia > ib) return;
+  for (FloatStep& s : st) s.start(ia);
+  int i = ia;
+  for (;;) {
+    const int e = std::min(std::min(st[0].t, st[1].t), std::min(st[2].t, ib + 1));
+    if (e > i) seg(i, e, st[0].m, st[1].m, st[2].m);
+    if (e > ib) return;
+    for (FloatStep& s : st) s.advance(e);
+    i = e;
+  }
+}
+
+// Fixed rows (plus): q(i) = floor((b + i*X) / 2^14), PLUS's own per-pixel
+// formula. Where q steps is guessed in double and then settled with the exact
+// integer formula, so the segments are exactly PLUS's voxels.
+struct FixedAxis {
+  std::int64_t b = 0, X = 0;
+  double invX = 0;
+  FixedAxis() = default;
+  FixedAxis(std::int64_t b0, std::int64_t x) : b(b0), X(x), invX(x != 0 ? 1.0 / double(x) : 0.0) {}
+  bool flat() const { return X == 0; }
+  std::int64_t q(int i) const { return (b + std::int64_t{i} * X) >> plusmath::kFracBits; }
+  double guess(std::int64_t qi) const {
+    return (double((X > 0 ? qi + 1 : qi) * plusmath::kOne) - double(b)) * invX;
+  }
+};
+
+// The first column after i (at most limit + 1) where ax.q differs from qi.
+template <class Axis>
+[[gnu::always_inline]] inline int nextStep(const Axis& ax, int i, std::int64_t qi, int limit) {
+  if (ax.flat()) return limit + 1;
+  const double g = ax.guess(qi);
+  int e = i + 1;
+  if (g >= double(limit + 1))
+    e = limit + 1;
+  else if (g > double(i + 1))
+    e = static_cast<int>(g) + 1;  // ceil, or one more: the corrections below settle it
+  while (e - 1 > i && ax.q(e - 1) != qi) --e;
+  while (e <= limit && ax.q(e) == qi) ++e;
+  return e;
+}
+
+// Calls seg(i, e, q) for each maximal column range [i, e) of [ia, ib] whose
+// pixels share the voxel q[3].
+template <class Axis, class Seg>
+void walkRun(const Axis (&ax)[3], int ia, int ib, Seg&& seg) {
+  if (ia > ib) return;
+  std::int64_t q[3];
+  int t[3];
+  for (int a = 0; a < 3; ++a) {
+    q[a] = ax[a].q(ia);
+    t[a] = nextStep(ax[a], ia, q[a], ib);
+  }
+  int i = ia;
+  for (;;) {
+    const int e = std::min(t[0], std::min(t[1], t[2]));
+    seg(i, e, q);
+    if (e > ib) return;
+    for (int a = 0; a < 3; ++a)
+      if (t[a] == e) {
+        q[a] = ax[a].q(e);
+        t[a] = nextStep(ax[a], e, q[a], ib);
+      }
+    i = e;
+  }
+}
+
+// ---------------------------------------------------------------------------
+// Nearest neighbour: the pixels of one segment are one voxel's, so the
+// segment's update is gathered in registers and the voxel written once.
+
+template <class Pix, Compounding C>
+void nearestFloat(const Job& job, FloatCell* cells, const Slab& slab, bool split, SlabOut& out) {
+  const Bounds bd(job, slab);
+  const std::int64_t sy = job.sy, sz = job.sz;
+  const int rej = job.rejectBelow;
+  std::int64_t off[3];
+  std::uint64_t range[3];
+  for (int a = 0; a < 3; ++a) {
+    off[a] = kOffsetI + bd.lo[a];
+    range[a] = static_cast<std::uint64_t>(bd.hi[a] - bd.lo[a]);
+  }
+  const std::int64_t base = bd.lo[0] + bd.lo[1] * sy + bd.lo[2] * sz;
+  std::uint64_t inserted = 0;
+  for (const PixelRun& r : *job.runs) {
+    const Pix* row = rowPtr<Pix>(job, r.y);
+    FloatStep st[3];
+    for (int a = 0; a < 3; ++a)
+      st[a] = FloatStep(job.map.O[a] + double(r.y) * job.map.Y[a] + (0.5 + kOffset), job.map.X[a]);
+    int ia = r.x0, ib = r.x1;
+    if (split) {
+      const int a = slab.axis;
+      columnRange(st[a].b, st[a].X, kOffset + double(bd.lo[a]), kOffset + double(bd.hi[a]), r.x0, r.x1, ia, ib);
+    }
+    if (ia > ib) continue;
+    // MEAN: a segment's sum and count from prefix sums, without a loop whose
+    // length the branch predictor cannot guess.
+    // (pre[k - ia]: sum of the pixels ia .. k-1)
+    std::uint64_t* pre = out.prefix.data();
+    std::uint32_t* cnt = out.count.data();
+    if constexpr (C == Compounding::Mean) {
+      std::uint64_t sum = 0;
+      pre[0] = 0;
+      const int len = ib - ia + 1;
+      const Pix* px = row + ia;
+      if (rej <= 0) {
+        for (int k = 0; k < len; ++k) pre[k + 1] = sum += px[k];
+      } else {
+        std::uint32_t n = 0;
+        cnt[0] = 0;
+        for (int k = 0; k < len; ++k) {
+          const int p = px[k];
+          const bool ok = p >= rej;
+          pre[k + 1] = sum += ok ? static_cast<std::uint64_t>(p) : 0u;
+          cnt[k + 1] = n += ok;
+        }
+      }
+    }
+    walkRunFloat(st, ia, ib, [&](int i, int e, std::int64_t mx, std::int64_t my, std::int64_t mz) {
+      const std::int64_t ux = mx - off[0], uy = my - off[1], uz = mz - off[2];
+      if ((static_cast<std::uint64_t>(ux) >= range[0]) | (static_cast<std::uint64_t>(uy) >= range[1]) |
+          (static_cast<std::uint64_t>(uz) >= range[2]))
+        return;
+      std::uint32_t n = 0;
+      float value = 0.0f;
+      if constexpr (C == Compounding::Mean) {
+        n = rej <= 0 ? static_cast<std::uint32_t>(e - i) : cnt[e - ia] - cnt[i - ia];
+        value = static_cast<float>(pre[e - ia] - pre[i - ia]);  // exact below 2^24
+      } else {
+        int v = -1;
+        for (int k = i; k < e; ++k) {
+          const int p = row[k];
+          if (p < rej) continue;
+          v = C == Compounding::Latest ? p : std::max(v, p);
+          ++n;
+        }
+        value = static_cast<float>(v);
+      }
+      if (n == 0) return;
+      const std::int64_t idx = base + ux + uy * sy + uz * sz;
+      FloatCell& c = cells[idx];
+      if constexpr (C == Compounding::Mean) c.s += value;
+      if constexpr (C == Compounding::Latest) c.s = value;
+      if constexpr (C == Compounding::Maximum) c.s = std::max(c.s, value);
+      c.w += static_cast<float>(n);
+      job.touched[idx] = 1;
+      inserted += n;
+    });
+  }
+  out.pixels += inserted;
+}
+
+// PLUS's FULL-optimisation nearest neighbour (§3.3, §3.6): voxel floor(v + 1/2)
+// of the fixed position, PLUS's compounding applied pixel by pixel (in
+// registers along a segment).
+template <Compounding C>
+void nearestPlus(const Job& job, PlusCell* cells, const Slab& slab, bool split, SlabOut& out) {
+  using namespace plusmath;
+  const Bounds bd(job, slab);
+  const std::int64_t sy = job.sy, sz = job.sz;
+  const int rej = job.rejectBelow;
+  std::uint64_t inserted = 0;
+  for (const PixelRun& r : *job.runs) {
+    const std::uint8_t* row = rowPtr<std::uint8_t>(job, r.y);
+    FixedAxis ax[3];
+    for (int a = 0; a < 3; ++a) ax[a] = FixedAxis(job.fmap.O[a] + std::int64_t{r.y} * job.fmap.Y[a] + kHalf, job.fmap.X[a]);
+    int ia = r.x0, ib = r.x1;
+    if (split) {
+      const int a = slab.axis;
+      columnRange(double(ax[a].b) / kOne, double(ax[a].X) / kOne, double(bd.lo[a]), double(bd.hi[a]), r.x0, r.x1, ia,
+                  ib);
+    }
+    walkRun(ax, ia, ib, [&](int i, int e, const std::int64_t* q) {
+      const std::int64_t x = q[0], y = q[1], z = q[2];
+      if (!(bd.owns(0, x) && bd.owns(1, y) && bd.owns(2, z))) return;
+      const std::int64_t idx = x + y * sy + z * sz;
+      std::uint32_t v = cells[idx].v, acc = cells[idx].a, n = 0;
+      for (int k = i; k < e; ++k) {
+        const std::uint32_t in = row[k];
+        if (static_cast<int>(in) < rej) continue;
+        ++n;
+        if constexpr (C == Compounding::Mean) {
+          if (acc <= 65279u) {
+            // PLUS: v = (in*256 + v*acc) / (acc + 256), an integer division
+            // that truncates at every step. acc is a multiple of 256 here (the
+            // k - 1 earlier hits), so this is (in + v*(k-1)) / k.
+            const std::uint32_t hits = (acc >> 8) + 1u;
+            v = plusmath::divSmall(in + v * (hits - 1u), hits);
+            acc += 256u;
+          } else {
+            // Saturated accumulator: PLUS's recursive filter, truncated.
+            v = static_cast<std::uint32_t>(in * (1.0 / 256.0) + v * (255.0 / 256.0));
+          }
+        }
+        if constexpr (C == Compounding::Latest) {
+          v = in;
+          acc = 256u;
+        }
+        if constexpr (C == Compounding::Maximum) {
+          v = std::max(v, in);
+          acc = 256u;
+        }
+      }
+      if (n == 0) return;
+      cells[idx].v = static_cast<std::uint8_t>(v);
+      cells[idx].a = static_cast<std::uint16_t>(acc);
+      job.touched[idx] = 1;
+      inserted += n;
+    });
+  }
+  out.pixels += inserted;
+}
+
+// ---------------------------------------------------------------------------
+// Trilinear. Consecutive pixels with the same lower corner n0 form a group
+// (float: a walker segment): their contributions to the eight corners are
+// gathered in registers and each corner is written once per group (float), or
+// the corners' PLUS state is carried in registers through the group (plus).
+// As for nearest neighbour the groups do not depend on the slab cut.
+
+using v4f = float __attribute__((vector_size(16)));
+using v4i = std::int32_t __attribute__((vector_size(16)));
+
+// Float: corner k = 4*bx + 2*by + bz; lanes 0..3 of the "lo" vectors are
+// bx = 0 (by, bz = 00, 01, 10, 11), of the "hi" vectors bx = 1.
+template <class Pix, Compounding C>
+void trilinearFloat(const Job& job, FloatCell* cells, const Slab& slab, bool split, SlabOut& out) {
+  const Bounds bd(job, slab);
+  const int sa = slab.axis;
+  const std::int64_t sy = job.sy, sz = job.sz;
+  const int rej = job.rejectBelow;
+  const double X0 = job.map.X[0], X1 = job.map.X[1], X2 = job.map.X[2];
+  // A segment can reach the thread's voxels only if n0 is in [lo-1, hi-1] on every axis.
+  std::int64_t off[3];
+  std::uint64_t range[3];
+  for (int a = 0; a < 3; ++a) {
+    off[a] = kOffsetI + bd.lo[a] - 1;
+    range[a] = static_cast<std::uint64_t>(bd.hi[a] - bd.lo[a] + 1);
+  }
+  std::uint64_t inserted = 0;
+  const v4f eighth = {kMinWeightFloat, kMinWeightFloat, kMinWeightFloat, kMinWeightFloat};
+  const v4f zero = {0, 0, 0, 0};
+
+  for (const PixelRun& r : *job.runs) {
+    const Pix* row = rowPtr<Pix>(job, r.y);
+    FloatStep st[3];
+    for (int a = 0; a < 3; ++a) st[a] = FloatStep(job.map.O[a] + double(r.y) * job.map.Y[a] + kOffset, job.map.X[a]);
+    const double b0 = st[0].b, b1 = st[1].b, b2 = st[2].b;
+    int ia = r.x0, ib = r.x1;
+    if (split)
+      columnRange(st[sa].b, st[sa].X, kOffset + double(bd.lo[sa]) - 1.0, kOffset + double(bd.hi[sa]), r.x0, r.x1, ia,
+                  ib);
+    walkRunFloat(st, ia, ib, [&](int i, int e, std::int64_t mx, std::int64_t my, std::int64_t mz) {
+      if ((static_cast<std::uint64_t>(mx - off[0]) >= range[0]) | (static_cast<std::uint64_t>(my - off[1]) >= range[1]) |
+          (static_cast<std::uint64_t>(mz - off[2]) >= range[2]))
+        return;
+      // Corner k = 4*bx + 2*by + bz; lanes 0..3 of the "lo" vectors hold
+      // bx = 0 (by bz = 00, 01, 10, 11), the "hi" vectors bx = 1. MEAN keeps
+      // weighted sums, LATEST / MAXIMUM values.
+      v4f slo = zero, shi = zero, wlo = zero, whi = zero;
+      const double fm0 = double(mx), fm1 = double(my), fm2 = double(mz);
+      std::uint32_t n = 0;
+      for (int k = i; k < e; ++k) {
+        const int inI = row[k];
+        if (inI < rej) continue;
+        ++n;
+        const double dk = k;
+        // The segment decides n0; the fractions are clamped against rounding.
+        const double f0 = std::min(std::max(b0 + dk * X0 - fm0, 0.0), 1.0);
+        const double f1 = std::min(std::max(b1 + dk * X1 - fm1, 0.0), 1.0);
+        const double f2 = std::min(std::max(b2 + dk * X2 - fm2, 0.0), 1.0);
+        const float x0 = static_cast<float>(1.0 - f0), x1 = static_cast<float>(f0);
+        const float y0 = static_cast<float>(1.0 - f1), y1 = static_cast<float>(f1);
+        const float z0 = static_cast<float>(1.0 - f2), z1 = static_cast<float>(f2);
+        const v4f yz = {y0 * z0, y0 * z1, y1 * z0, y1 * z1};
+        const v4f lo = yz * x0, hi = yz * x1;
+        const float in = static_cast<float>(inI);
+        if constexpr (C == Compounding::Mean) {
+          slo += lo * in;
+          shi += hi * in;
+          wlo += lo;
+          whi += hi;
+        } else {
+          // Only where the weight is at least 1/8 (PLUS's rule).
+          const v4i mlo = lo >= eighth, mhi = hi >= eighth;
+          const v4f vin = {in, in, in, in};
+          if constexpr (C == Compounding::Latest) {
+            slo = mlo ? vin : slo;
+            shi = mhi ? vin : shi;
+          } else {
+            slo = mlo ? (slo > vin ? slo : vin) : slo;
+            shi = mhi ? (shi > vin ? shi : vin) : shi;
+          }
+          wlo += mlo ? lo : zero;
+          whi += mhi ? hi : zero;
+        }
+      }
+      if (n == 0) return;
+      const std::int64_t c0 = mx - kOffsetI, c1 = my - kOffsetI, c2 = mz - kOffsetI;
+      if (c0 >= bd.lo[0] && c0 + 1 < bd.hi[0] && c1 >= bd.lo[1] && c1 + 1 < bd.hi[1] && c2 >= bd.lo[2] &&
+          c2 + 1 < bd.hi[2]) {
+        // All eight corners are the thread's (the common case).
+        const std::int64_t idx = c0 + c1 * sy + c2 * sz;
+        const std::int64_t offs[8] = {0, sz, sy, sy + sz, 1, 1 + sz, 1 + sy, 1 + sy + sz};
+        for (int k = 0; k < 8; ++k) {
+          const int lane = k & 3;
+          const float w = k & 4 ? whi[lane] : wlo[lane];
+          const float v = k & 4 ? shi[lane] : slo[lane];
+          FloatCell& cell = cells[idx + offs[k]];
+          if constexpr (C == Compounding::Mean) {
+            cell.s += v;  // adding a zero weight changes nothing
+            cell.w += w;
+          } else if (w > 0.0f) {
+            cell.s = C == Compounding::Latest ? v : std::max(cell.s, v);
+            cell.w += w;
+          }
+          job.touched[idx + offs[k]] = 1;
+        }
+        if (bd.owns(sa, sa == 0 ? c0 : sa == 1 ? c1 : c2)) inserted += n;
+        return;
+      }
+      for (int k = 0; k < 8; ++k) {
+        const int bx = k >> 2, by = (k >> 1) & 1, bz = k & 1;
+        const std::int64_t x = c0 + bx, y = c1 + by, z = c2 + bz;
+        if (!bd.owns(0, x) || !bd.owns(1, y) || !bd.owns(2, z)) continue;
+        const int lane = k & 3;
+        const float w = bx ? whi[lane] : wlo[lane];
+        if (!(w > 0.0f)) continue;
+        const float s = bx ? shi[lane] : slo[lane];
+        const std::int64_t idx = x + y * sy + z * sz;
+        FloatCell& cell = cells[idx];
+        if constexpr (C == Compounding::Mean) cell.s += s;
+        if constexpr (C == Compounding::Latest) cell.s = s;
+        if constexpr (C == Compounding::Maximum) cell.s = std::max(cell.s, s);
+        cell.w += w;
+        job.touched[idx] = 1;
+      }
+      // Pixels that reach the grid, counted by the owner of their lowest layer inside it.
+      const std::int64_t cs = sa == 0 ? c0 : sa == 1 ? c1 : c2;
+      if (bd.owns(sa, std::max<std::int64_t>(cs, 0))) inserted += n;
+    });
+  }
+  out.pixels += inserted;
+}
+
+// PLUS's FULL-optimisation trilinear splat (§4): fixed-point weights, the
+// pixel dropped unless all eight corners are inside the grid, corners of
+// weight 0 skipped. PLUS visits corners k = 7..0, but corners of non-zero
+// weight are distinct voxels, so their order changes nothing.
+template <Compounding C>
+void trilinearPlus(const Job& job, PlusCell* cells, const Slab& slab, bool split, SlabOut& out) {
+  using namespace plusmath;
+  const Bounds bd(job, slab);
+  const int sa = slab.axis;
+  const std::int64_t sy = job.sy, sz = job.sz;
+  const std::int64_t X0 = job.fmap.X[0], X1 = job.fmap.X[1], X2 = job.fmap.X[2];
+  const std::uint64_t E[3] = {static_cast<std::uint64_t>(job.dims.x), static_cast<std::uint64_t>(job.dims.y),
+                              static_cast<std::uint64_t>(job.dims.z)};
+  std::uint64_t inserted = 0;
+  for (const PixelRun& r : *job.runs) {
+    const std::uint8_t* row = rowPtr<std::uint8_t>(job, r.y);
+    std::int64_t b[3];
+    for (int a = 0; a < 3; ++a) b[a] = job.fmap.O[a] + std::int64_t{r.y} * job.fmap.Y[a];
+    int ia = r.x0, ib = r.x1;
+    if (split)
+      columnRange(double(b[sa]) / kOne, double(job.fmap.X[sa]) / kOne, double(bd.lo[sa]) - 1.0, double(bd.hi[sa]),
+                  r.x0, r.x1, ia, ib);
+
+    // The group: lower corner c, and per corner the PLUS state in registers.
+    std::int64_t cur = -1;
+    std::int64_t c[3] = {0, 0, 0};
+    std::int32_t v[8], acc[8];
+    std::uint32_t valid = 0, modified = 0;
+    auto flush = [&] {
+      for (int k = 0; k < 8; ++k) {
+        if (!((valid & modified) >> k & 1u)) continue;
+        const std::int64_t x = c[0] + (k >> 2), y = c[1] + ((k >> 1) & 1), z = c[2] + (k & 1);
+        const std::int64_t idx = x + y * sy + z * sz;
+        cells[idx].v = static_cast<std::uint8_t>(v[k]);
+        cells[idx].a = static_cast<std::uint16_t>(acc[k]);
+        job.touched[idx] = 1;
+      }
+    };
+    for (int i = ia; i <= ib; ++i) {
+      const std::int32_t in = row[i];
+      if (in < job.rejectBelow) continue;
+      const std::int64_t P[3] = {b[0] + i * X0, b[1] + i * X1, b[2] + i * X2};
+      std::int64_t n0[3];
+      std::int32_t f[3];
+      bool inside = true;
+      for (int a = 0; a < 3; ++a) {
+        n0[a] = P[a] >> kFracBits;
+        f[a] = static_cast<std::int32_t>(P[a] - (n0[a] << kFracBits));
+        const std::int64_t n1 = n0[a] + (f[a] != 0);
+        // All or nothing against the whole grid (unsigned: a negative n0 fails too).
+        inside &= (static_cast<std::uint64_t>(n0[a]) < E[a]) & (static_cast<std::uint64_t>(n1) < E[a]);
+      }
+      if (!inside) continue;
+      if (!bd.owns(sa, n0[sa]) && !bd.owns(sa, n0[sa] + 1)) continue;
+      const std::int64_t key = n0[0] + n0[1] * sy + n0[2] * sz;
+      if (key != cur) {
+        if (cur >= 0) flush();
+        cur = key;
+        c[0] = n0[0];
+        c[1] = n0[1];
+        c[2] = n0[2];
+        valid = modified = 0;
+        for (int k = 0; k < 8; ++k) {
+          const std::int64_t x = c[0] + (k >> 2), y = c[1] + ((k >> 1) & 1), z = c[2] + (k & 1);
+          // A corner outside the grid only ever gets weight 0 (its axis has f = 0).
+          if (bd.owns(0, x) && bd.owns(1, y) && bd.owns(2, z)) {
+            const PlusCell& cell = cells[x + y * sy + z * sz];
+            v[k] = cell.v;
+            acc[k] = cell.a;
+            valid |= 1u << k;
+          } else {
+            v[k] = acc[k] = 0;
+          }
+        }
+      }
+      if (bd.owns(sa, n0[sa])) ++inserted;
+      const std::int32_t rx = kOne - f[0], ry = kOne - f[1], rz = kOne - f[2];
+      const std::int32_t ryrz = mul(ry, rz), ryfz = mul(ry, f[2]), fyrz = mul(f[1], rz), fyfz = mul(f[1], f[2]);
+      const std::int32_t w[8] = {mul(rx, ryrz),   mul(rx, ryfz),   mul(rx, fyrz),   mul(rx, fyfz),
+                                 mul(f[0], ryrz), mul(f[0], ryfz), mul(f[0], fyrz), mul(f[0], fyfz)};
+#pragma GCC unroll 8
+      for (int k = 7; k >= 0; --k) {
+        const std::int32_t wk = w[k];
+        if (wk == 0) continue;
+        // PLUS sets the accumulator to round((w + acc/256) * 256), capped at
+        // 65535 (LATEST / MAXIMUM: round(w * 256)); acc/256 is exact in
+        // fixed point, so that is acc + round(w / 64).
+        const std::int32_t dacc = (wk + 32) >> 6;
+        if constexpr (C == Compounding::Mean) {
+          const std::int32_t rr = acc[k] * 64;  // acc / 256 as fixed, exact
+          // The fixed division: the quotient rounded to double, then to 2^-14.
+          v[k] = roundToInt(div(wk * in + rr * v[k], wk + rr));
+          acc[k] = std::min(acc[k] + dacc, 65535);
+        } else {
+          const bool set = C == Compounding::Latest ? wk >= kMinWeightFixed : (wk >= kMinWeightFixed && in > v[k]);
+          if (!set) continue;
+          v[k] = in;
+          acc[k] = dacc;  // replaced, not added to
+        }
+        modified |= 1u << k;
+      }
+    }
+    if (cur >= 0) flush();
+  }
+  out.pixels += inserted;
+}
+
+// ---------------------------------------------------------------------------
+
+struct PlusSource {
+  const PlusCell* c;
+  bool known(std::size_t i) const { return c[i].a != 0; }
+  float value(std::size_t i) const { return c[i].v; }
+  float weight(std::size_t i) const { return c[i].a * (1.0f / 256.0f); }
+};
+// Known voxels' output values are their unfilled values (only holes are ever
+// filled), so the output itself is the source.
+struct FloatSource {
+  const FloatCell* c;
+  const float* out;
+  bool known(std::size_t i) const { return c[i].w > 0.0f; }
+  float value(std::size_t i) const { return out[i]; }
+  float weight(std::size_t i) const { return c[i].w; }
+};
+
+class PixelReconstructor final : public Reconstructor {
+public:
+  PixelReconstructor(const Grid& g, const ReconSettings& s) : Reconstructor(g, s) {
+    method_ = s.methodEnum();
+    PP5_CHECK(method_ != Method::Tent);
+    comp_ = s.compoundingEnum();
+    plus_ = s.arithmeticEnum() == Arithmetic::Plus;
+    PP5_CHECK(g.dims.x > 0 && g.dims.y > 0 && g.dims.z > 0);
+    const std::size_t n = static_cast<std::size_t>(g.voxelCount());
+    out_.allocate(g, ScalarType::F32);
+    if (plus_)
+      pcells_.assign(n, PlusCell{0, 0, 0});
+    else
+      fcells_.assign(n, FloatCell{0.0f, 0.0f});
+    touched_.assign(n, 0);
+    empty_ = DirtyRegion(g);
+    bdims_ = empty_.brickDims();
+    brickKnown_.assign(static_cast<std::size_t>(bdims_.x * bdims_.y * bdims_.z), 0);
+    if (s.fillHoles) {
+      filler_.emplace(s.holeFilling.empty() ? HoleFiller::defaultElements() : s.holeFilling, plus_);
+      incrementalFill_ = s.fillHolesIncremental;
+    }
+    rejectBelow_ = s.pixelRejectionThreshold < 0.0
+                       ? 0
+                       : static_cast<int>(std::min(std::ceil(s.pixelRejectionThreshold), 65536.0));
+  }
+
+  InsertResult insert(const Frame& f, const Mat4& imageToReference, double timeS) override;
+  void finish() override;
+  const Volume& output() const override { return out_; }
+  Volume weights() const override;
+  bool covered(std::size_t i) const override { return plus_ ? pcells_[i].a != 0 : fcells_[i].w > 0.0f; }
+
+private:
+  float* out() { return reinterpret_cast<float*>(out_.bytes.data()); }
+  int threadCount() const { return settings_.threads > 0 ? settings_.threads : std::max(1, omp_get_max_threads()); }
+  // Threads worth starting for `work` units of `grain` each, at most `limit`.
+  // The result never depends on it: slabs and bricks decide who writes what.
+  static int worthwhile(int limit, std::uint64_t work, std::uint64_t grain) {
+    return static_cast<int>(std::min<std::uint64_t>(static_cast<std::uint64_t>(limit), 1 + work / grain));
+  }
+  void splat(const Job& job, const Slab& slab, bool split, SlabOut& so);
+  // Recomputes output() at the flagged voxels of `bricks` and clears the
+  // flags; written[b] = 1 for the bricks that had any.
+  void updateOutput(const std::vector<std::uint32_t>& bricks, int threads, std::vector<std::uint8_t>& written);
+  DirtyRegion candidates(const Mat4& imageToReference) const;
+  void addBrickId(DirtyRegion& d, std::uint32_t id) const;
+  // Refills the holes of `bricks` (sorted); sets changed[b] = 1 where an output value changed.
+  void fillBricks(const std::vector<std::uint32_t>& bricks, int threads, std::vector<std::uint8_t>& changed);
+  bool knownNear(std::uint32_t brick) const;
+
+  Method method_ = Method::Nearest;
+  Compounding comp_ = Compounding::Mean;
+  bool plus_ = false;
+  Volume out_;
+  std::vector<PlusCell> pcells_;
+  std::vector<FloatCell> fcells_;
+  std::vector<std::uint8_t> touched_;     // voxels written since the last output update
+  std::vector<std::uint8_t> brickKnown_;  // bricks that hold a covered voxel
+  DirtyRegion empty_;
+  Index3 bdims_{0};
+  std::vector<SlabOut> slabOut_;
+  int rejectBelow_ = 0;
+
+  int maskW_ = -1, maskH_ = -1;
+  std::vector<PixelRun> runs_;
+  int maskX0_ = 0, maskX1_ = 0, maskY0_ = 0, maskY1_ = 0;  // the runs' bounding rectangle
+
+  std::optional<HoleFiller> filler_;
+  bool incrementalFill_ = false;
+  bool filledOnce_ = false;  // finish() has filled the holes of the whole grid
+};
+
+void PixelReconstructor::splat(const Job& job, const Slab& slab, bool split, SlabOut& so) {
+  if (plus_) {
+    PlusCell* c = pcells_.data();
+    if (method_ == Method::Nearest) {
+      switch (comp_) {
+        case Compounding::Mean: nearestPlus<Compounding::Mean>(job, c, slab, split, so); break;
+        case Compounding::Latest: nearestPlus<Compounding::Latest>(job, c, slab, split, so); break;
+        case Compounding::Maximum: nearestPlus<Compounding::Maximum>(job, c, slab, split, so); break;
+      }
+    } else {
+      switch (comp_) {
+        case Compounding::Mean: trilinearPlus<Compounding::Mean>(job, c, slab, split, so); break;
+        case Compounding::Latest: trilinearPlus<Compounding::Latest>(job, c, slab, split, so); break;
+        case Compounding::Maximum: trilinearPlus<Compounding::Maximum>(job, c, slab, split, so); break;
+      }
+    }
+    return;
+  }
+  FloatCell* c = fcells_.data();
+  auto run = [&]<class Pix>() {
+    if (method_ == Method::Nearest) {
+      switch (comp_) {
+        case Compounding::Mean: nearestFloat<Pix, Compounding::Mean>(job, c, slab, split, so); break;
+        case Compounding::Latest: nearestFloat<Pix, Compounding::Latest>(job, c, slab, split, so); break;
+        case Compounding::Maximum: nearestFloat<Pix, Compounding::Maximum>(job, c, slab, split, so); break;
+      }
+    } else {
+      switch (comp_) {
+        case Compounding::Mean: trilinearFloat<Pix, Compounding::Mean>(job, c, slab, split, so); break;
+        case Compounding::Latest: trilinearFloat<Pix, Compounding::Latest>(job, c, slab, split, so); break;
+        case Compounding::Maximum: trilinearFloat<Pix, Compounding::Maximum>(job, c, slab, split, so); break;
+      }
+    }
+  };
+  if (job.u16)
+    run.template operator()<std::uint16_t>();
+  else
+    run.template operator()<std::uint8_t>();
+}
+
+
+InsertResult PixelReconstructor::insert(const Frame& f, const Mat4& imageToReference, double /*timeS*/) {
+  if (f.width <= 0 || f.height <= 0)
+    throw InputError(fmt::format("frame {}: the image is empty ({}x{} pixels)", f.index, f.width, f.height));
+  if (f.pixels.size() < f.byteSize())
+    throw InputError(fmt::format("frame {}: {} bytes of pixels for a {}x{} image of {}-byte pixels", f.index,
+                                 f.pixels.size(), f.width, f.height, bytesPerPixel(f.pixelType)));
+  if (!isFinite(imageToReference))
+    throw InputError(fmt::format("frame {}: the ImageToReference transform is not finite", f.index));
+  if (plus_ && f.pixelType != PixelType::U8)
+    throw InputError(fmt::format("frame {}: arithmetic \"plus\" reconstructs 8-bit frames only (PLUS's 8-bit "
+                                 "volume); use arithmetic \"float\" for 16-bit frames",
+                                 f.index));
+
+  if (f.width != maskW_ || f.height != maskH_) {
+    runs_ = pixelRuns(f.width, f.height, settings_);
+    maskW_ = f.width;
+    maskH_ = f.height;
+    if (!runs_.empty()) {
+      maskX0_ = runs_.front().x0;
+      maskX1_ = runs_.front().x1;
+      for (const PixelRun& r : runs_) {
+        maskX0_ = std::min(maskX0_, r.x0);
+        maskX1_ = std::max(maskX1_, r.x1);
+      }
+      maskY0_ = runs_.front().y;
+      maskY1_ = runs_.back().y;
+    }
+  }
+  InsertResult res;
+  res.dirty = empty_;
+  if (runs_.empty()) return res;
+
+  Job job;
+  job.dims = grid_.dims;
+  job.sy = grid_.dims.x;
+  job.sz = grid_.dims.x * grid_.dims.y;
+  job.runs = &runs_;
+  job.width = f.width;
+  job.u16 = f.pixelType == PixelType::U16;
+  job.rejectBelow = rejectBelow_;
+  job.touched = touched_.data();
+  std::vector<std::uint8_t> swapped;
+  job.pixels = f.pixels.data();
+  if (job.u16 && std::endian::native != std::endian::little) {
+    swapped.resize(f.byteSize());
+    for (std::size_t i = 0; i + 1 < swapped.size(); i += 2) {
+      const std::uint16_t v = static_cast<std::uint16_t>(f.pixels[i] | (f.pixels[i + 1] << 8));
+      std::memcpy(&swapped[i], &v, 2);
+    }
+    job.pixels = swapped.data();
+  }
+  // Voxel index of pixel (i, j): (ImageToReference * (i, j, 0, 1) - origin) / spacing,
+  // with PLUS's association (entries times 1/spacing, §2).
+  for (int a = 0; a < 3; ++a) {
+    const double inv = 1.0 / grid_.spacing[a];
+    job.map.X[a] = imageToReference[0][a] * inv;
+    job.map.Y[a] = imageToReference[1][a] * inv;
+    job.map.O[a] = imageToReference[3][a] * inv + (-grid_.origin[a] * inv);
+  }
+  // Every pixel's voxel coordinates lie between those of the frame's corners;
+  // keeping them finite and below 2^50 keeps every conversion defined.
+  for (int a = 0; a < 3; ++a)
+    for (int ci = 0; ci < 4; ++ci) {
+      const double p = job.map.O[a] + double(ci & 1 ? f.height - 1 : 0) * job.map.Y[a] +
+                       double(ci & 2 ? f.width - 1 : 0) * job.map.X[a];
+      if (!(std::abs(p) < kPositionLimit))
+        throw InputError(fmt::format("frame {}: the pose puts the image {:g} voxels from the grid", f.index, p));
+    }
+  if (plus_) {
+    for (int a = 0; a < 3; ++a) {
+      for (double v : {job.map.X[a], job.map.Y[a], job.map.O[a]})
+        if (!(std::abs(v) < plusmath::kFixedLimit))
+          throw InputError(fmt::format("frame {}: the pose puts the image {:.0f} voxels from the grid, beyond the "
+                                       "range of PLUS's fixed-point arithmetic ({:.0f})",
+                                       f.index, v, plusmath::kFixedLimit));
+      job.fmap.X[a] = plusmath::toFixed(job.map.X[a]);
+      job.fmap.Y[a] = plusmath::toFixed(job.map.Y[a]);
+      job.fmap.O[a] = plusmath::toFixed(job.map.O[a]);
+    }
+  }
+
+  // Slabs: cut the frame's footprint along the axis where it is longest.
+  const int T = threadCount();
+  std::vector<Slab> slabs(static_cast<std::size_t>(T));
+  const bool split = T > 1;
+  if (!split) {
+    slabs[0] = {2, 0, grid_.dims.z};
+  } else {
+    const int xmin = maskX0_, xmax = maskX1_, ymin = maskY0_, ymax = maskY1_;
+    double lo[3], hi[3];
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::numeric_limits<double>::infinity();
+      hi[a] = -lo[a];
+      for (int ci = 0; ci < 4; ++ci) {
+        const double p =
+            job.map.O[a] + double(ci & 1 ? ymax : ymin) * job.map.Y[a] + double(ci & 2 ? xmax : xmin) * job.map.X[a];
+        lo[a] = std::min(lo[a], p);
+        hi[a] = std::max(hi[a], p);
+      }
+      const double top = double(grid_.dims[a] - 1);
+      lo[a] = std::clamp(std::floor(lo[a]), 0.0, top);
+      hi[a] = std::clamp(std::ceil(hi[a]), 0.0, top);
+    }
+    int axis = 2;
+    for (int a : {1, 0})
+      if (hi[a] - lo[a] > hi[axis] - lo[axis]) axis = a;
+    const auto first = static_cast<std::int64_t>(lo[axis]);
+    const std::int64_t count = static_cast<std::int64_t>(hi[axis]) - first + 2;
+    for (int t = 0; t < T; ++t) {
+      slabs[t].axis = axis;
+      slabs[t].lo = t == 0 ? 0 : first + count * t / T;
+      slabs[t].hi = t == T - 1 ? grid_.dims[axis] : first + count * (t + 1) / T;
+    }
+  }
+
+  if (slabOut_.size() < static_cast<std::size_t>(T)) slabOut_.resize(static_cast<std::size_t>(T));
+  for (int t = 0; t < T; ++t) {  // (allocated here: nothing may throw inside the parallel region)
+    slabOut_[t].prefix.resize(static_cast<std::size_t>(f.width) + 1);
+    slabOut_[t].count.resize(static_cast<std::size_t>(f.width) + 1);
+  }
+  // Small frames are not worth waking threads for: the slabs stay the same,
+  // fewer threads share them.
+  std::uint64_t maskPixels = 0;
+  for (const PixelRun& r : runs_) maskPixels += static_cast<std::uint64_t>(r.x1 - r.x0 + 1);
+#pragma omp parallel num_threads(worthwhile(T, maskPixels, 32768))
+  {
+    const int nt = omp_get_num_threads(), tid = omp_get_thread_num();
+    for (int t = tid; t < T; t += nt) splat(job, slabs[t], split, slabOut_[t]);
+  }
+  for (int t = 0; t < T; ++t) {
+    res.pixelsInserted += slabOut_[t].pixels;
+    slabOut_[t].pixels = 0;
+  }
+
+  // The voxels written are flagged; the bricks that can hold them are found
+  // geometrically, and those that do are the dirty region.
+  std::vector<std::uint8_t> flags(brickKnown_.size(), 0);
+  const DirtyRegion reach = candidates(imageToReference);
+  updateOutput(reach.bricks(), T, flags);
+#ifndef NDEBUG
+  // Every flag must have been found and cleared (a missed brick would leave
+  // its output stale).
+  PP5_CHECK(std::find(touched_.begin(), touched_.end(), std::uint8_t{1}) == touched_.end());
+#endif
+
+  if (filler_ && (incrementalFill_ || filledOnce_)) {
+    DirtyRegion d = empty_;
+    for (std::size_t b = 0; b < flags.size(); ++b)
+      if (flags[b]) addBrickId(d, static_cast<std::uint32_t>(b));
+    if (!d.empty()) fillBricks(d.grown(filler_->reach()).bricks(), T, flags);
+  }
+  for (std::size_t b = 0; b < flags.size(); ++b)
+    if (flags[b]) addBrickId(res.dirty, static_cast<std::uint32_t>(b));
+  return res;
+}
+
+void PixelReconstructor::addBrickId(DirtyRegion& d, std::uint32_t id) const {
+  const std::int64_t b = id;
+  d.addBrick(b % bdims_.x, (b / bdims_.x) % bdims_.y, b / (bdims_.x * bdims_.y));
+}
+
+DirtyRegion PixelReconstructor::candidates(const Mat4& m) const {
+  DirtyRegion r = empty_;
+  // The selected pixels' rectangle, half a pixel wider on each side.
+  const Vec3 ex(m[0]), ey(m[1]);
+  const Vec3 origin = transformPoint(m, Vec3(maskX0_ - 0.5, maskY0_ - 0.5, 0.0));
+  const Vec3 eu = ex * double(maskX1_ - maskX0_ + 1), ev = ey * double(maskY1_ - maskY0_ + 1);
+  // How far from that rectangle a written voxel's centre can be: half a voxel
+  // diagonal (nearest) or a whole one (trilinear), plus the error of PLUS's
+  // 14-bit positions, which grows with the pixel index.
+  const double maxSpacing = std::max(grid_.spacing.x, std::max(grid_.spacing.y, grid_.spacing.z));
+  const double slack = plus_ ? (3.0 + maskX1_ + maskY1_) / 32768.0 + 0.01 : 1e-3;
+  const double reach = (method_ == Method::Nearest ? 0.5 : 1.0) * glm::length(grid_.spacing) + slack * maxSpacing;
+  const double lu = glm::length(eu), lv = glm::length(ev);
+  if (lu > 0.0 && lv > 0.0 && glm::length(glm::cross(eu, ev)) > 1e-9 * lu * lv) {
+    addOrientedSlab(r, origin, eu, ev, Vec3(reach));
+    return r;
+  }
+  // A degenerate pose (the image's axes parallel): its bounding box.
+  Vec3 lo = origin, hi = origin;
+  for (const Vec3 c : {origin + eu, origin + ev, origin + eu + ev}) {
+    lo = glm::min(lo, c);
+    hi = glm::max(hi, c);
+  }
+  const Vec3 vlo = glm::floor(grid_.worldToVoxel(lo - Vec3(reach))), vhi = glm::ceil(grid_.worldToVoxel(hi + Vec3(reach)));
+  const Vec3 top = Vec3(grid_.dims);
+  r.addBox({Index3(glm::clamp(vlo, Vec3(0.0), top)), Index3(glm::clamp(vhi + 1.0, Vec3(0.0), top))});
+  return r;
+}
+
+void PixelReconstructor::updateOutput(const std::vector<std::uint32_t>& bricks, int threads,
+                                      std::vector<std::uint8_t>& written) {
+  float* o = out();
+  std::uint8_t* touched = touched_.data();
+  const auto n = static_cast<std::int64_t>(bricks.size());
+#pragma omp parallel for num_threads(worthwhile(threads, bricks.size(), 16)) schedule(dynamic, 4)
+  for (std::int64_t k = 0; k < n; ++k) {
+    const Box3 box = empty_.brickBox(bricks[k]);
+    const std::int64_t len = box.hi.x - box.lo.x;
+    bool known = false, any = false;
+    for (std::int64_t z = box.lo.z; z < box.hi.z; ++z)
+      for (std::int64_t y = box.lo.y; y < box.hi.y; ++y) {
+        const std::size_t row = grid_.linear(box.lo.x, y, z);
+        std::uint8_t* t = touched + row;
+        std::uint8_t rowAny = 0;
+        for (std::int64_t x = 0; x < len; ++x) rowAny |= t[x];
+        if (!rowAny) continue;
+        any = true;
+        for (std::int64_t x = 0; x < len; ++x) {
+          if (!t[x]) continue;
+          t[x] = 0;
+          const std::size_t i = row + static_cast<std::size_t>(x);
+          if (plus_) {
+            o[i] = pcells_[i].v;
+            known |= pcells_[i].a != 0;
+          } else {
+            const FloatCell c = fcells_[i];
+            // One rounding: the exact sums divided once.
+            o[i] = comp_ == Compounding::Mean ? (c.w > 0.0f ? c.s / c.w : 0.0f) : c.s;
+            known |= c.w > 0.0f;
+          }
+        }
+      }
+    if (known) brickKnown_[bricks[k]] = 1;
+    if (any) written[bricks[k]] = 1;
+  }
+}
+
+bool PixelReconstructor::knownNear(std::uint32_t brick) const {
+  const std::int64_t id = brick;
+  const Index3 b(id % bdims_.x, (id / bdims_.x) % bdims_.y, id / (bdims_.x * bdims_.y));
+  const std::int64_t r = (filler_->reach() + DirtyRegion::kDefaultBrick - 1) / DirtyRegion::kDefaultBrick;
+  const Index3 lo = glm::max(b - Index3(r), Index3(0)), hi = glm::min(b + Index3(r), bdims_ - Index3(1));
+  for (std::int64_t k = lo.z; k <= hi.z; ++k)
+    for (std::int64_t j = lo.y; j <= hi.y; ++j)
+      for (std::int64_t i = lo.x; i <= hi.x; ++i)
+        if (brickKnown_[static_cast<std::size_t>((k * bdims_.y + j) * bdims_.x + i)]) return true;
+  return false;
+}
+
+void PixelReconstructor::fillBricks(const std::vector<std::uint32_t>& bricks, int threads,
+                                    std::vector<std::uint8_t>& changed) {
+  float* o = out();
+  const HoleFiller& filler = *filler_;
+  const PlusSource psrc{pcells_.data()};
+  const FloatSource fsrc{fcells_.data(), o};
+  const Index3 dims = grid_.dims;
+  const auto n = static_cast<std::int64_t>(bricks.size());
+#pragma omp parallel for num_threads(worthwhile(threads, bricks.size(), 4)) schedule(dynamic, 1)
+  for (std::int64_t k = 0; k < n; ++k) {
+    const Box3 box = empty_.brickBox(bricks[k]);
+    // With no covered voxel within reach every kernel fails: the holes are 0.
+    const bool anyKnown = knownNear(bricks[k]);
+    bool ch = false;
+    for (std::int64_t z = box.lo.z; z < box.hi.z; ++z)
+      for (std::int64_t y = box.lo.y; y < box.hi.y; ++y)
+        for (std::int64_t x = box.lo.x; x < box.hi.x; ++x) {
+          const std::size_t i = grid_.linear(x, y, z);
+          if (covered(i)) continue;
+          const float v = !anyKnown ? 0.0f : plus_ ? filler.fill(psrc, dims, x, y, z) : filler.fill(fsrc, dims, x, y, z);
+          if (o[i] != v) {
+            o[i] = v;
+            ch = true;
+          }
+        }
+    if (ch) changed[bricks[k]] = 1;
+  }
+}
+
+void PixelReconstructor::finish() {
+  // Incremental filling keeps the holes up to date after every frame.
+  if (!filler_ || incrementalFill_) return;
+  std::vector<std::uint32_t> all(brickKnown_.size());
+  for (std::size_t b = 0; b < all.size(); ++b) all[b] = static_cast<std::uint32_t>(b);
+  std::vector<std::uint8_t> changed(all.size(), 0);
+  fillBricks(all, threadCount(), changed);
+  filledOnce_ = true;
+}
+
+Volume PixelReconstructor::weights() const {
+  Volume w;
+  w.allocate(grid_, ScalarType::F32);
+  float* p = reinterpret_cast<float*>(w.bytes.data());
+  const std::size_t n = static_cast<std::size_t>(grid_.voxelCount());
+  if (plus_)
+    for (std::size_t i = 0; i < n; ++i) p[i] = pcells_[i].a * (1.0f / 256.0f);
+  else
+    for (std::size_t i = 0; i < n; ++i) p[i] = fcells_[i].w;
+  return w;
+}
+
+}  // namespace
+
+std::uint64_t pixelBytesPerVoxel(const ReconSettings& s) {
+  // state + F32 output + one "written" flag
+  return (s.arithmeticEnum() == Arithmetic::Plus ? sizeof(PlusCell) : sizeof(FloatCell)) + 4 + 1;
+}
+
+std::unique_ptr<Reconstructor> makePixelReconstructor(const Grid& g, const ReconSettings& s) {
+  return std::make_unique<PixelReconstructor>(g, s);
+}
+
+}  // namespace pp5::gp

@@ -1,0 +1,1114 @@
+#include "gp/splat_tent.hpp"
+
+// The 1990 paper's reconstruction (Ohbuchi & Fuchs).
+//
+// Forward mapping. Every selected pixel p spreads its value over the voxels
+// around it with the weight
+//     w(x, p) = tent(du/hl) * tent(dv/ha) * tent(dn/he),  tent(t) = max(0, 1-|t|),
+// where (du, dv, dn) = x - p in the slice's own orthonormal axes (lateral =
+// image x, axial, normal), and a voxel keeps sum(w*v) and sum(w) over every
+// pixel it ever received; its value is their ratio. The kernel's support is a
+// box that rotates with the slice, so a slice changes exactly the voxels whose
+// centres lie inside its oriented "support slab" (the pixel rectangle grown
+// by the half-widths), and that slab is also its dirty region.
+//
+// The sums are evaluated voxel by voxel rather than pixel by pixel: a slice
+// visits each voxel of its slab once and adds the contributions of the few
+// pixels whose kernels reach it (about 6 x 2 for the default kernel and
+// probe). It is the same sum as scattering each pixel, but
+//  - each voxel is written once per slice, by one thread, with its terms in a
+//    fixed order, so the result is the same bits for any thread count and any
+//    split of the voxels, with no locks, and its output is refreshed in the
+//    same pass;
+//  - the slice is planar, so dn is the same for every pixel and the weight
+//    splits into tent(dn) times a 2D sum over a small window of pixels, whose
+//    lateral taps run four at a time (see SliceKernel).
+//
+// Between consecutive frames that are farther apart than the kernel reaches,
+// intermediate slices are interpolated (see fillInCount), and old data can be
+// replaced when a region is scanned again (accumulate | motion_vector | decay,
+// see the notes above TentReconstructor).
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <cstdlib>
+#include <cstring>
+#include <limits>
+#include <memory>
+#include <new>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include <fmt/format.h>
+#include <glm/gtc/quaternion.hpp>
+#include <omp.h>
+#if defined(__linux__)
+#include <sys/mman.h>
+#endif
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
+
+#include "core/error.hpp"
+#include "gp/fan_mask.hpp"
+
+namespace pp5::gp {
+
+namespace {
+
+using Quat = glm::dquat;
+
+// ---------------------------------------------------------------- pixels --
+
+// The pixels of one slice that take part, as floats. `value` holds the value
+// of selected pixels and 0 for rejected ones; `mask` (1/0) exists only when
+// some pixel inside the rectangle is rejected.
+struct SliceImage {
+  int width = 0;
+  int height = 0;
+  int x0 = 0, y0 = 0, x1 = -1, y1 = -1;  // selection rectangle, inclusive
+  std::vector<float> value;              // width * height, row-major
+  std::vector<float> mask;               // empty = every pixel in the rectangle is selected
+  std::uint64_t selected = 0;
+  bool masked() const { return !mask.empty(); }
+};
+
+// The pixels the pixel methods would insert (PLUS's clip rectangle and fan,
+// see fan_mask.hpp), less those darker than the rejection threshold (as PLUS
+// rejects them). The rectangle is the bounding box of the pixels kept.
+void selectPixels(const Frame& f, const std::vector<PixelRun>& runs, double rejectBelow, SliceImage& out) {
+  out.width = f.width;
+  out.height = f.height;
+  const std::size_t n = static_cast<std::size_t>(f.width) * static_cast<std::size_t>(f.height);
+  out.value.assign(n, 0.0f);
+  out.mask.assign(n, 0.0f);
+  out.selected = 0;
+  out.x0 = f.width;
+  out.y0 = f.height;
+  out.x1 = -1;
+  out.y1 = -1;
+  const bool reject = rejectBelow >= 0.0;
+  for (const PixelRun& run : runs)
+    for (int c = run.x0; c <= run.x1; ++c) {
+      const std::size_t i = static_cast<std::size_t>(run.y) * static_cast<std::size_t>(f.width) + static_cast<std::size_t>(c);
+      const double v = f.pixelType == PixelType::U8 ? static_cast<double>(f.pixels[i]) : f.value(c, run.y);
+      if (reject && v < rejectBelow) continue;
+      out.value[i] = static_cast<float>(v);
+      out.mask[i] = 1.0f;
+      ++out.selected;
+      out.x0 = std::min(out.x0, c);
+      out.x1 = std::max(out.x1, c);
+      out.y0 = std::min(out.y0, run.y);
+      out.y1 = std::max(out.y1, run.y);
+    }
+  // No mask needed when every pixel of the rectangle is kept.
+  if (out.selected > 0 && out.selected == static_cast<std::uint64_t>(out.x1 - out.x0 + 1) *
+                                              static_cast<std::uint64_t>(out.y1 - out.y0 + 1))
+    out.mask.clear();
+}
+
+// ------------------------------------------------------------------ poses --
+
+// A slice's placement: pixel (c, r) lies at origin + (c*sx + r*eyu)*u + r*syv*v.
+// u is the image x axis, n = normalize(x cross y), v = n cross u; the upper
+// triangular (sx, eyu, syv) keeps any pixel scale and shear of the matrix.
+struct SlicePose {
+  Vec3 origin{0.0};
+  Vec3 u{1, 0, 0}, v{0, 1, 0}, n{0, 0, 1};
+  double sx = 1, eyu = 0, syv = 1;
+  Quat q{1, 0, 0, 0};  // rotation with columns u, v, n
+  Vec3 pixel(double c, double r) const { return origin + (c * sx + r * eyu) * u + (r * syv) * v; }
+};
+
+SlicePose poseFromMatrix(const Mat4& m, const std::string& what) {
+  if (!isFinite(m)) throw InputError(what + ": the image-to-reference transform is not finite");
+  // glm is column-major: m[col][row]; the last row must be (0 0 0 1).
+  const double tol = 1e-9;
+  if (std::abs(m[0][3]) > tol || std::abs(m[1][3]) > tol || std::abs(m[2][3]) > tol || std::abs(m[3][3] - 1.0) > tol)
+    throw InputError(what + ": the image-to-reference transform is not affine (last row is not 0 0 0 1)");
+  const Vec3 ex(m[0]), ey(m[1]);
+  SlicePose p;
+  p.origin = Vec3(m[3]);
+  p.sx = glm::length(ex);
+  const Vec3 c = glm::cross(ex, ey);
+  const double cl = glm::length(c);
+  if (!(p.sx > 1e-12) || !(glm::length(ey) > 1e-12) || !(cl > 1e-12 * p.sx * glm::length(ey)))
+    throw InputError(what + ": the image-to-reference transform maps the image's x and y axes onto a line or a point");
+  p.u = ex / p.sx;
+  p.n = c / cl;
+  p.v = glm::cross(p.n, p.u);
+  p.eyu = glm::dot(ey, p.u);
+  p.syv = glm::dot(ey, p.v);
+  p.q = glm::normalize(glm::quat_cast(glm::dmat3(p.u, p.v, p.n)));
+  return p;
+}
+
+// Rotation angle between two slices' orientations, radians.
+double rotationAngle(const SlicePose& a, const SlicePose& b) {
+  const double d = std::min(1.0, std::abs(glm::dot(a.q, b.q)));
+  return 2.0 * std::acos(d);
+}
+
+// Translation of the image origin (pixel (0,0), on the transducer face for
+// MF images, so a rocking sweep about the face interpolates without cutting
+// chords) linear; rotation by slerp (the short way); pixel steps linear.
+SlicePose interpolatePose(const SlicePose& a, const SlicePose& b, double t) {
+  SlicePose p;
+  p.origin = a.origin + (b.origin - a.origin) * t;
+  const Quat qb = glm::dot(a.q, b.q) < 0.0 ? -b.q : b.q;
+  p.q = glm::normalize(glm::slerp(a.q, qb, t));
+  const glm::dmat3 r = glm::mat3_cast(p.q);
+  p.u = r[0];
+  p.v = r[1];
+  p.n = r[2];
+  p.sx = a.sx + (b.sx - a.sx) * t;
+  p.eyu = a.eyu + (b.eyu - a.eyu) * t;
+  p.syv = a.syv + (b.syv - a.syv) * t;
+  return p;
+}
+
+// ---------------------------------------------------------------- fill-in --
+//
+// Between two consecutive frames whose pixel rectangles' corners moved by up
+// to D mm, n = ceil(D / s_max) - 1 intermediate slices are splatted at
+// t = k/(n+1), so consecutive slices are at most s_max = he (the elevation
+// half-width) apart everywhere on the image (the displacement of an image
+// point is affine in the pixel position, so it is largest at a corner).
+//
+// Why he: tent kernels of half-width he placed every he along the normal sum
+// to exactly 1 at every point between them (the linear-interpolation hat
+// functions form a partition of unity). So with spacing <= he every point
+// between two slices is reached by both of them and is at most he/2 from the
+// nearer one (weight >= 1/2 from it): no holes, and the elevational weight is
+// even, with no ridges at the slices. A spacing between he and 2*he would
+// still reach every point, but the midplanes only with weights that fall to 0
+// as the spacing nears 2*he, and the total weight would ripple with the slice
+// positions (coarse holes in all but name); anything finer than
+// he only adds work, since at spacing he each point is already the linear
+// interpolation of its two bracketing slices. Fill-in starts exactly when
+// D > he. For the default 1.5 mm half-width, frames 2 mm apart get one
+// intermediate slice (1 mm spacing); the paper interpolated about 3 points
+// between slices 2 mm apart (0.5 mm spacing), which this rule gives for a
+// 0.5 mm elevation half-width: the density follows the kernel rather than
+// being fixed.
+int fillInCount(double maxCornerDisplacementMm, double elevationHalfWidthMm) {
+  if (!(maxCornerDisplacementMm > elevationHalfWidthMm)) return 0;
+  return static_cast<int>(std::ceil(maxCornerDisplacementMm / elevationHalfWidthMm)) - 1;
+}
+
+// ----------------------------------------------------------------- kernel --
+
+// Four float lanes: SSE2 where there is one, else plain floats with the same
+// operations in the same order per lane, so the results do not depend on it.
+struct F4 {
+#if defined(__SSE2__)
+  __m128 v;
+  static F4 set1(float x) { return {_mm_set1_ps(x)}; }
+  static F4 zero() { return {_mm_setzero_ps()}; }
+  static F4 load(const float* p) { return {_mm_loadu_ps(p)}; }
+  friend F4 operator+(F4 a, F4 b) { return {_mm_add_ps(a.v, b.v)}; }
+  friend F4 operator-(F4 a, F4 b) { return {_mm_sub_ps(a.v, b.v)}; }
+  friend F4 operator*(F4 a, F4 b) { return {_mm_mul_ps(a.v, b.v)}; }
+  static F4 abs(F4 a) { return {_mm_andnot_ps(_mm_set1_ps(-0.0f), a.v)}; }
+  static F4 max0(F4 a) { return {_mm_max_ps(a.v, _mm_setzero_ps())}; }
+  // (a0+a2)+(a1+a3) and the same for b.
+  static void sum2(F4 a, F4 b, float& sa, float& sb) {
+    const __m128 x = _mm_add_ps(_mm_unpacklo_ps(a.v, b.v), _mm_unpackhi_ps(a.v, b.v));  // a0+a2 b0+b2 a1+a3 b1+b3
+    const __m128 y = _mm_add_ps(x, _mm_movehl_ps(x, x));
+    sa = _mm_cvtss_f32(y);
+    sb = _mm_cvtss_f32(_mm_shuffle_ps(y, y, 1));
+  }
+#else
+  float l[4];
+  template <typename Op>
+  static F4 map(F4 a, F4 b, Op op) {
+    return {{op(a.l[0], b.l[0]), op(a.l[1], b.l[1]), op(a.l[2], b.l[2]), op(a.l[3], b.l[3])}};
+  }
+  static F4 set1(float x) { return {{x, x, x, x}}; }
+  static F4 zero() { return set1(0.0f); }
+  static F4 load(const float* p) { return {{p[0], p[1], p[2], p[3]}}; }
+  friend F4 operator+(F4 a, F4 b) { return map(a, b, [](float x, float y) { return x + y; }); }
+  friend F4 operator-(F4 a, F4 b) { return map(a, b, [](float x, float y) { return x - y; }); }
+  friend F4 operator*(F4 a, F4 b) { return map(a, b, [](float x, float y) { return x * y; }); }
+  static F4 abs(F4 a) { return map(a, a, [](float x, float) { return std::fabs(x); }); }
+  static F4 max0(F4 a) { return map(a, a, [](float x, float) { return x > 0.0f ? x : 0.0f; }); }
+  static void sum2(F4 a, F4 b, float& sa, float& sb) {
+    sa = (a.l[0] + a.l[2]) + (a.l[1] + a.l[3]);
+    sb = (b.l[0] + b.l[2]) + (b.l[1] + b.l[3]);
+  }
+#endif
+};
+
+// floor() for values already clamped to (-2^20, 2^31), without a libm call
+// (exact but within 2^-32 below an integer, where it may round up; such a
+// voxel only misses a weight of that order).
+inline std::int64_t floorInt(double x) {
+  constexpr std::int64_t kBias = std::int64_t{1} << 20;
+  return static_cast<std::int64_t>(x + static_cast<double>(kBias)) - kBias;
+}
+
+// Everything the per-voxel sum needs about one slice. The pixels sit in a
+// zero-padded copy (value * mask and mask), so every voxel reads a fixed
+// window of `rows` pixel rows by `taps` pixel columns (a multiple of 4)
+// without bounds checks: the window always holds every pixel whose kernel
+// reaches the voxel, and the tent (or the zero mask of the padding) makes the
+// others add exactly 0. The window's size is fixed per slice, so its loops
+// have fixed trip counts and the taps run four at a time.
+struct SliceKernel {
+  double hl, ha;
+  double invHe;
+  double sx, eyu, syv, invSx, invSyv;
+  float invHlF, invHaF, syvF;
+  int x0, y0, x1, y1;   // selected rectangle
+  int taps, rows;       // window: columns (multiple of 4) x rows
+  int tapsReal;         // columns that can be reached, <= taps
+  bool masked;          // some pixel inside the rectangle is left out
+  int ox, oy, pw;       // image coordinates of the padded array's (0, 0); its row length
+  const float* val;     // padded value * mask
+  const float* msk;     // padded mask
+  const float* tapOff;  // t * sx for t < taps
+};
+
+// The axial part of a voxel's window: the pixel rows within ha of it and
+// their tent weights, in increasing row order. It depends on V only, so when
+// V is the same along a row of voxels (the image's axial axis perpendicular
+// to the grid's x axis, as on the paper's arm, which keeps the probe
+// vertical) it is computed once per row, with the same arithmetic.
+// A row beyond the kernel gets the weight 0, and adds exactly +0 to the sums,
+// so the window has a fixed number of rows.
+constexpr int kMaxRows = 32;  // wider windows take the plain path below
+struct Axial {
+  int r0 = 0;             // first row of the window
+  bool inside = false;    // the whole window lies inside the selected rows
+  float tvSum = 0.0f;
+  std::size_t row0 = 0;   // padded offset of row r0
+  float tv[kMaxRows];     // weight of row r0 + rr
+};
+
+inline double clampedRow(const SliceKernel& K, double V) {
+  // First row strictly inside |V - r*syv| < ha, clamped so the window stays
+  // inside the padding (a clamped window holds no selected pixel).
+  return std::clamp((V - K.ha) * K.invSyv, static_cast<double>(K.y0 - K.rows - 1), static_cast<double>(K.y1));
+}
+
+// Rows: K.rows when known at compile time, else 0.
+template <int Rows>
+inline void axialWindow(const SliceKernel& K, double V, Axial& a) {
+  const int rows = Rows > 0 ? Rows : K.rows;
+  a.r0 = static_cast<int>(floorInt(clampedRow(K, V))) + 1;
+  const auto dv0 = static_cast<float>(V - a.r0 * K.syv);  // from pixel row r0
+  a.tvSum = 0.0f;
+  for (int rr = 0; rr < rows; ++rr) {
+    const float tv = std::max(0.0f, 1.0f - std::fabs(dv0 - static_cast<float>(rr) * K.syvF) * K.invHaF);
+    a.tv[rr] = tv;
+    a.tvSum += tv;
+  }
+  a.row0 = static_cast<std::size_t>(a.r0 - K.oy) * static_cast<std::size_t>(K.pw);
+  a.inside = a.r0 >= K.y0 && a.r0 + K.rows - 1 <= K.y1;
+}
+
+// First column strictly inside |u - c*sx| < hl (clamped like the rows) and
+// the voxel's distance from it.
+inline int firstColumn(const SliceKernel& K, double ur, float& d0) {
+  const auto c0 = static_cast<int>(floorInt(std::clamp((ur - K.hl) * K.invSx, static_cast<double>(K.x0 - K.taps - 1),
+                                                       static_cast<double>(K.x1)))) +
+                  1;
+  d0 = static_cast<float>(ur - c0 * K.sx);
+  return c0;
+}
+
+inline F4 lateralWeights(const SliceKernel& K, F4 d4, int q) {
+  return F4::max0(F4::set1(1.0f) - F4::abs(d4 - F4::load(K.tapOff + 4 * q)) * F4::set1(K.invHlF));
+}
+
+inline bool finish(F4 aw, F4 awv, double tn, float& cw, float& cwv) {
+  float sw, swv;
+  F4::sum2(aw, awv, sw, swv);
+  if (!(sw > 0.0f)) return false;
+  const auto tnf = static_cast<float>(tn);
+  cw = sw * tnf;
+  cwv = swv * tnf;
+  return true;
+}
+
+// The slice's contribution to a voxel at lateral coordinate U with the axial
+// window `ax` and elevation weight tn > 0: cw = sum over pixels of w,
+// cwv = sum of w * value, in a fixed order. False when no selected pixel
+// reaches it. Chunks: the window's columns / 4 when known at compile time
+// (the common small kernels), 0 = K.taps / 4 at run time.
+template <bool Sheared, int Chunks, int Rows>
+inline bool inPlaneContribution(const SliceKernel& K, const Axial& ax, double U, double tn, float& cw, float& cwv) {
+  const int chunks = Chunks > 0 ? Chunks : K.taps / 4;
+  const int rows = Rows > 0 ? Rows : K.rows;
+  const auto pw = static_cast<std::size_t>(K.pw);
+  F4 aw = F4::zero(), awv = F4::zero();
+  float d0 = 0.0f;
+  int c0 = 0;
+  // Lateral weights, shared by all rows when the pixel grid is not sheared.
+  constexpr int kCached = Chunks > 0 ? Chunks : 1;
+  F4 tu[kCached];
+  if constexpr (!Sheared) {
+    c0 = firstColumn(K, U, d0);
+    if constexpr (Chunks > 0) {
+      const F4 d4 = F4::set1(d0);
+      for (int q = 0; q < Chunks; ++q) tu[q] = lateralWeights(K, d4, q);
+      // Every pixel of the window inside the rectangle and none left out:
+      // the weight is (sum of tv) * (sum of tu), and the mask need not be read.
+      if (!K.masked && ax.inside && c0 >= K.x0 && c0 + K.tapsReal - 1 <= K.x1) {
+        const float* v = K.val + ax.row0 + static_cast<std::size_t>(c0 - K.ox);
+        for (int rr = 0; rr < rows; ++rr, v += pw) {
+          const F4 tv4 = F4::set1(ax.tv[rr]);
+          for (int q = 0; q < Chunks; ++q) awv = awv + (tu[q] * tv4) * F4::load(v + 4 * q);
+        }
+        F4 tuSum = tu[0];
+        for (int q = 1; q < Chunks; ++q) tuSum = tuSum + tu[q];
+        float su, swv;
+        F4::sum2(tuSum, awv, su, swv);
+        const float sw = su * ax.tvSum;
+        if (!(sw > 0.0f)) return false;
+        const auto tnf = static_cast<float>(tn);
+        cw = sw * tnf;
+        cwv = swv * tnf;
+        return true;
+      }
+    }
+  }
+  for (int rr = 0; rr < rows; ++rr) {
+    if constexpr (Sheared) c0 = firstColumn(K, U - (ax.r0 + rr) * K.eyu, d0);
+    const std::size_t off = ax.row0 + static_cast<std::size_t>(rr) * pw + static_cast<std::size_t>(c0 - K.ox);
+    const float* v = K.val + off;
+    const float* m = K.msk + off;
+    const F4 tv4 = F4::set1(ax.tv[rr]), d4 = F4::set1(d0);
+    for (int q = 0; q < chunks; ++q) {
+      const F4 t = (!Sheared && Chunks > 0 ? tu[q] : lateralWeights(K, d4, q)) * tv4;
+      aw = aw + t * F4::load(m + 4 * q);
+      awv = awv + t * F4::load(v + 4 * q);
+    }
+  }
+  return finish(aw, awv, tn, cw, cwv);
+}
+
+// Windows of more than kMaxRows rows (a long axial kernel on fine pixels):
+// the same sums without the per-row table.
+inline bool wideContribution(const SliceKernel& K, double U, double V, double tn, float& cw, float& cwv) {
+  const int r0 = static_cast<int>(floorInt(clampedRow(K, V))) + 1;
+  const auto dv0 = static_cast<float>(V - r0 * K.syv);
+  const std::size_t row0 = static_cast<std::size_t>(r0 - K.oy) * static_cast<std::size_t>(K.pw);
+  F4 aw = F4::zero(), awv = F4::zero();
+  for (int rr = 0; rr < K.rows; ++rr) {
+    const float tv = 1.0f - std::fabs(dv0 - static_cast<float>(rr) * K.syvF) * K.invHaF;
+    if (!(tv > 0.0f)) continue;
+    float d0 = 0.0f;
+    const int c0 = firstColumn(K, U - (r0 + rr) * K.eyu, d0);
+    const std::size_t off = row0 + static_cast<std::size_t>(rr) * static_cast<std::size_t>(K.pw) +
+                            static_cast<std::size_t>(c0 - K.ox);
+    const F4 tv4 = F4::set1(tv), d4 = F4::set1(d0);
+    for (int q = 0; q < K.taps / 4; ++q) {
+      const F4 t = lateralWeights(K, d4, q) * tv4;
+      aw = aw + t * F4::load(K.msk + off + 4 * q);
+      awv = awv + t * F4::load(K.val + off + 4 * q);
+    }
+  }
+  return finish(aw, awv, tn, cw, cwv);
+}
+
+// How a slice's voxels are summed (see contributeRows).
+// Default: the default kernel on the simulated probe (8 taps x 2 rows).
+enum class Path { Wide, Sheared, Plain, Plain1, Plain2, Default };
+
+// Asks for transparent huge pages on the whole pages inside [p, p + bytes)
+// (before they are first touched, for it to take effect at once).
+inline void adviseHugePages([[maybe_unused]] void* p, [[maybe_unused]] std::size_t bytes) {
+#if defined(MADV_HUGEPAGE)
+  constexpr std::uintptr_t kPage = 4096;
+  const auto a = (reinterpret_cast<std::uintptr_t>(p) + kPage - 1) & ~(kPage - 1);
+  const auto b = (reinterpret_cast<std::uintptr_t>(p) + bytes) & ~(kPage - 1);
+  if (b > a) ::madvise(reinterpret_cast<void*>(a), b - a, MADV_HUGEPAGE);  // a hint: failing is harmless
+#endif
+}
+
+// A zero-filled array for the per-voxel state. Grids are large and a slice
+// visits its voxels a grid row apart, so with 4 KiB pages nearly every row
+// costs a TLB miss; where the system allows, ask for transparent huge pages
+// before the first touch.
+template <typename T>
+class VoxelArray {
+public:
+  VoxelArray() = default;
+  explicit VoxelArray(std::size_t n) : n_(n) {
+    constexpr std::size_t kHuge = std::size_t{2} << 20;
+    const std::size_t bytes = std::max<std::size_t>(1, n * sizeof(T));
+    const std::size_t rounded = (bytes + kHuge - 1) / kHuge * kHuge;
+    void* p = std::aligned_alloc(kHuge, rounded);
+    if (!p) throw std::bad_alloc();
+    adviseHugePages(p, rounded);
+    data_.reset(static_cast<T*>(p));
+    std::fill_n(data_.get(), n_, T{});
+  }
+  std::size_t size() const { return n_; }
+  T* data() { return data_.get(); }
+  const T* data() const { return data_.get(); }
+  T& operator[](std::size_t i) { return data_.get()[i]; }
+  const T& operator[](std::size_t i) const { return data_.get()[i]; }
+
+private:
+  struct Free {
+    void operator()(T* p) const { std::free(p); }
+  };
+  std::unique_ptr<T[], Free> data_;
+  std::size_t n_ = 0;
+};
+
+inline void storeF32(std::uint8_t* bytes, std::size_t i, float v) { std::memcpy(bytes + 4 * i, &v, sizeof v); }
+
+// One run of voxels (i0..j, k) to (i1, j, k) along x inside a slice's support slab.
+struct Row {
+  std::int64_t j, k, i0, i1;
+  std::size_t offset;  // into the contribution scratch (motion vectors)
+};
+
+// Open interval of real i where lo < a + i*d < hi, intersected into [ilo, ihi]
+// (invD = 1/d, 0 when d is 0).
+inline void clipInterval(double a, double d, double invD, double lo, double hi, double& ilo, double& ihi) {
+  if (invD == 0.0) {
+    if (!(a > lo && a < hi)) {
+      ilo = 1.0;
+      ihi = 0.0;
+    }
+    return;
+  }
+  double t0 = (lo - a) * invD, t1 = (hi - a) * invD;
+  if (d < 0.0) std::swap(t0, t1);
+  ilo = std::max(ilo, t0);
+  ihi = std::min(ihi, t1);
+}
+
+// Slice coordinates (U, V, N) of voxel (0,0,0) and their change per step
+// along each grid axis.
+struct SliceFrame {
+  Vec3 base;
+  Vec3 step[3];
+};
+
+// -------------------------------------------------------- reconstructor --
+//
+// Replacement of aging data:
+//  - accumulate: sum(w*v) and sum(w) only grow; value = sum(w*v)/sum(w).
+//  - motion_vector (the paper's): each cell of motionVectorBrick^3 voxels
+//    remembers the direction of motion of the last slice that wrote it (the
+//    frame's centre minus the centre at the last direction update, taken once
+//    the centre has moved by he/2, so jitter does not flip it; frames after a
+//    jump, and the first frame, have no direction until they move). When a
+//    slice whose direction is more than 90 degrees from the cell's brings data
+//    to the cell, the cell is "rebased" once, before the slice is added: each
+//    voxel's current value and weight move to a base layer and its sums
+//    restart. From then on the voxel's value is
+//        (1 - w_new) * base + w_new * (new sum(w*v) / new sum(w))
+//    (w_new = motionVectorNewWeight), and its weight is new sum(w) / w_new,
+//    the weight of a plain mean in which the old data has a share of 1-w_new.
+//    Rebasing keeps each voxel's value and weight bit for bit, so only voxels
+//    where new data lands change, and a back-and-forth rescan in the same
+//    direction never rebases (it accumulates). The decision uses only the
+//    cell's state and the slice, so it does not depend on the thread count.
+//  - decay: each voxel keeps the time of its last update; when new data
+//    arrives at time t, its sums are first multiplied by exp(-(t - t_last)/tau).
+//    The value stays sum(w*v)/sum(w), so a voxel that gets no new data does
+//    not change; when a region is rescanned, the old data's share fades with
+//    the time since it was written (after 3 tau it weighs exp(-3) of what it
+//    did). weights() shows the weight as of the voxel's last update (decayed
+//    then). Times that go backwards do not decay.
+class TentReconstructor final : public Reconstructor {
+public:
+  TentReconstructor(const Grid& g, const ReconSettings& s);
+
+  InsertResult insert(const Frame& f, const Mat4& imageToReference, double timeS) override;
+  const Volume& output() const override { return output_; }
+  Volume weights() const override;
+  bool covered(std::size_t i) const override { return weightAt(i) > 0.0f; }
+
+private:
+  void splat(const SlicePose& pose, const SliceImage& img, double timeS, const Vec3& dir, DirtyRegion& dirty);
+  template <Path P>
+  void contribute(const SliceKernel& K, const SliceFrame& sf, float tf);
+  template <Path P, bool ConstV>
+  void contribute(const SliceKernel& K, const SliceFrame& sf, float tf);
+  template <Path P, bool ConstV, Replacement R>
+  void contributeRows(const SliceKernel& K, const SliceFrame& sf, std::size_t first, std::size_t end, float tf);
+  void rebaseCells(const Vec3& dir);
+  void applyStored(float tf);
+  template <typename F>
+  void forRows(F&& f);
+
+  float outputAt(std::size_t i) const;
+  // The output volume's voxels as floats (F32, little-endian like the host).
+  float* outF32() { return reinterpret_cast<float*>(output_.bytes.data()); }
+  float weightAt(std::size_t i) const;
+  template <Replacement R>
+  void applyVoxel(float* acc, float* out, std::size_t i, float cw, float cwv, float tf, float& cacheT,
+                  float& cacheF);
+
+  Replacement mode_;
+  int threads_;
+  double hl_, ha_, he_;
+  float wNew_ = 0.8f, wOld_ = 0.2f;
+
+  Volume output_;
+  // sum(w*v) and sum(w) side by side, so a voxel costs one cache line, not two.
+  VoxelArray<float> acc_;
+  std::vector<float> tLast_;          // decay: time of the last update, s since the first frame
+  std::vector<float> baseV_, baseW_;  // motion_vector: the rebased value and weight
+  Index3 cellDims_{0};
+  std::vector<glm::vec3> cellDir_;  // motion_vector: 0 = no direction yet
+  std::vector<std::uint32_t> cellStamp_;
+  std::uint32_t sliceCounter_ = 0;
+
+  // Scratch, reused from slice to slice.
+  std::vector<Row> rows_;
+  std::vector<float> contrib_;  // motion_vector: (cw, cwv) per voxel of rows_
+  std::vector<std::uint32_t> touched_;
+  std::vector<float> padVal_, padMsk_, tapOff_;
+  SliceImage cur_, prev_, mid_;
+  std::vector<PixelRun> runs_;  // pixels selected in frames of runsWidth_ x runsHeight_
+  int runsWidth_ = -1, runsHeight_ = -1;
+  glm::ivec4 runsBox_{0};       // their bounding box: x0 y0 x1 y1
+
+  // Stream state.
+  bool hasPrev_ = false;
+  SlicePose prevPose_;
+  double prevTime_ = 0.0;
+  bool hasT0_ = false;
+  double t0_ = 0.0;
+  Vec3 anchor_{0.0};
+  Vec3 dir_{0.0};
+};
+
+TentReconstructor::TentReconstructor(const Grid& g, const ReconSettings& s)
+    : Reconstructor(g, s), mode_(s.replacementEnum()) {
+  if (!(s.kernelLateralMm > 0.0) || !(s.kernelAxialMm > 0.0) || !(s.kernelElevationMm > 0.0))
+    throw InputError(fmt::format("recon: the tent kernel's half-widths must be positive (got {} {} {} mm)",
+                                 s.kernelLateralMm, s.kernelAxialMm, s.kernelElevationMm));
+  PP5_CHECK(g.voxelCount() > 0);
+  hl_ = s.kernelLateralMm;
+  ha_ = s.kernelAxialMm;
+  he_ = s.kernelElevationMm;
+  threads_ = s.threads > 0 ? s.threads : std::max(1, omp_get_max_threads());
+  const auto n = static_cast<std::size_t>(g.voxelCount());
+  // Volume::allocate, with huge pages asked for before the zero fill.
+  checkGridFits(g, 4, "reconstruction output");
+  output_.grid = g;
+  output_.type = ScalarType::F32;
+  output_.bytes.reserve(4 * n);
+  adviseHugePages(output_.bytes.data(), 4 * n);
+  output_.bytes.assign(4 * n, 0);
+  acc_ = VoxelArray<float>(2 * n);
+  if (mode_ == Replacement::Decay) {
+    if (!(s.decayTauS > 0.0)) throw InputError("recon.decay_tau_s must be positive");
+    tLast_.assign(n, 0.0f);
+  }
+  if (mode_ == Replacement::MotionVector) {
+    if (s.motionVectorBrick < 1) throw InputError("recon.motion_vector_brick must be at least 1");
+    if (!(s.motionVectorNewWeight > 0.0 && s.motionVectorNewWeight <= 1.0))
+      throw InputError("recon.motion_vector_new_weight must be in (0, 1]");
+    wNew_ = static_cast<float>(s.motionVectorNewWeight);
+    wOld_ = static_cast<float>(1.0 - s.motionVectorNewWeight);
+    baseV_.assign(n, 0.0f);
+    baseW_.assign(n, 0.0f);
+    const std::int64_t b = s.motionVectorBrick;
+    cellDims_ = (g.dims + Index3(b - 1)) / Index3(b);
+    const auto cells = static_cast<std::size_t>(cellDims_.x * cellDims_.y * cellDims_.z);
+    cellDir_.assign(cells, glm::vec3(0.0f));
+    cellStamp_.assign(cells, 0);
+  }
+}
+
+float TentReconstructor::outputAt(std::size_t i) const {
+  const float sw = acc_[2 * i + 1];
+  if (mode_ == Replacement::MotionVector && baseW_[i] > 0.0f) {
+    if (sw > 0.0f) return wOld_ * baseV_[i] + wNew_ * (acc_[2 * i] / sw);
+    return baseV_[i];
+  }
+  return sw > 0.0f ? acc_[2 * i] / sw : 0.0f;
+}
+
+float TentReconstructor::weightAt(std::size_t i) const {
+  const float sw = acc_[2 * i + 1];
+  if (mode_ == Replacement::MotionVector && baseW_[i] > 0.0f) return sw > 0.0f ? sw / wNew_ : baseW_[i];
+  return sw;
+}
+
+Volume TentReconstructor::weights() const {
+  Volume w;
+  w.allocate(grid_, ScalarType::F32);
+  const std::size_t n = acc_.size() / 2;
+  for (std::size_t i = 0; i < n; ++i) storeF32(w.bytes.data(), i, weightAt(i));
+  return w;
+}
+
+// Adds one voxel's contribution from the current slice and refreshes its output.
+template <Replacement R>
+inline void TentReconstructor::applyVoxel(float* acc, float* out, std::size_t i, float cw, float cwv, float tf,
+                                          float& cacheT, float& cacheF) {
+  float* a = acc + 2 * i;
+  float swv = a[0], sw = a[1];
+  if constexpr (R == Replacement::Decay) {
+    const float tl = tLast_[i];
+    if (sw > 0.0f && tf > tl) {
+      // Neighbouring voxels were usually last written by the same slice.
+      if (!(tl == cacheT)) {
+        cacheT = tl;
+        cacheF = static_cast<float>(
+            std::exp(-(static_cast<double>(tf) - static_cast<double>(tl)) / settings_.decayTauS));
+      }
+      sw *= cacheF;
+      swv *= cacheF;
+    }
+    tLast_[i] = std::max(tl, tf);
+  }
+  sw += cw;
+  swv += cwv;
+  a[0] = swv;
+  a[1] = sw;
+  float value = swv / sw;
+  if constexpr (R == Replacement::MotionVector)
+    if (baseW_[i] > 0.0f) value = wOld_ * baseV_[i] + wNew_ * value;
+  out[i] = value;
+}
+
+// Runs f(first, end) over ranges of rows_, on threads_ threads. Each row is a disjoint
+// set of voxels and each voxel's update depends only on its own state and the
+// slice, so any split of the rows gives the same bits.
+template <typename F>
+void TentReconstructor::forRows(F&& f) {
+  const auto nrows = static_cast<std::int64_t>(rows_.size());
+  constexpr std::int64_t kChunk = 64;
+  const std::int64_t chunks = (nrows + kChunk - 1) / kChunk;
+  if (threads_ <= 1 || chunks < 2) {
+    f(std::size_t{0}, static_cast<std::size_t>(nrows));
+    return;
+  }
+#pragma omp parallel for num_threads(threads_) schedule(dynamic, 1)
+  for (std::int64_t c = 0; c < chunks; ++c)
+    f(static_cast<std::size_t>(c * kChunk), static_cast<std::size_t>(std::min(nrows, (c + 1) * kChunk)));
+}
+
+template <Path P, bool ConstV, Replacement R>
+void TentReconstructor::contributeRows(const SliceKernel& Kref, const SliceFrame& sf, std::size_t first,
+                                       std::size_t end, float tf) {
+  // Local copies: the compiler cannot tell that the stores below leave them alone.
+  const SliceKernel K = Kref;
+  float* const acc = acc_.data();
+  float* const out = outF32();
+  float* const contrib = contrib_.data();
+  const std::int64_t nx = grid_.dims.x, nxy = grid_.dims.x * grid_.dims.y;
+  const Vec3 s = sf.step[0], sj = sf.step[1], sk = sf.step[2];
+  float cacheT = std::numeric_limits<float>::quiet_NaN(), cacheF = 1.0f;
+  Axial ax;
+  for (std::size_t r = first; r < end; ++r) {
+    // Rows a slice crosses are often short and a grid row apart: fetch the
+    // voxels of a row a few rows ahead while this one computes.
+    constexpr std::size_t kAhead = 6;
+    if (r + kAhead < end) {
+      const Row& ahead = rows_[r + kAhead];
+      const std::int64_t l0 = ahead.j * nx + ahead.k * nxy;
+      const auto firstV = static_cast<std::size_t>(l0 + ahead.i0);
+      const auto lastV = static_cast<std::size_t>(l0 + ahead.i1);
+      __builtin_prefetch(acc + 2 * firstV, 1);
+      __builtin_prefetch(acc + 2 * lastV + 1, 1);
+      __builtin_prefetch(out + firstV, 1);
+      __builtin_prefetch(out + lastV, 1);
+    }
+    const Row& row = rows_[r];
+    const Vec3 b = sf.base + static_cast<double>(row.j) * sj + static_cast<double>(row.k) * sk;
+    const std::int64_t lin0 = row.j * nx + row.k * nxy;
+    constexpr int kRows = P == Path::Default ? 2 : 0;
+    if constexpr (ConstV) axialWindow<kRows>(K, b.y, ax);  // s.y == 0: V is b.y all along the row
+    for (std::int64_t i = row.i0; i <= row.i1; ++i) {
+      const auto di = static_cast<double>(i);
+      const double U = b.x + di * s.x, N = b.z + di * s.z;
+      const double tn = 1.0 - std::abs(N) * K.invHe;
+      float cw = 0.0f, cwv = 0.0f;
+      bool hit = false;
+      if (tn > 0.0) {
+        if constexpr (P == Path::Wide) {
+          hit = wideContribution(K, U, b.y + di * s.y, tn, cw, cwv);
+        } else {
+          if constexpr (!ConstV) axialWindow<kRows>(K, b.y + di * s.y, ax);
+          constexpr bool kSheared = P == Path::Sheared;
+          constexpr int kChunks = P == Path::Plain1 ? 1 : P == Path::Plain2 || P == Path::Default ? 2 : 0;
+          hit = inPlaneContribution<kSheared, kChunks, kRows>(K, ax, U, tn, cw, cwv);
+        }
+      }
+      if constexpr (R == Replacement::MotionVector) {
+        // Stored: the cells to rebase are known only once the slice is summed.
+        float* c = contrib + 2 * (row.offset + static_cast<std::size_t>(i - row.i0));
+        c[0] = hit ? cw : 0.0f;
+        c[1] = hit ? cwv : 0.0f;
+      } else {
+        if (hit)
+          applyVoxel<R>(acc, out, static_cast<std::size_t>(lin0 + i), cw, cwv, tf, cacheT, cacheF);
+      }
+    }
+  }
+}
+
+template <Path P, bool ConstV>
+void TentReconstructor::contribute(const SliceKernel& K, const SliceFrame& sf, float tf) {
+  switch (mode_) {
+    case Replacement::Accumulate:
+      forRows([&](std::size_t a, std::size_t b) { contributeRows<P, ConstV, Replacement::Accumulate>(K, sf, a, b, tf); });
+      break;
+    case Replacement::Decay:
+      forRows([&](std::size_t a, std::size_t b) { contributeRows<P, ConstV, Replacement::Decay>(K, sf, a, b, tf); });
+      break;
+    case Replacement::MotionVector:
+      forRows([&](std::size_t a, std::size_t b) { contributeRows<P, ConstV, Replacement::MotionVector>(K, sf, a, b, tf); });
+      break;
+  }
+}
+
+template <Path P>
+void TentReconstructor::contribute(const SliceKernel& K, const SliceFrame& sf, float tf) {
+  if (sf.step[0].y == 0.0)
+    contribute<P, true>(K, sf, tf);
+  else
+    contribute<P, false>(K, sf, tf);
+}
+
+void TentReconstructor::applyStored(float tf) {
+  forRows([&](std::size_t first, std::size_t end) {
+    float* const acc = acc_.data();
+    float* const out = outF32();
+    float cacheT = std::numeric_limits<float>::quiet_NaN(), cacheF = 1.0f;
+    for (std::size_t r = first; r < end; ++r) {
+      const Row& row = rows_[r];
+      const std::size_t lin0 = grid_.linear(0, row.j, row.k);
+      for (std::int64_t i = row.i0; i <= row.i1; ++i) {
+        const float* c = contrib_.data() + 2 * (row.offset + static_cast<std::size_t>(i - row.i0));
+        if (c[0] > 0.0f)
+          applyVoxel<Replacement::MotionVector>(acc, out, lin0 + static_cast<std::size_t>(i), c[0], c[1], tf, cacheT,
+                                                cacheF);
+      }
+    }
+  });
+}
+
+// Motion vectors: finds the cells that get data from the current slice (its
+// contributions are in contrib_), rebases those whose direction opposes the
+// slice's, and records the slice's direction in them.
+void TentReconstructor::rebaseCells(const Vec3& dir) {
+  if (++sliceCounter_ == 0) {  // the stamps wrapped: start over
+    std::fill(cellStamp_.begin(), cellStamp_.end(), 0u);
+    sliceCounter_ = 1;
+  }
+  const std::int64_t B = settings_.motionVectorBrick;
+  touched_.clear();
+  for (const Row& row : rows_) {
+    const std::int64_t cj = row.j / B, ck = row.k / B;
+    for (std::int64_t i = row.i0; i <= row.i1; ++i) {
+      if (!(contrib_[2 * (row.offset + static_cast<std::size_t>(i - row.i0))] > 0.0f)) continue;
+      const auto cell = static_cast<std::uint32_t>((ck * cellDims_.y + cj) * cellDims_.x + i / B);
+      if (cellStamp_[cell] != sliceCounter_) {
+        cellStamp_[cell] = sliceCounter_;
+        touched_.push_back(cell);
+      }
+    }
+  }
+  if (dir == Vec3(0.0)) return;  // no direction yet: accumulate, remember nothing
+  const glm::vec3 d(dir);
+  for (const std::uint32_t cell : touched_) {
+    glm::vec3& cd = cellDir_[cell];
+    if (glm::dot(cd, d) < 0.0f) {
+      const std::int64_t c = cell;
+      const Index3 ci(c % cellDims_.x, (c / cellDims_.x) % cellDims_.y, c / (cellDims_.x * cellDims_.y));
+      const Index3 lo = ci * Index3(B), hi = glm::min(lo + Index3(B), grid_.dims);
+      for (std::int64_t k = lo.z; k < hi.z; ++k)
+        for (std::int64_t j = lo.y; j < hi.y; ++j)
+          for (std::int64_t i = lo.x; i < hi.x; ++i) {
+            const std::size_t v = grid_.linear(i, j, k);
+            if (!(acc_[2 * v + 1] > 0.0f)) continue;  // nothing new since the last rebase
+            const float bv = outputAt(v), bw = weightAt(v);
+            baseV_[v] = bv;
+            baseW_[v] = bw;
+            acc_[2 * v + 1] = 0.0f;
+            acc_[2 * v] = 0.0f;
+          }
+    }
+    cd = d;
+  }
+}
+
+void TentReconstructor::splat(const SlicePose& pose, const SliceImage& img, double timeS, const Vec3& dir,
+                              DirtyRegion& dirty) {
+  const Grid& g = grid_;
+  // Window of pixels around a voxel: every column strictly within hl of it
+  // (at most floor(2 hl / sx) + 1 of them), every row within ha.
+  const int tapsReal = static_cast<int>(std::floor(2.0 * hl_ / pose.sx)) + 1;
+  const int taps = (tapsReal + 3) / 4 * 4;
+  const int rowsWin = static_cast<int>(std::floor(2.0 * ha_ / pose.syv)) + 1;
+  const int padX = taps + 2, padY = rowsWin + 2;
+  const int rw = img.x1 - img.x0 + 1, rh = img.y1 - img.y0 + 1;
+  const int pw = rw + 2 * padX, ph = rh + 2 * padY;
+  padVal_.assign(static_cast<std::size_t>(pw) * static_cast<std::size_t>(ph), 0.0f);
+  padMsk_.assign(padVal_.size(), 0.0f);
+  for (int r = 0; r < rh; ++r) {
+    const std::size_t src = static_cast<std::size_t>(img.y0 + r) * static_cast<std::size_t>(img.width) +
+                            static_cast<std::size_t>(img.x0);
+    const std::size_t dst = static_cast<std::size_t>(r + padY) * static_cast<std::size_t>(pw) + static_cast<std::size_t>(padX);
+    std::copy_n(img.value.data() + src, rw, padVal_.data() + dst);
+    if (img.masked())
+      std::copy_n(img.mask.data() + src, rw, padMsk_.data() + dst);
+    else
+      std::fill_n(padMsk_.data() + dst, rw, 1.0f);
+  }
+  tapOff_.resize(static_cast<std::size_t>(taps));
+  for (int t = 0; t < taps; ++t) tapOff_[static_cast<std::size_t>(t)] = static_cast<float>(t * pose.sx);
+
+  SliceKernel K{};
+  K.hl = hl_;
+  K.ha = ha_;
+  K.invHaF = static_cast<float>(1.0 / ha_);
+  K.syvF = static_cast<float>(pose.syv);
+  K.invHe = 1.0 / he_;
+  K.invHlF = static_cast<float>(1.0 / hl_);
+  K.sx = pose.sx;
+  K.eyu = pose.eyu;
+  K.syv = pose.syv;
+  K.invSx = 1.0 / pose.sx;
+  K.invSyv = 1.0 / pose.syv;
+  K.x0 = img.x0;
+  K.y0 = img.y0;
+  K.x1 = img.x1;
+  K.y1 = img.y1;
+  K.taps = taps;
+  K.tapsReal = tapsReal;
+  K.masked = img.masked();
+  K.rows = rowsWin;
+  K.ox = img.x0 - padX;
+  K.oy = img.y0 - padY;
+  K.pw = pw;
+  K.val = padVal_.data();
+  K.msk = padMsk_.data();
+  K.tapOff = tapOff_.data();
+
+  // The pixel centres' extent in slice coordinates, and the kernel's support
+  // around it: the open box lo < (U, V, N) < hi.
+  double uLo = std::numeric_limits<double>::infinity(), uHi = -uLo;
+  for (const int c : {img.x0, img.x1})
+    for (const int r : {img.y0, img.y1}) {
+      const double u = c * pose.sx + r * pose.eyu;
+      uLo = std::min(uLo, u);
+      uHi = std::max(uHi, u);
+    }
+  const double vLo = img.y0 * pose.syv, vHi = img.y1 * pose.syv;
+  const Vec3 lo(uLo - hl_, vLo - ha_, -he_), hi(uHi + hl_, vHi + ha_, he_);
+
+  // The same box for the dirty region, with a little slack for rounding.
+  constexpr double kTiny = 1e-6, kPad = 1e-3;
+  addOrientedSlab(dirty, pose.origin + uLo * pose.u + vLo * pose.v, std::max(uHi - uLo, kTiny) * pose.u,
+                  std::max(vHi - vLo, kTiny) * pose.v, Vec3(hl_, ha_, he_) + Vec3(kPad));
+
+  // Voxel index -> slice coordinates. Rows run along x, the contiguous axis,
+  // even when the slice faces x and its rows are only a few voxels long: rows
+  // along the axis most parallel to the slice would be longer, but their
+  // voxels would sit a grid row or plane apart, and measured slower.
+  SliceFrame sf;
+  const Vec3 d0 = g.origin - pose.origin;
+  sf.base = Vec3(glm::dot(d0, pose.u), glm::dot(d0, pose.v), glm::dot(d0, pose.n));
+  for (int ax = 0; ax < 3; ++ax) sf.step[ax] = g.spacing[ax] * Vec3(pose.u[ax], pose.v[ax], pose.n[ax]);
+
+  // Index bounds of the box, then one run of voxels per (j, k) row.
+  Vec3 vmin(std::numeric_limits<double>::infinity()), vmax(-std::numeric_limits<double>::infinity());
+  for (int a = 0; a < 8; ++a) {
+    const Vec3 sc((a & 1) ? hi.x : lo.x, (a & 2) ? hi.y : lo.y, (a & 4) ? hi.z : lo.z);
+    const Vec3 w = pose.origin + sc.x * pose.u + sc.y * pose.v + sc.z * pose.n;
+    const Vec3 ijk = g.worldToVoxel(w);
+    vmin = glm::min(vmin, ijk);
+    vmax = glm::max(vmax, ijk);
+  }
+  auto indexRange = [&](int ax, std::int64_t& first, std::int64_t& last) {
+    const auto n = static_cast<double>(g.dims[ax]);
+    first = std::max<std::int64_t>(0, static_cast<std::int64_t>(std::clamp(std::floor(vmin[ax]), -1.0, n)));
+    last = std::min<std::int64_t>(g.dims[ax] - 1, static_cast<std::int64_t>(std::clamp(std::ceil(vmax[ax]), -1.0, n)));
+  };
+  std::int64_t jLo, jHi, kLo, kHi, aLo, aHi;
+  indexRange(1, jLo, jHi);
+  indexRange(2, kLo, kHi);
+  indexRange(0, aLo, aHi);
+  const Vec3 sa = sf.step[0];
+  const Vec3 invSa(std::abs(sa.x) < 1e-12 ? 0.0 : 1.0 / sa.x, std::abs(sa.y) < 1e-12 ? 0.0 : 1.0 / sa.y,
+                   std::abs(sa.z) < 1e-12 ? 0.0 : 1.0 / sa.z);
+  rows_.clear();
+  std::size_t total = 0;
+  for (std::int64_t k = kLo; k <= kHi; ++k)
+    for (std::int64_t j = jLo; j <= jHi; ++j) {
+      const Vec3 a = sf.base + static_cast<double>(j) * sf.step[1] + static_cast<double>(k) * sf.step[2];
+      double ilo = static_cast<double>(aLo) - 1.0, ihi = static_cast<double>(aHi) + 1.0;
+      clipInterval(a.x, sa.x, invSa.x, lo.x, hi.x, ilo, ihi);
+      clipInterval(a.y, sa.y, invSa.y, lo.y, hi.y, ilo, ihi);
+      clipInterval(a.z, sa.z, invSa.z, lo.z, hi.z, ilo, ihi);
+      if (!(ilo < ihi)) continue;
+      // ilo and ihi lie in [aLo - 1, aHi + 1] here.
+      const std::int64_t i0 = std::max<std::int64_t>(aLo, floorInt(ilo) + 1);
+      const std::int64_t i1 = std::min<std::int64_t>(aHi, -floorInt(-ihi) - 1);
+      if (i0 > i1) continue;
+      rows_.push_back({j, k, i0, i1, total});
+      total += static_cast<std::size_t>(i1 - i0 + 1);
+    }
+  if (rows_.empty()) return;
+
+  const auto tf = static_cast<float>(timeS - t0_);
+  if (mode_ == Replacement::MotionVector && contrib_.size() < 2 * total) contrib_.resize(2 * total);
+  // An image whose y axis is perpendicular to its x axis (any rigid pose with
+  // a pixel scale) shares one column window across the rows.
+  const bool sheared = std::abs(pose.eyu) * (img.y1 + 1) > 1e-9;
+  const int chunks = taps / 4;
+  if (rowsWin > kMaxRows)
+    contribute<Path::Wide, false>(K, sf, tf);
+  else if (sheared)
+    contribute<Path::Sheared>(K, sf, tf);
+  else if (chunks == 1)
+    contribute<Path::Plain1>(K, sf, tf);
+  else if (chunks == 2 && rowsWin == 2)
+    contribute<Path::Default>(K, sf, tf);
+  else if (chunks == 2)
+    contribute<Path::Plain2>(K, sf, tf);
+  else
+    contribute<Path::Plain>(K, sf, tf);
+  if (mode_ == Replacement::MotionVector) {
+    rebaseCells(dir);
+    applyStored(tf);
+  }
+}
+
+InsertResult TentReconstructor::insert(const Frame& f, const Mat4& imageToReference, double timeS) {
+  // Everything is checked before any state changes, so a refused frame leaves
+  // the reconstruction as it was.
+  const std::string what = fmt::format("frame {}", f.index);
+  if (f.width <= 0 || f.height <= 0) throw InputError(what + ": the image is empty");
+  if (f.pixels.size() != f.byteSize())
+    throw InputError(fmt::format("{}: the pixel buffer holds {} bytes, but a {}x{} image needs {}", what,
+                                 f.pixels.size(), f.width, f.height, f.byteSize()));
+  if (!std::isfinite(timeS)) throw InputError(what + ": the timestamp is not finite");
+  const SlicePose pose = poseFromMatrix(imageToReference, what);
+
+  if (f.width != runsWidth_ || f.height != runsHeight_) {  // the selection depends on the frame size only
+    runs_ = pixelRuns(f.width, f.height, settings_);
+    runsWidth_ = f.width;
+    runsHeight_ = f.height;
+    // Their bounding box (the whole image when it is empty), for the geometry
+    // below, which must not move with the pixels that happen to be rejected.
+    runsBox_ = {f.width, f.height, -1, -1};
+    for (const PixelRun& run : runs_)
+      runsBox_ = {std::min(runsBox_.x, run.x0), std::min(runsBox_.y, run.y), std::max(runsBox_.z, run.x1),
+                  std::max(runsBox_.w, run.y)};
+    if (runs_.empty()) runsBox_ = {0, 0, f.width - 1, f.height - 1};
+  }
+  selectPixels(f, runs_, settings_.pixelRejectionThreshold, cur_);
+  InsertResult res;
+  res.dirty = DirtyRegion(grid_);
+  res.pixelsInserted = cur_.selected;
+  if (!hasT0_) {
+    t0_ = timeS;
+    hasT0_ = true;
+  }
+
+  // Corners of the clip rectangle and fan.
+  const double cx0 = runsBox_.x, cy0 = runsBox_.y, cx1 = runsBox_.z, cy1 = runsBox_.w;
+  const Vec3 centre = pose.pixel(0.5 * (cx0 + cx1), 0.5 * (cy0 + cy1));
+
+  // A jump (or the first frame): no fill-in, and no direction of motion.
+  bool jump = true;
+  double maxCornerMm = 0.0;
+  if (hasPrev_) {
+    for (const double c : {cx0, cx1})
+      for (const double r : {cy0, cy1})
+        maxCornerMm = std::max(maxCornerMm, glm::length(pose.pixel(c, r) - prevPose_.pixel(c, r)));
+    const double angleDeg = rotationAngle(prevPose_, pose) * (180.0 / 3.14159265358979323846);
+    jump = maxCornerMm > settings_.fillInMaxGapMm || angleDeg > settings_.fillInMaxAngleDeg;
+  }
+  if (jump) {
+    dir_ = Vec3(0.0);
+    anchor_ = centre;
+  } else {
+    const Vec3 d = centre - anchor_;
+    const double len = glm::length(d);
+    if (len >= 0.5 * he_) {
+      dir_ = d / len;
+      anchor_ = centre;
+    }
+  }
+
+  if (settings_.fillIn && !jump && cur_.selected > 0 && prev_.selected > 0 && prev_.width == cur_.width &&
+      prev_.height == cur_.height) {
+    const int n = fillInCount(maxCornerMm, he_);
+    // Pixels kept in both frames lie in the intersection of their boxes.
+    const int x0 = std::max(prev_.x0, cur_.x0), x1 = std::min(prev_.x1, cur_.x1);
+    const int y0 = std::max(prev_.y0, cur_.y0), y1 = std::min(prev_.y1, cur_.y1);
+    auto kept = [](const SliceImage& im, std::size_t i) { return !im.masked() || im.mask[i] > 0.0f; };
+    mid_.width = cur_.width;
+    mid_.height = cur_.height;
+    const std::size_t npx = cur_.value.size();
+    for (int s = 1; s <= n && x0 <= x1 && y0 <= y1; ++s) {
+      const double t = static_cast<double>(s) / (n + 1);
+      const auto tf = static_cast<float>(t), sf = static_cast<float>(1.0 - t);
+      // Pixel values linearly; a pixel takes part when it does in both frames.
+      mid_.value.assign(npx, 0.0f);
+      mid_.mask.assign(npx, 0.0f);
+      mid_.selected = 0;
+      mid_.x0 = x1;
+      mid_.y0 = y1;
+      mid_.x1 = x0;
+      mid_.y1 = y0;
+      for (int r = y0; r <= y1; ++r)
+        for (int c = x0; c <= x1; ++c) {
+          const std::size_t i = static_cast<std::size_t>(r) * static_cast<std::size_t>(cur_.width) +
+                                static_cast<std::size_t>(c);
+          if (!kept(prev_, i) || !kept(cur_, i)) continue;
+          mid_.value[i] = sf * prev_.value[i] + tf * cur_.value[i];
+          mid_.mask[i] = 1.0f;
+          ++mid_.selected;
+          mid_.x0 = std::min(mid_.x0, c);
+          mid_.x1 = std::max(mid_.x1, c);
+          mid_.y0 = std::min(mid_.y0, r);
+          mid_.y1 = std::max(mid_.y1, r);
+        }
+      if (mid_.selected == 0) continue;
+      if (mid_.selected == static_cast<std::uint64_t>(mid_.x1 - mid_.x0 + 1) * static_cast<std::uint64_t>(mid_.y1 - mid_.y0 + 1))
+        mid_.mask.clear();
+      splat(interpolatePose(prevPose_, pose, t), mid_, prevTime_ + (timeS - prevTime_) * t, dir_, res.dirty);
+      ++res.fillInSlices;
+    }
+  }
+
+  if (cur_.selected > 0) splat(pose, cur_, timeS, dir_, res.dirty);
+  std::swap(prev_, cur_);
+  prevPose_ = pose;
+  prevTime_ = timeS;
+  hasPrev_ = true;
+  return res;
+}
+
+}  // namespace
+
+std::uint64_t tentBytesPerVoxel(const ReconSettings& s) {
+  std::uint64_t b = 12;  // output, sum(w*v), sum(w): F32 each
+  switch (s.replacementEnum()) {
+    case Replacement::Accumulate: break;
+    case Replacement::Decay: b += 4; break;  // time of the last update
+    case Replacement::MotionVector: {
+      // base value and weight, plus a 16-byte cell per motionVectorBrick^3 voxels
+      const std::uint64_t c = static_cast<std::uint64_t>(std::max(1, s.motionVectorBrick));
+      b += 8 + (16 + c * c * c - 1) / (c * c * c);
+      break;
+    }
+  }
+  return b;
+}
+
+std::unique_ptr<Reconstructor> makeTentReconstructor(const Grid& g, const ReconSettings& s) {
+  return std::make_unique<TentReconstructor>(g, s);
+}
+
+}  // namespace pp5::gp
