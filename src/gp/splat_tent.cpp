@@ -992,6 +992,13 @@ InsertResult TentReconstructor::insert(const Frame& f, const Mat4& imageToRefere
                                  f.pixels.size(), f.width, f.height, f.byteSize()));
   if (!std::isfinite(timeS)) throw InputError(what + ": the timestamp is not finite");
   const SlicePose pose = poseFromMatrix(imageToReference, what);
+  // Each voxel reads a window of pixels as wide as the kernel; a kernel that
+  // spans more than this many pixels is taken for a pose with the wrong scale.
+  constexpr double kMaxWindow = 1024.0;
+  if (!(2.0 * hl_ / pose.sx <= kMaxWindow) || !(2.0 * ha_ / pose.syv <= kMaxWindow))
+    throw InputError(fmt::format("{}: pixels of {:.3g} x {:.3g} mm are too small for the tent kernel "
+                                 "({} x {} mm half-widths span more than {} pixels)",
+                                 what, pose.sx, pose.syv, hl_, ha_, kMaxWindow));
 
   if (f.width != runsWidth_ || f.height != runsHeight_) {  // the selection depends on the frame size only
     runs_ = pixelRuns(f.width, f.height, settings_);
