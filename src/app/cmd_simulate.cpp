@@ -22,6 +22,7 @@
 #include "app/settings.hpp"
 #include "core/error.hpp"
 #include "core/image_io.hpp"
+#include "core/io_util.hpp"
 #include "core/plus_config.hpp"
 #include "core/sequence_io.hpp"
 #include "core/volume_io.hpp"
@@ -58,16 +59,9 @@ std::set<std::size_t> previewIndices(std::size_t n, int count) {
 }
 
 void writeTextAtomically(const std::string& path, const std::string& text) {
-  const std::string tmp = path + ".tmp";
-  {
-    std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
-    out << text;
-    out.flush();
-    if (!out) throw InputError(path + ": cannot write");
-  }
-  std::error_code ec;
-  fs::rename(tmp, path, ec);
-  if (ec) throw InputError(path + ": cannot write (" + ec.message() + ")");
+  io::AtomicFile out(path);
+  out.write(text);
+  out.commit();
 }
 
 Grid truthGrid(const Settings& s, const sim::SweepSimulator& sim) {
