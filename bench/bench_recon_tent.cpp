@@ -1,8 +1,11 @@
 // The 1990 paper's reconstruction on the default doll workload: 256x256
 // frames 2 mm apart (about 98 x 195 mm, pixels 0.38 x 0.76 mm) into a 256^3
-// grid of 0.8 mm voxels, tent kernel with its default half-widths, fill-in on
-// (one intermediate slice per gap), accumulate. Time per inserted frame,
+// grid of 0.8 mm voxels, accumulate, fill-in on. Time per inserted frame,
 // fill-in included. Target: <= 10 ms per frame on one core (Release).
+//  - TentInsert: the default kernel (2 x 1 x 3 mm half-widths). Frames 2 mm
+//    apart are within its 3 mm elevational reach: no fill-in.
+//  - TentInsertFillIn: the earlier default, 1 x 0.75 x 1.5 mm, which needs
+//    one intermediate slice per gap (fill_in_per_frame = 1).
 // Run: build/bench/pp5_bench --benchmark_filter=TentInsert
 #include <benchmark/benchmark.h>
 
@@ -60,12 +63,11 @@ Mat4 sweepPose(double x, double yawDeg, double tiltDeg) {
 }
 
 // Args: threads (0 = every core), yaw and tilt of the probe in degrees.
-void BM_TentInsert(benchmark::State& state) {
+void tentInsert(benchmark::State& state, pp5::gp::ReconSettings s) {
   Grid g;
   g.dims = pp5::Index3(256);
   g.spacing = Vec3(0.8);
   g.origin = Vec3(-0.5 * 255 * 0.8);
-  pp5::gp::ReconSettings s;
   s.method = "tent";
   s.threads = static_cast<int>(state.range(0));
   const double yaw = static_cast<double>(state.range(1)), tilt = static_cast<double>(state.range(2));
@@ -85,12 +87,29 @@ void BM_TentInsert(benchmark::State& state) {
   state.SetItemsProcessed(n);
   state.counters["fill_in_per_frame"] = static_cast<double>(fillIns) / static_cast<double>(std::max<std::int64_t>(1, n));
 }
+
+void BM_TentInsert(benchmark::State& state) { tentInsert(state, pp5::gp::ReconSettings{}); }
 BENCHMARK(BM_TentInsert)
     ->ArgNames({"threads", "yaw_deg", "tilt_deg"})
     ->Args({1, 0, 0})
     ->Args({1, 30, 0})
     ->Args({1, 0, 15})
     ->Args({0, 0, 0})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
+
+void BM_TentInsertFillIn(benchmark::State& state) {
+  pp5::gp::ReconSettings s;
+  s.kernelLateralMm = 1.0;
+  s.kernelAxialMm = 0.75;
+  s.kernelElevationMm = 1.5;
+  tentInsert(state, s);
+}
+BENCHMARK(BM_TentInsertFillIn)
+    ->ArgNames({"threads", "yaw_deg", "tilt_deg"})
+    ->Args({1, 0, 0})
+    ->Args({1, 30, 0})
+    ->Args({1, 0, 15})
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime();
 

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <functional>
 #include <numbers>
 #include <numeric>
@@ -13,6 +14,7 @@
 #include "core/error.hpp"
 #include "sim/bmode.hpp"
 #include "sim/probe_motion.hpp"
+#include "sim/simulate.hpp"
 
 using namespace pp5;
 using namespace pp5::sim;
@@ -164,7 +166,10 @@ TEST(BMode, SpeckleIsRayleighAndItsMeanIsTheTruthLevel) {
   // Darker tissue gives darker speckle.
   EXPECT_LT(sim.displayLevel(Tissue::Fat), sim.displayLevel(Tissue::Muscle) - 10.0);
   EXPECT_GT(sim.displayLevel(Tissue::Fascia), sim.displayLevel(Tissue::Muscle) + 20.0);
-  EXPECT_EQ(sim.displayLevel(Tissue::Water), 0.0);
+  // Water has no scatterers: it shows the electronic noise floor.
+  EXPECT_EQ(sim.displayLevel(Tissue::Water), sim.noiseFloorLevel());
+  EXPECT_GT(sim.noiseFloorLevel(), 0.0);
+  EXPECT_LT(sim.noiseFloorLevel(), sim.displayLevel(Tissue::Fat));
 }
 
 TEST(BMode, SameSeedSameFrameOtherSeedOtherSpeckle) {
@@ -222,6 +227,8 @@ TEST(BMode, TankBottomIsBrightWaterIsDarkWireIsADot) {
   const Stats water = stats(region(f, rowAtDepth(probe, 160.0), rowAtDepth(probe, 175.0), 0, f.width));
   EXPECT_GT(bestRow, 200.0);
   EXPECT_LT(water.mean, 25.0);
+  // ... and its mean is the truth volume's level for water, the noise floor.
+  EXPECT_NEAR(water.mean, sim.displayLevel(Tissue::Water), 1.0);
   EXPECT_GT(bestRow, water.mean + 150.0);
   const Stats nearField = stats(region(f, 5, rowAtDepth(probe, 25.0), 0, f.width));
   EXPECT_LT(nearField.mean, 25.0);
@@ -432,3 +439,109 @@ TEST(BMode, BoneSurfaceIsTheBrightestEchoWithShadowBelow) {
   EXPECT_GE(brightest, columns * 9 / 10) << "and is the brightest echo of those beam lines";
   EXPECT_LT(sh.mean, bs.mean - 40.0) << "what lies beyond the surface is in shadow";
 }
+
+namespace {
+
+// Mean over 24 speckle realisations (seeds) of each row of the middle
+// columns, against the expected-image volume sampled at the same pixels, for
+// the ideal medium. `normal` is the block's top surface: +z puts an interface
+// across the axial direction, +y across the lateral one.
+struct ProfileError {
+  double expected = 0.0;  // RMS over rows of (measured - expected image)
+  double step = 0.0;      // the same against the unblurred tissue map
+};
+ProfileError expectedImageProfile(const Vec3& normal, bool lateral) {
+  BModeSettings bs;
+  bs.medium = "ideal";
+  const ProbeModel probe = shallowPaper35();
+  const Phantom ph = block(Tissue::Muscle, 40.0, normal);
+  const Mat4 pose = poseAt(0.0, 0.0, kSurface);
+  // A one-voxel-thick grid on the image plane with the pixel pitch: voxel
+  // (i, j) is pixel (width-1-i, j) (the lateral axis runs along -y, depth along -z).
+  const Mat4 imageToRef = pose * probe.imageToProbe();
+  Grid g;
+  g.spacing = Vec3(1.0, probe.spacingX(), probe.spacingY());
+  g.dims = Index3(1, probe.width, probe.height);
+  const Vec3 lastPixel = transformPoint(imageToRef, Vec3(probe.width - 1, probe.height - 1, 0));
+  g.origin = Vec3(transformPoint(imageToRef, Vec3(0.0)).x, lastPixel.y, lastPixel.z);
+  const BModeSimulator ref(ph, probe, bs, 1);
+  const Volume expected = expectedImageVolume(ph, ref, g, pose, ScalarType::F32, 1);
+  auto expectedAt = [&](int col, int row) {
+    return expected.value(g.linear(0, probe.width - 1 - col, probe.height - 1 - row));
+  };
+
+  // Profile across the interface: rows (axial) or columns (lateral).
+  const int n = lateral ? probe.width : probe.height;
+  std::vector<double> sum(static_cast<std::size_t>(n), 0.0), exp(static_cast<std::size_t>(n), 0.0),
+      step(static_cast<std::size_t>(n), 0.0);
+  std::vector<int> count(static_cast<std::size_t>(n), 0);
+  constexpr int kSeeds = 24;
+  for (std::uint64_t seed = 1; seed <= kSeeds; ++seed) {
+    const BModeSimulator sim(ph, probe, bs, seed);
+    const Frame f = render(sim, pose, seed);
+    for (int r = rowAtDepth(probe, 25.0); r < rowAtDepth(probe, 60.0); ++r)
+      for (int c = 40; c < probe.width - 40; ++c) {
+        const int k = lateral ? c : r;
+        sum[static_cast<std::size_t>(k)] += f.value(c, r);
+        ++count[static_cast<std::size_t>(k)];
+        if (seed == 1) {
+          exp[static_cast<std::size_t>(k)] += expectedAt(c, r);
+          const Vec3 p = transformPoint(imageToRef, Vec3(c, r, 0));
+          step[static_cast<std::size_t>(k)] += sim.displayLevel(ph.tissueAt(p));
+        }
+      }
+  }
+  ProfileError e;
+  int used = 0;
+  for (int k = 0; k < n; ++k) {
+    const auto kk = static_cast<std::size_t>(k);
+    if (count[kk] == 0) continue;
+    const double measured = sum[kk] / count[kk];
+    const double per = static_cast<double>(count[kk]) / kSeeds;
+    if (std::getenv("PP5_PROFILE")) std::printf("%d %.1f %.1f %.1f\n", k, measured, exp[kk] / per, step[kk] / per);
+    e.expected += std::pow(measured - exp[kk] / per, 2);
+    e.step += std::pow(measured - step[kk] / per, 2);
+    ++used;
+  }
+  e.expected = std::sqrt(e.expected / used);
+  e.step = std::sqrt(e.step / used);
+  std::printf("%s interface: RMS(mean of frames - expected image) %.2f, against the unblurred map %.2f\n",
+              lateral ? "lateral" : "axial", e.expected, e.step);
+  return e;
+}
+
+}  // namespace
+
+TEST(BMode, ExpectedImageIsTheMeanOfTheFramesAcrossInterfaces) {
+  // Depth 40 mm across the axial direction. The frames' mean rises over one
+  // row less than the model's pulse-and-pixel blur predicts (the row above
+  // the interface shows no echo at all; the model gives it 2 % of the
+  // tissue's power), so the residual is that one row: about 4 levels RMS
+  // over the profile, against 10 for the unblurred map.
+  const ProfileError axial = expectedImageProfile({0, 0, 1}, false);
+  EXPECT_LT(axial.expected, 0.5 * axial.step);
+  // A wall across the lateral direction (x < 0 side is tissue), blurred by the beam width.
+  const ProfileError lateral = expectedImageProfile({0, 1, 0.0001}, true);
+  EXPECT_LT(lateral.expected, 1.5);
+  EXPECT_GT(lateral.step, 5.0 * lateral.expected) << "the beam's blur is visible, and the expected image has it";
+}
+
+TEST(BMode, ExpectedImageNeedsTheProbeAlongTheGrid) {
+  const Phantom ph = block(Tissue::Muscle, 40.0);
+  BModeSettings bs;
+  bs.medium = "ideal";
+  const BModeSimulator sim(ph, shallowPaper35(), bs, 1);
+  Grid g;
+  g.spacing = Vec3(1.0);
+  g.dims = Index3(8);
+  const Mat4 turned = rotationAxisAngle(Vec3(0, 0, 1), 0.7) * poseAt(0.0, 0.0, kSurface);  // 40 degrees
+  EXPECT_THROW(expectedImageVolume(ph, sim, g, turned, ScalarType::F32, 1), InputError);
+  // Deep in the tissue and far up in the water the levels are the display levels.
+  g.spacing = Vec3(2.0);
+  g.dims = Index3(4, 4, 40);
+  g.origin = Vec3(-4.0, -4.0, kSurface - 90.0);  // depths 10 .. 90 mm
+  const Volume v = expectedImageVolume(ph, sim, g, poseAt(0.0, 0.0, kSurface), ScalarType::F32, 1);
+  EXPECT_NEAR(v.value(g.linear(1, 1, 2)), sim.displayLevel(Tissue::Muscle), 0.01);     // depth 86 mm
+  EXPECT_NEAR(v.value(g.linear(1, 1, 38)), sim.displayLevel(Tissue::Water), 0.01);     // depth 14 mm
+}
+

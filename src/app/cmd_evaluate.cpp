@@ -101,15 +101,19 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     for (const auto& p : seq.poses)
       if (p) poses.push_back(*p);
     const auto swept = gp::sweptRegion(truthVol.grid, poses, seq.reader->info().width, seq.reader->info().height);
-    const auto cov = [&](std::size_t i) { return recon->covered(i); };
+    const auto cov = [&](std::size_t i) { return recon->hasValue(i); };
     const gp::TruthMetrics m = gp::compareWithTruth(recon->output(), cov, truthVol, swept);
     std::printf("ground truth: %s\n", t->truth.c_str());
     std::printf("  method            %s\n", describe(rs).c_str());
     std::printf("  frames            %llu inserted, %llu skipped\n", static_cast<unsigned long long>(st.inserted),
                 static_cast<unsigned long long>(st.skipped));
-    std::printf("  RMSE              %.3f grey levels (covered voxels in the swept region)\n", m.rmse);
+    std::printf("  RMSE              %.3f grey levels (the %llu swept voxels with a value)\n", m.rmse,
+                static_cast<unsigned long long>(m.compared));
     std::printf("  MAE               %.3f grey levels\n", m.mae);
     std::printf("  PSNR              %.2f dB\n", m.psnrDb);
+    std::printf("  RMSE, tissue      %.3f grey levels (the %llu of them brighter than the background)\n",
+                m.rmseTissue, static_cast<unsigned long long>(m.tissueCompared));
+    std::printf("  MAE, tissue       %.3f grey levels\n", m.maeTissue);
     std::printf("  coverage          %.4f of %llu voxels\n", m.coverage(), static_cast<unsigned long long>(m.voxels));
     std::printf("  holes in sweep    %.5f (%llu of %llu swept voxels)\n", m.holeFraction(),
                 static_cast<unsigned long long>(m.sweptHoles), static_cast<unsigned long long>(m.swept));
@@ -123,6 +127,10 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     j["rmse"] = m.rmse;
     j["mae"] = m.mae;
     j["psnr_db"] = m.psnrDb;
+    j["voxels_compared"] = m.compared;
+    j["rmse_tissue"] = m.rmseTissue;
+    j["mae_tissue"] = m.maeTissue;
+    j["tissue_voxels_compared"] = m.tissueCompared;
     j["coverage"] = m.coverage();
     j["voxels"] = m.voxels;
     j["swept_voxels"] = m.swept;
@@ -157,11 +165,20 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
 
     // Second pass over the file for the held-out frames.
     auto reader = SequenceReader::open(l->sequence);
-    const auto cov = [&](std::size_t i) { return recon->covered(i); };
+    const auto cov = [&](std::size_t i) { return recon->hasValue(i); };
     gp::LeaveOutMetrics m;
     Frame f;
-    for (std::uint64_t i = 0; reader->next(f); ++i)
-      if (i % k != 0 && seq.poses[i]) gp::compareHeldOutFrame(recon->output(), cov, f, *seq.poses[i], m);
+    std::vector<gp::PixelRun> runs;  // the clip rectangle and fan, per frame size
+    int runsW = -1, runsH = -1;
+    for (std::uint64_t i = 0; reader->next(f); ++i) {
+      if (i % k == 0 || !seq.poses[i]) continue;
+      if (f.width != runsW || f.height != runsH) {
+        runs = gp::pixelRuns(f.width, f.height, rs);
+        runsW = f.width;
+        runsH = f.height;
+      }
+      gp::compareHeldOutFrame(recon->output(), cov, f, *seq.poses[i], runs, m);
+    }
     m.finish();
     if (m.framesHeldOut == 0) inputError(l->sequence, "has no placeable frame to hold out with --keep-every {}", k);
 
@@ -174,7 +191,9 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     std::printf("  MAE               %.3f grey levels\n", m.mae);
     std::printf("  RMSE              %.3f grey levels\n", m.rmse);
     std::printf("  pixels compared   %llu\n", static_cast<unsigned long long>(m.pixelsCompared));
-    std::printf("  pixels skipped    %llu (not covered)\n", static_cast<unsigned long long>(m.pixelsSkipped));
+    std::printf("  pixels skipped    %llu (no value in the volume there)\n",
+                static_cast<unsigned long long>(m.pixelsSkipped));
+    std::printf("  (pixels inside the clip rectangle and fan only)\n");
     nlohmann::ordered_json j;
     j["protocol"] = "leave-out";
     j["sequence"] = l->sequence;

@@ -110,13 +110,14 @@ int runSimulate(const SimulateOptions& opts) {
   // Refuse a truth grid that cannot fit before spending time on the frames.
   const Grid grid = truthGrid(s, sim);
   const ScalarType truthType = s.sim.truthType == "uint8" ? ScalarType::U8 : ScalarType::F32;
-  checkGridFits(grid, static_cast<std::uint64_t>(scalarBytes(truthType)), "truth volume ([grid])",
+  checkGridFits(grid, 8 + static_cast<std::uint64_t>(scalarBytes(truthType)), "truth volume ([grid])",
                 s.grid.memoryLimitBytes());
 
   const std::string stem = s.sim.phantom;
   const std::string seqPath = (fs::path(dir) / (stem + "_sweep.igs.mha")).string();
   const std::string cfgPath = (fs::path(dir) / (stem + "_config.xml")).string();
   const std::string truthPath = (fs::path(dir) / (stem + "_truth.mha")).string();
+  const std::string expectedPath = (fs::path(dir) / (stem + "_expected.mha")).string();
   const std::string settingsPath = (fs::path(dir) / "settings.toml").string();
 
   log->info("simulate: {} phantom, {} probe ({}x{} px, {} x {} mm), {} sweep: {} frames", stem, sim.probe().name,
@@ -153,6 +154,19 @@ int runSimulate(const SimulateOptions& opts) {
   const Volume truth = sim::truthVolume(sim.phantom(), sim.bmode(), grid, truthType, s.sim.threads,
                                         s.grid.memoryLimitBytes());
   writeVolume(truthPath, truth, true);
+  // The expected image, for a probe held as at the middle of the sweep.
+  const Mat4 probePose = sim.trueImageToReference(n / 2) * affineInverse(sim.imageToProbe());
+  bool wroteExpected = false;
+  try {
+    log->info("simulate: expected-image volume");
+    writeVolume(expectedPath,
+                sim::expectedImageVolume(sim.phantom(), sim.bmode(), grid, probePose, truthType, s.sim.threads,
+                                         s.grid.memoryLimitBytes()),
+                true);
+    wroteExpected = true;
+  } catch (const InputError& e) {
+    log->warn("simulate: no expected-image volume: {}", e.what());
+  }
   writeTextAtomically(settingsPath, schema.toToml());
 
   std::printf("simulate: wrote to %s\n", fs::absolute(dir).string().c_str());
@@ -163,6 +177,9 @@ int runSimulate(const SimulateOptions& opts) {
               static_cast<long long>(grid.dims.x), static_cast<long long>(grid.dims.y),
               static_cast<long long>(grid.dims.z), scalarName(truthType), grid.spacing.x, grid.spacing.y,
               grid.spacing.z);
+  if (wroteExpected)
+    std::printf("  %s  (the expected image: what a perfect reconstruction shows in the ideal medium)\n",
+                fs::path(expectedPath).filename().string().c_str());
   for (const auto& p : pngs) std::printf("  %s\n", fs::path(p).filename().string().c_str());
   std::printf("  settings.toml\n");
   return 0;

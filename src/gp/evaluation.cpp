@@ -67,8 +67,9 @@ TruthMetrics compareWithTruth(const Volume& recon, const CoveredFn& covered, con
   PP5_CHECK(swept.empty() || swept.size() == g.voxelCount());
   TruthMetrics m;
   m.voxels = g.voxelCount();
-  double sumSq = 0.0, sumAbs = 0.0;
-  std::uint64_t n = 0;
+  double background = INFINITY;
+  for (std::size_t i = 0; i < m.voxels; ++i) background = std::min(background, truth.value(i));
+  double sumSq = 0.0, sumAbs = 0.0, tSq = 0.0, tAbs = 0.0;
   for (std::size_t i = 0; i < m.voxels; ++i) {
     const bool c = covered(i);
     const bool s = swept.empty() || swept[i];
@@ -78,15 +79,25 @@ TruthMetrics compareWithTruth(const Volume& recon, const CoveredFn& covered, con
       if (!c) ++m.sweptHoles;
     }
     if (c && s) {
-      const double d = recon.value(i) - truth.value(i);
+      const double t = truth.value(i);
+      const double d = recon.value(i) - t;
       sumSq += d * d;
       sumAbs += std::abs(d);
-      ++n;
+      ++m.compared;
+      if (t > background + 1.0) {
+        tSq += d * d;
+        tAbs += std::abs(d);
+        ++m.tissueCompared;
+      }
     }
   }
-  if (n > 0) {
-    m.rmse = std::sqrt(sumSq / static_cast<double>(n));
-    m.mae = sumAbs / static_cast<double>(n);
+  if (m.compared > 0) {
+    m.rmse = std::sqrt(sumSq / static_cast<double>(m.compared));
+    m.mae = sumAbs / static_cast<double>(m.compared);
+  }
+  if (m.tissueCompared > 0) {
+    m.rmseTissue = std::sqrt(tSq / static_cast<double>(m.tissueCompared));
+    m.maeTissue = tAbs / static_cast<double>(m.tissueCompared);
   }
   m.psnrDb = m.rmse > 0.0 ? 20.0 * std::log10(255.0 / m.rmse) : INFINITY;
   return m;
@@ -118,12 +129,13 @@ void LeaveOutMetrics::finish() {
 }
 
 void compareHeldOutFrame(const Volume& v, const CoveredFn& covered, const Frame& f, const Mat4& m,
-                         LeaveOutMetrics& out) {
+                         const std::vector<PixelRun>& runs, LeaveOutMetrics& out) {
   ++out.framesHeldOut;
   const Vec3 o = transformPoint(m, Vec3(0.0));
   const Vec3 du = transformVector(m, Vec3(1, 0, 0)), dv = transformVector(m, Vec3(0, 1, 0));
-  for (int y = 0; y < f.height; ++y)
-    for (int x = 0; x < f.width; ++x) {
+  for (const PixelRun& r : runs)
+    for (int x = r.x0; x <= r.x1; ++x) {
+      const int y = r.y;
       const auto s = sampleCovered(v, covered, o + du * static_cast<double>(x) + dv * static_cast<double>(y));
       if (!s) {
         ++out.pixelsSkipped;

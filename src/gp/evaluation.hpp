@@ -1,7 +1,9 @@
 #pragma once
 // Accuracy measures for reconstructions (`pp5echo evaluate`):
 //  - against a ground-truth volume (simulated data): RMSE and PSNR over the
-//    covered voxels, coverage, and holes inside the swept region;
+//    swept region's voxels that hold a reconstructed value (directly covered
+//    or hole-filled), the same over its tissue, coverage, and the holes left
+//    inside the swept region;
 //  - leave-out (Rohling, Gee & Berman 1999) for real data with no truth: the
 //    volume, built without some frames, is sampled at every pixel of those
 //    frames through their poses and compared with the pixels.
@@ -12,6 +14,7 @@
 
 #include "core/frame.hpp"
 #include "core/volume_io.hpp"
+#include "gp/fan_mask.hpp"
 
 namespace pp5::gp {
 
@@ -25,18 +28,26 @@ std::vector<std::uint8_t> sweptRegion(const Grid& g, const std::vector<Mat4>& im
 
 struct TruthMetrics {
   std::uint64_t voxels = 0;       // in the grid
-  std::uint64_t covered = 0;      // voxels the reconstruction reached
+  std::uint64_t covered = 0;      // voxels that hold a value
   std::uint64_t swept = 0;        // voxels in the swept region
-  std::uint64_t sweptHoles = 0;   // swept voxels not covered
-  double rmse = 0.0;              // over covered voxels, grey levels
+  std::uint64_t sweptHoles = 0;   // swept voxels with no value
+  std::uint64_t compared = 0;     // voxels the errors are over
+  std::uint64_t tissueCompared = 0;  // ... of which tissue
+  double rmse = 0.0;              // grey levels
   double mae = 0.0;
   double psnrDb = 0.0;            // 20 log10(255 / rmse)
+  // Over the compared voxels whose truth is brighter than the truth's darkest
+  // level (the background, e.g. water at the noise floor) by more than one
+  // grey level: the tissue and its boundaries, where the methods differ most.
+  double rmseTissue = 0.0;
+  double maeTissue = 0.0;
   double coverage() const { return voxels ? static_cast<double>(covered) / static_cast<double>(voxels) : 0.0; }
   double holeFraction() const { return swept ? static_cast<double>(sweptHoles) / static_cast<double>(swept) : 0.0; }
 };
 
-// `recon` and `truth` must share the grid (InputError otherwise). With a
-// non-empty `swept` mask, RMSE is measured over covered voxels inside it.
+// `recon` and `truth` must share the grid (InputError otherwise). `covered`
+// says where `recon` holds a value. With a non-empty `swept` mask the errors
+// are measured over the voxels with a value inside it, else over all with one.
 TruthMetrics compareWithTruth(const Volume& recon, const CoveredFn& covered, const Volume& truth,
                               const std::vector<std::uint8_t>& swept);
 
@@ -61,8 +72,10 @@ private:
   double sumAbs_ = 0.0, sumSq_ = 0.0;
 };
 
-// Compares every pixel of a held-out frame with the volume sampled at its position.
+// Compares every pixel of a held-out frame inside `runs` (the clip rectangle
+// and fan the reconstruction used, fan_mask.hpp) with the volume sampled at
+// its position; pixels outside them are neither compared nor counted.
 void compareHeldOutFrame(const Volume& v, const CoveredFn& covered, const Frame& f, const Mat4& imageToReference,
-                         LeaveOutMetrics& m);
+                         const std::vector<PixelRun>& runs, LeaveOutMetrics& m);
 
 }  // namespace pp5::gp

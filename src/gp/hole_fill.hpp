@@ -59,7 +59,13 @@ public:
   //   bool known(std::size_t i); float value(std::size_t i); float weight(std::size_t i)
   // with i the x-fastest linear index on a grid of `dims`.
   template <class Src>
-  float fill(const Src& src, const Index3& dims, std::int64_t x, std::int64_t y, std::int64_t z) const;
+  float fill(const Src& src, const Index3& dims, std::int64_t x, std::int64_t y, std::int64_t z) const {
+    float v = 0.0f;
+    return tryFill(src, dims, x, y, z, v) ? v : 0.0f;
+  }
+  // As fill(), but says whether an element succeeded (out is 0 when none did).
+  template <class Src>
+  bool tryFill(const Src& src, const Index3& dims, std::int64_t x, std::int64_t y, std::int64_t z, float& out) const;
 
 private:
   struct Element {
@@ -105,7 +111,8 @@ inline std::size_t lin(const Index3& d, std::int64_t x, std::int64_t y, std::int
 }  // namespace holefill_detail
 
 template <class Src>
-float HoleFiller::fill(const Src& src, const Index3& dims, std::int64_t x, std::int64_t y, std::int64_t z) const {
+bool HoleFiller::tryFill(const Src& src, const Index3& dims, std::int64_t x, std::int64_t y, std::int64_t z,
+                         float& out) const {
   float v = 0.0f;
   for (const Element& el : elements_) {
     bool ok = false;
@@ -116,9 +123,13 @@ float HoleFiller::fill(const Src& src, const Index3& dims, std::int64_t x, std::
       case PlusHoleFillingType::GaussianAccumulation:
       case PlusHoleFillingType::DistanceWeightInverse: ok = weighted(src, dims, el, x, y, z, v); break;
     }
-    if (ok) return v;
+    if (ok) {
+      out = v;
+      return true;
+    }
   }
-  return 0.0f;
+  out = 0.0f;
+  return false;
 }
 
 template <class Src>

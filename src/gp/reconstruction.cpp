@@ -50,12 +50,18 @@ void registerOptions(ConfigSchema& schema, ReconSettings& s) {
                 "truncating 8-bit running mean and 16-bit accumulator, to reproduce PLUS bit for bit.");
   schema.option("recon.threads", &s.threads, 0, 0, 1024, "Threads; 0 = every core. The result does not depend on it.");
   schema.option("recon.skip_interval", &s.skipInterval, 1, 1, 100000, "Insert every n-th frame (PLUS's SkipInterval).");
-  schema.option("recon.kernel_lateral_mm", &s.kernelLateralMm, 1.0, 0.01, 50.0,
-                "Tent kernel half-width along the slice's lateral axis (image x), mm.");
-  schema.option("recon.kernel_axial_mm", &s.kernelAxialMm, 0.75, 0.01, 50.0,
-                "Tent kernel half-width along the slice's axial axis (image y, depth), mm.");
-  schema.option("recon.kernel_elevation_mm", &s.kernelElevationMm, 1.5, 0.01, 50.0,
-                "Tent kernel half-width across the slice (elevation), mm.");
+  // The defaults match the default probe's resolution cell (paper35: lateral
+  // FWHM 1.8 mm, elevation FWHM 4 mm, pulse about 1 mm): averaging over one
+  // cell removes speckle without blurring what the scanner resolves
+  // (docs/quality.md measures the choice).
+  schema.option("recon.kernel_lateral_mm", &s.kernelLateralMm, 2.0, 0.01, 50.0,
+                "Tent kernel half-width along the slice's lateral axis (image x), mm. About the probe's lateral "
+                "resolution (FWHM); the default suits the `paper35` probe.");
+  schema.option("recon.kernel_axial_mm", &s.kernelAxialMm, 1.0, 0.01, 50.0,
+                "Tent kernel half-width along the slice's axial axis (image y, depth), mm. About the pulse length.");
+  schema.option("recon.kernel_elevation_mm", &s.kernelElevationMm, 3.0, 0.01, 50.0,
+                "Tent kernel half-width across the slice (elevation), mm. About the elevation beam width (FWHM) "
+                "less a little; when consecutive slices are farther apart than this reaches, fill-in interpolates.");
   schema.option("recon.fill_in", &s.fillIn, true,
                 "Interpolate intermediate slices between consecutive frames that are farther apart than the "
                 "kernel reaches (tent method).");

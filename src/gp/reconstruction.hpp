@@ -48,9 +48,9 @@ struct ReconSettings {
   int skipInterval = 1;                 // insert every n-th frame
 
   // Tent kernel half-widths along the slice's own axes, mm.
-  double kernelLateralMm = 1.0;
-  double kernelAxialMm = 0.75;
-  double kernelElevationMm = 1.5;
+  double kernelLateralMm = 2.0;
+  double kernelAxialMm = 1.0;
+  double kernelElevationMm = 3.0;
 
   // Inter-slice fill-in (tent method).
   bool fillIn = true;
@@ -112,6 +112,9 @@ public:
   // Accumulated weight per voxel (F32; 0 = not covered).
   virtual Volume weights() const = 0;
   virtual bool covered(std::size_t linearIndex) const = 0;
+  // Whether output() holds a reconstructed value there: covered, or a hole
+  // that hole filling filled (a hole no kernel could fill is 0 and has none).
+  virtual bool hasValue(std::size_t linearIndex) const { return covered(linearIndex); }
 
 protected:
   Reconstructor(const Grid& g, const ReconSettings& s) : grid_(g), settings_(s) {}

@@ -18,11 +18,11 @@
 // by pixel in registers. Segments are defined by the row alone, not by where
 // a thread starts, so they are the same for every thread count.
 //
-// Incremental output. The kernels flag the voxels they write (one byte per
-// voxel). The bricks the frame can reach are found geometrically (its
-// rectangle spread by the kernel's reach); those holding flagged voxels are
-// the returned DirtyRegion, and output() is recomputed at the flagged voxels
-// only. Hole filling then refreshes the holes near it.
+// Incremental output. The kernels list each voxel they write once per frame
+// (a one-byte flag per voxel says it is listed, so the list is appended to
+// without a branch), with its brick. output() is recomputed at the listed
+// voxels only, their bricks are the returned DirtyRegion, and hole filling
+// then refreshes the holes near it.
 #include "gp/splat_pixel.hpp"
 
 #include <omp.h>
@@ -34,6 +34,9 @@
 #include <limits>
 
 #include <fmt/format.h>
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 
 #include "core/error.hpp"
 #include "gp/fan_mask.hpp"
@@ -82,7 +85,21 @@ struct Slab {
 struct SlabOut {
   std::uint64_t pixels = 0;
   std::vector<std::uint64_t> prefix;  // scratch: per-row prefix sums
+  std::vector<std::uint32_t> prefix32;
   std::vector<std::uint32_t> count;
+  std::vector<std::uint8_t> marks;    // scratch of walkRunFloat, zero between rows
+  // The voxels this slab wrote since the last output update, each once, and
+  // their bricks: the output is refreshed at exactly these, and their bricks
+  // are the dirty region.
+  std::vector<std::int64_t> written;
+  std::vector<std::uint32_t> writtenBrick;
+  std::size_t nWritten = 0;
+  void reserveWritten(std::size_t extra) {
+    if (written.size() >= nWritten + extra) return;
+    const std::size_t n = std::max(nWritten + extra, 2 * written.size());
+    written.resize(n);
+    writtenBrick.resize(n);
+  }
 };
 
 // What every kernel reads, for one frame.
@@ -96,7 +113,45 @@ struct Job {
   int rejectBelow = 0;  // pixels darker than this are not inserted
   PixelMap map{};
   FixedMap fmap{};
-  std::uint8_t* touched = nullptr;
+  std::uint8_t* touched = nullptr;  // per voxel: listed in a SlabOut's `written`
+  std::int64_t bx = 0, bxy = 0;     // brick strides (bricks of 16 voxels)
+};
+
+static_assert(DirtyRegion::kDefaultBrick == 16);
+
+// The voxels a row writes, appended to its slab's list the first time only,
+// without a branch (room for `extra` entries is made first). Kept in locals
+// while the row is walked and handed back at its end.
+class RowWrites {
+public:
+  RowWrites(const Job& job, SlabOut& so, std::size_t extra) : so_(so), touched_(job.touched), bx_(job.bx), bxy_(job.bxy) {
+    so.reserveWritten(extra);
+    idx_ = so.written.data();
+    brick_ = so.writtenBrick.data();
+    n_ = so.nWritten;
+  }
+  ~RowWrites() { so_.nWritten = n_; }
+  RowWrites(const RowWrites&) = delete;
+  RowWrites& operator=(const RowWrites&) = delete;
+  // Brick coordinates times their strides, per axis.
+  std::int64_t bx(std::int64_t x) const { return x >> 4; }
+  std::int64_t by(std::int64_t y) const { return (y >> 4) * bx_; }
+  std::int64_t bz(std::int64_t z) const { return (z >> 4) * bxy_; }
+  void add(std::int64_t i, std::int64_t brick) {
+    idx_[n_] = i;
+    brick_[n_] = static_cast<std::uint32_t>(brick);
+    n_ += touched_[i] == 0;
+    touched_[i] = 1;
+  }
+  void add(std::int64_t i, std::int64_t x, std::int64_t y, std::int64_t z) { add(i, bx(x) + by(y) + bz(z)); }
+
+private:
+  SlabOut& so_;
+  std::uint8_t* touched_;
+  std::int64_t bx_, bxy_;
+  std::int64_t* idx_ = nullptr;
+  std::uint32_t* brick_ = nullptr;
+  std::size_t n_ = 0;
 };
 
 template <class Pix>
@@ -198,20 +253,101 @@ struct FloatStep {
   }
 };
 
+// pre[k] = px[0] + ... + px[k-1] for k = 0 .. len (exact for len < 2^24).
+// Sixteen pixels at a time: a serial running sum costs a dependent add and a
+// store per pixel, which a segment of five pixels cannot hide.
+inline void prefixSumsU8(const std::uint8_t* px, int len, std::uint32_t* pre) {
+  pre[0] = 0;
+  std::uint32_t carry = 0;
+  int k = 0;
+#if defined(__SSE2__)
+  const __m128i zero = _mm_setzero_si128();
+  for (; k + 16 <= len; k += 16) {
+    const __m128i v = _mm_loadu_si128(reinterpret_cast<const __m128i*>(px + k));
+    // Inclusive sums within each half, in 16-bit lanes (at most 16 * 255).
+    __m128i lo = _mm_unpacklo_epi8(v, zero), hi = _mm_unpackhi_epi8(v, zero);
+    lo = _mm_add_epi16(lo, _mm_slli_si128(lo, 2));
+    hi = _mm_add_epi16(hi, _mm_slli_si128(hi, 2));
+    lo = _mm_add_epi16(lo, _mm_slli_si128(lo, 4));
+    hi = _mm_add_epi16(hi, _mm_slli_si128(hi, 4));
+    lo = _mm_add_epi16(lo, _mm_slli_si128(lo, 8));
+    hi = _mm_add_epi16(hi, _mm_slli_si128(hi, 8));
+    const __m128i loTotal = _mm_shufflehi_epi16(lo, 0xff);  // lanes 4..7 = lane 7
+    hi = _mm_add_epi16(hi, _mm_unpackhi_epi64(loTotal, loTotal));
+    const __m128i c = _mm_set1_epi32(static_cast<int>(carry));
+    std::uint32_t* out = pre + k + 1;
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(out), _mm_add_epi32(_mm_unpacklo_epi16(lo, zero), c));
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(out + 4), _mm_add_epi32(_mm_unpackhi_epi16(lo, zero), c));
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(out + 8), _mm_add_epi32(_mm_unpacklo_epi16(hi, zero), c));
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(out + 12), _mm_add_epi32(_mm_unpackhi_epi16(hi, zero), c));
+    carry += static_cast<std::uint32_t>(_mm_extract_epi16(hi, 7));
+  }
+#endif
+  for (; k < len; ++k) pre[k + 1] = carry += px[k];
+}
+
+// Bit k set where byte p[k] is not zero (k < 16).
+inline std::uint32_t nonZeroBytes16(const std::uint8_t* p) {
+#if defined(__SSE2__)
+  const __m128i v = _mm_loadu_si128(reinterpret_cast<const __m128i*>(p));
+  return ~static_cast<std::uint32_t>(_mm_movemask_epi8(_mm_cmpeq_epi8(v, _mm_setzero_si128()))) & 0xffffu;
+#else
+  std::uint32_t bits = 0;
+  for (int k = 0; k < 16; ++k) bits |= static_cast<std::uint32_t>(p[k] != 0) << k;
+  return bits;
+#endif
+}
+
 // Calls seg(i, e, mx, my, mz) for each non-empty column range [i, e) of
-// [ia, ib] in voxel (mx, my, mz) (offset coordinates).
+// [ia, ib] in voxel (mx, my, mz) (offset coordinates). The same segments as
+// stepping from voxel to voxel and comparing the three axes' exits, but
+// without its branches, which the predictor cannot learn when several pixels
+// share a voxel: where each axis steps is marked first (one bit per axis in
+// `marks`, a zeroed scratch of at least ib - ia + 17 bytes, zeroed again on
+// return), and the marked columns are then found 16 at a time. That needs at
+// most one step per axis per column, |X| < 1; coarser rows take the walk.
 template <class Seg>
-void walkRunFloat(FloatStep (&st)[3], int ia, int ib, Seg&& seg) {
+void walkRunFloat(FloatStep (&st)[3], int ia, int ib, std::uint8_t* marks, Seg&& seg) {
   if (ia > ib) return;
   for (FloatStep& s : st) s.start(ia);
-  int i = ia;
-  for (;;) {
-    const int e = std::min(std::min(st[0].t, st[1].t), std::min(st[2].t, ib + 1));
-    if (e > i) seg(i, e, st[0].m, st[1].m, st[2].m);
-    if (e > ib) return;
-    for (FloatStep& s : st) s.advance(e);
-    i = e;
+  if (!(std::abs(st[0].X) < 0.9 && std::abs(st[1].X) < 0.9 && std::abs(st[2].X) < 0.9)) {
+    int i = ia;
+    for (;;) {
+      const int e = std::min(std::min(st[0].t, st[1].t), std::min(st[2].t, ib + 1));
+      if (e > i) seg(i, e, st[0].m, st[1].m, st[2].m);
+      if (e > ib) return;
+      for (FloatStep& s : st) s.advance(e);
+      i = e;
+    }
   }
+  // start() leaves each axis's first step after ia.
+  for (int a = 0; a < 3; ++a) {
+    const FloatStep& s = st[a];
+    std::int64_t m = s.m;
+    for (int t = s.t; t <= ib; t = s.exit(m)) {
+      marks[t - ia] |= static_cast<std::uint8_t>(1u << a);
+      m += s.dir;
+    }
+  }
+  std::int64_t m0 = st[0].m, m1 = st[1].m, m2 = st[2].m;
+  const std::int64_t d0 = st[0].dir, d1 = st[1].dir, d2 = st[2].dir;
+  const int len = ib - ia + 1;
+  int i = 0;
+  for (int base = 0; base < len; base += 16) {
+    std::uint32_t bits = nonZeroBytes16(marks + base);
+    while (bits) {
+      const int k = base + std::countr_zero(bits);
+      bits &= bits - 1;
+      seg(ia + i, ia + k, m0, m1, m2);
+      const std::uint8_t mk = marks[k];
+      marks[k] = 0;
+      m0 += d0 & -static_cast<std::int64_t>(mk & 1u);
+      m1 += d1 & -static_cast<std::int64_t>((mk >> 1) & 1u);
+      m2 += d2 & -static_cast<std::int64_t>((mk >> 2) & 1u);
+      i = k;
+    }
+  }
+  seg(ia + i, ib + 1, m0, m1, m2);
 }
 
 // Fixed rows (plus): q(i) = floor((b + i*X) / 2^14), PLUS's own per-pixel
@@ -284,7 +420,6 @@ void nearestFloat(const Job& job, FloatCell* cells, const Slab& slab, bool split
     off[a] = kOffsetI + bd.lo[a];
     range[a] = static_cast<std::uint64_t>(bd.hi[a] - bd.lo[a]);
   }
-  const std::int64_t base = bd.lo[0] + bd.lo[1] * sy + bd.lo[2] * sz;
   std::uint64_t inserted = 0;
   for (const PixelRun& r : *job.runs) {
     const Pix* row = rowPtr<Pix>(job, r.y);
@@ -297,17 +432,22 @@ void nearestFloat(const Job& job, FloatCell* cells, const Slab& slab, bool split
       columnRange(st[a].b, st[a].X, kOffset + double(bd.lo[a]), kOffset + double(bd.hi[a]), r.x0, r.x1, ia, ib);
     }
     if (ia > ib) continue;
+    RowWrites wr(job, out, static_cast<std::size_t>(ib - ia + 1));  // a voxel per segment at most
     // MEAN: a segment's sum and count from prefix sums, without a loop whose
     // length the branch predictor cannot guess.
     // (pre[k - ia]: sum of the pixels ia .. k-1)
     std::uint64_t* pre = out.prefix.data();
+    std::uint32_t* pre32 = out.prefix32.data();  // 8-bit pixels, no rejection
     std::uint32_t* cnt = out.count.data();
+    constexpr bool kBytes = sizeof(Pix) == 1;
     if constexpr (C == Compounding::Mean) {
       std::uint64_t sum = 0;
       pre[0] = 0;
       const int len = ib - ia + 1;
       const Pix* px = row + ia;
-      if (rej <= 0) {
+      if (kBytes && rej <= 0) {
+        prefixSumsU8(reinterpret_cast<const std::uint8_t*>(px), len, pre32);
+      } else if (rej <= 0) {
         for (int k = 0; k < len; ++k) pre[k + 1] = sum += px[k];
       } else {
         std::uint32_t n = 0;
@@ -320,7 +460,7 @@ void nearestFloat(const Job& job, FloatCell* cells, const Slab& slab, bool split
         }
       }
     }
-    walkRunFloat(st, ia, ib, [&](int i, int e, std::int64_t mx, std::int64_t my, std::int64_t mz) {
+    walkRunFloat(st, ia, ib, out.marks.data(), [&](int i, int e, std::int64_t mx, std::int64_t my, std::int64_t mz) {
       const std::int64_t ux = mx - off[0], uy = my - off[1], uz = mz - off[2];
       if ((static_cast<std::uint64_t>(ux) >= range[0]) | (static_cast<std::uint64_t>(uy) >= range[1]) |
           (static_cast<std::uint64_t>(uz) >= range[2]))
@@ -329,7 +469,9 @@ void nearestFloat(const Job& job, FloatCell* cells, const Slab& slab, bool split
       float value = 0.0f;
       if constexpr (C == Compounding::Mean) {
         n = rej <= 0 ? static_cast<std::uint32_t>(e - i) : cnt[e - ia] - cnt[i - ia];
-        value = static_cast<float>(pre[e - ia] - pre[i - ia]);  // exact below 2^24
+        // exact below 2^24
+        value = kBytes && rej <= 0 ? static_cast<float>(pre32[e - ia] - pre32[i - ia])
+                                   : static_cast<float>(pre[e - ia] - pre[i - ia]);
       } else {
         int v = -1;
         for (int k = i; k < e; ++k) {
@@ -341,13 +483,14 @@ void nearestFloat(const Job& job, FloatCell* cells, const Slab& slab, bool split
         value = static_cast<float>(v);
       }
       if (n == 0) return;
-      const std::int64_t idx = base + ux + uy * sy + uz * sz;
+      const std::int64_t x = bd.lo[0] + ux, y = bd.lo[1] + uy, z = bd.lo[2] + uz;
+      const std::int64_t idx = x + y * sy + z * sz;
       FloatCell& c = cells[idx];
       if constexpr (C == Compounding::Mean) c.s += value;
       if constexpr (C == Compounding::Latest) c.s = value;
       if constexpr (C == Compounding::Maximum) c.s = std::max(c.s, value);
       c.w += static_cast<float>(n);
-      job.touched[idx] = 1;
+      wr.add(idx, x, y, z);
       inserted += n;
     });
   }
@@ -374,6 +517,8 @@ void nearestPlus(const Job& job, PlusCell* cells, const Slab& slab, bool split, 
       columnRange(double(ax[a].b) / kOne, double(ax[a].X) / kOne, double(bd.lo[a]), double(bd.hi[a]), r.x0, r.x1, ia,
                   ib);
     }
+    if (ia > ib) continue;
+    RowWrites wr(job, out, static_cast<std::size_t>(ib - ia + 1));  // a voxel per segment at most
     walkRun(ax, ia, ib, [&](int i, int e, const std::int64_t* q) {
       const std::int64_t x = q[0], y = q[1], z = q[2];
       if (!(bd.owns(0, x) && bd.owns(1, y) && bd.owns(2, z))) return;
@@ -408,7 +553,7 @@ void nearestPlus(const Job& job, PlusCell* cells, const Slab& slab, bool split, 
       if (n == 0) return;
       cells[idx].v = static_cast<std::uint8_t>(v);
       cells[idx].a = static_cast<std::uint16_t>(acc);
-      job.touched[idx] = 1;
+      wr.add(idx, x, y, z);
       inserted += n;
     });
   }
@@ -434,6 +579,7 @@ void trilinearFloat(const Job& job, FloatCell* cells, const Slab& slab, bool spl
   const std::int64_t sy = job.sy, sz = job.sz;
   const int rej = job.rejectBelow;
   const double X0 = job.map.X[0], X1 = job.map.X[1], X2 = job.map.X[2];
+  const float x0f = static_cast<float>(X0), x1f = static_cast<float>(X1), x2f = static_cast<float>(X2);
   // A segment can reach the thread's voxels only if n0 is in [lo-1, hi-1] on every axis.
   std::int64_t off[3];
   std::uint64_t range[3];
@@ -454,7 +600,9 @@ void trilinearFloat(const Job& job, FloatCell* cells, const Slab& slab, bool spl
     if (split)
       columnRange(st[sa].b, st[sa].X, kOffset + double(bd.lo[sa]) - 1.0, kOffset + double(bd.hi[sa]), r.x0, r.x1, ia,
                   ib);
-    walkRunFloat(st, ia, ib, [&](int i, int e, std::int64_t mx, std::int64_t my, std::int64_t mz) {
+    if (ia > ib) continue;
+    RowWrites wr(job, out, 8 * static_cast<std::size_t>(ib - ia + 1));  // eight corners per segment at most
+    walkRunFloat(st, ia, ib, out.marks.data(), [&](int i, int e, std::int64_t mx, std::int64_t my, std::int64_t mz) {
       if ((static_cast<std::uint64_t>(mx - off[0]) >= range[0]) | (static_cast<std::uint64_t>(my - off[1]) >= range[1]) |
           (static_cast<std::uint64_t>(mz - off[2]) >= range[2]))
         return;
@@ -462,22 +610,32 @@ void trilinearFloat(const Job& job, FloatCell* cells, const Slab& slab, bool spl
       // bx = 0 (by bz = 00, 01, 10, 11), the "hi" vectors bx = 1. MEAN keeps
       // weighted sums, LATEST / MAXIMUM values.
       v4f slo = zero, shi = zero, wlo = zero, whi = zero;
-      const double fm0 = double(mx), fm1 = double(my), fm2 = double(mz);
+      // The fractions at the segment's first pixel, from the row in double
+      // (the segment decides n0; clamped against rounding), then stepped in
+      // float from pixel to pixel: y and z as the vectors (1-fy, 1-fy, fy, fy)
+      // and (1-fz, fz, 1-fz, fz), so that each pixel's eight weights take
+      // three products. The steps' rounding (about 1e-7 over a segment) is
+      // clamped away at zero.
+      const double di = i;
+      const float f0 = static_cast<float>(std::min(std::max(b0 + di * X0 - double(mx), 0.0), 1.0));
+      const float f1 = static_cast<float>(std::min(std::max(b1 + di * X1 - double(my), 0.0), 1.0));
+      const float f2 = static_cast<float>(std::min(std::max(b2 + di * X2 - double(mz), 0.0), 1.0));
+      v4f Y = {1.0f - f1, 1.0f - f1, f1, f1}, Z = {1.0f - f2, f2, 1.0f - f2, f2};
+      v4f XL = zero + (1.0f - f0), XH = zero + f0;
+      const v4f dY = {-x1f, -x1f, x1f, x1f}, dZ = {-x2f, x2f, -x2f, x2f}, dX = zero + x0f;
       std::uint32_t n = 0;
       for (int k = i; k < e; ++k) {
         const int inI = row[k];
+        const v4f yz = Y * Z;
+        v4f lo = yz * XL, hi = yz * XH;
+        Y += dY;
+        Z += dZ;
+        XL -= dX;
+        XH += dX;
         if (inI < rej) continue;
         ++n;
-        const double dk = k;
-        // The segment decides n0; the fractions are clamped against rounding.
-        const double f0 = std::min(std::max(b0 + dk * X0 - fm0, 0.0), 1.0);
-        const double f1 = std::min(std::max(b1 + dk * X1 - fm1, 0.0), 1.0);
-        const double f2 = std::min(std::max(b2 + dk * X2 - fm2, 0.0), 1.0);
-        const float x0 = static_cast<float>(1.0 - f0), x1 = static_cast<float>(f0);
-        const float y0 = static_cast<float>(1.0 - f1), y1 = static_cast<float>(f1);
-        const float z0 = static_cast<float>(1.0 - f2), z1 = static_cast<float>(f2);
-        const v4f yz = {y0 * z0, y0 * z1, y1 * z0, y1 * z1};
-        const v4f lo = yz * x0, hi = yz * x1;
+        lo = lo > zero ? lo : zero;
+        hi = hi > zero ? hi : zero;
         const float in = static_cast<float>(inI);
         if constexpr (C == Compounding::Mean) {
           slo += lo * in;
@@ -506,6 +664,8 @@ void trilinearFloat(const Job& job, FloatCell* cells, const Slab& slab, bool spl
         // All eight corners are the thread's (the common case).
         const std::int64_t idx = c0 + c1 * sy + c2 * sz;
         const std::int64_t offs[8] = {0, sz, sy, sy + sz, 1, 1 + sz, 1 + sy, 1 + sy + sz};
+        const std::int64_t bxs[2] = {wr.bx(c0), wr.bx(c0 + 1)}, bys[2] = {wr.by(c1), wr.by(c1 + 1)},
+                           bzs[2] = {wr.bz(c2), wr.bz(c2 + 1)};
         for (int k = 0; k < 8; ++k) {
           const int lane = k & 3;
           const float w = k & 4 ? whi[lane] : wlo[lane];
@@ -518,7 +678,7 @@ void trilinearFloat(const Job& job, FloatCell* cells, const Slab& slab, bool spl
             cell.s = C == Compounding::Latest ? v : std::max(cell.s, v);
             cell.w += w;
           }
-          job.touched[idx + offs[k]] = 1;
+          wr.add(idx + offs[k], bxs[k >> 2] + bys[(k >> 1) & 1] + bzs[k & 1]);
         }
         if (bd.owns(sa, sa == 0 ? c0 : sa == 1 ? c1 : c2)) inserted += n;
         return;
@@ -537,7 +697,7 @@ void trilinearFloat(const Job& job, FloatCell* cells, const Slab& slab, bool spl
         if constexpr (C == Compounding::Latest) cell.s = s;
         if constexpr (C == Compounding::Maximum) cell.s = std::max(cell.s, s);
         cell.w += w;
-        job.touched[idx] = 1;
+        wr.add(idx, x, y, z);
       }
       // Pixels that reach the grid, counted by the owner of their lowest layer inside it.
       const std::int64_t cs = sa == 0 ? c0 : sa == 1 ? c1 : c2;
@@ -569,6 +729,8 @@ void trilinearPlus(const Job& job, PlusCell* cells, const Slab& slab, bool split
     if (split)
       columnRange(double(b[sa]) / kOne, double(job.fmap.X[sa]) / kOne, double(bd.lo[sa]) - 1.0, double(bd.hi[sa]),
                   r.x0, r.x1, ia, ib);
+    if (ia > ib) continue;
+    RowWrites wr(job, out, 8 * static_cast<std::size_t>(ib - ia + 1));  // a group per pixel at most
 
     // The group: lower corner c, and per corner the PLUS state in registers.
     std::int64_t cur = -1;
@@ -582,7 +744,7 @@ void trilinearPlus(const Job& job, PlusCell* cells, const Slab& slab, bool split
         const std::int64_t idx = x + y * sy + z * sz;
         cells[idx].v = static_cast<std::uint8_t>(v[k]);
         cells[idx].a = static_cast<std::uint16_t>(acc[k]);
-        job.touched[idx] = 1;
+        wr.add(idx, x, y, z);
       }
     };
     for (int i = ia; i <= ib; ++i) {
@@ -693,6 +855,7 @@ public:
     if (s.fillHoles) {
       filler_.emplace(s.holeFilling.empty() ? HoleFiller::defaultElements() : s.holeFilling, plus_);
       incrementalFill_ = s.fillHolesIncremental;
+      filled_.assign(n, 0);
     }
     rejectBelow_ = s.pixelRejectionThreshold < 0.0
                        ? 0
@@ -704,6 +867,7 @@ public:
   const Volume& output() const override { return out_; }
   Volume weights() const override;
   bool covered(std::size_t i) const override { return plus_ ? pcells_[i].a != 0 : fcells_[i].w > 0.0f; }
+  bool hasValue(std::size_t i) const override { return covered(i) || (!filled_.empty() && filled_[i]); }
 
 private:
   float* out() { return reinterpret_cast<float*>(out_.bytes.data()); }
@@ -714,10 +878,8 @@ private:
     return static_cast<int>(std::min<std::uint64_t>(static_cast<std::uint64_t>(limit), 1 + work / grain));
   }
   void splat(const Job& job, const Slab& slab, bool split, SlabOut& so);
-  // Recomputes output() at the flagged voxels of `bricks` and clears the
-  // flags; written[b] = 1 for the bricks that had any.
-  void updateOutput(const std::vector<std::uint32_t>& bricks, int threads, std::vector<std::uint8_t>& written);
-  DirtyRegion candidates(const Mat4& imageToReference) const;
+  // Recomputes output() at the voxels the slab wrote and clears their flags.
+  void updateOutput(SlabOut& so);
   void addBrickId(DirtyRegion& d, std::uint32_t id) const;
   // Refills the holes of `bricks` (sorted); sets changed[b] = 1 where an output value changed.
   void fillBricks(const std::vector<std::uint32_t>& bricks, int threads, std::vector<std::uint8_t>& changed);
@@ -731,6 +893,7 @@ private:
   std::vector<FloatCell> fcells_;
   std::vector<std::uint8_t> touched_;     // voxels written since the last output update
   std::vector<std::uint8_t> brickKnown_;  // bricks that hold a covered voxel
+  std::vector<std::uint8_t> filled_;      // holes that a hole-filling kernel filled (with a filler only)
   DirtyRegion empty_;
   Index3 bdims_{0};
   std::vector<SlabOut> slabOut_;
@@ -789,6 +952,8 @@ void PixelReconstructor::splat(const Job& job, const Slab& slab, bool split, Sla
 InsertResult PixelReconstructor::insert(const Frame& f, const Mat4& imageToReference, double /*timeS*/) {
   if (f.width <= 0 || f.height <= 0)
     throw InputError(fmt::format("frame {}: the image is empty ({}x{} pixels)", f.index, f.width, f.height));
+  if (f.width >= (1 << 24))  // keeps a row's 8-bit pixel sum exact in 32 bits and in float
+    throw InputError(fmt::format("frame {}: {} pixels per row; at most 16777215 are supported", f.index, f.width));
   if (f.pixels.size() < f.byteSize())
     throw InputError(fmt::format("frame {}: {} bytes of pixels for a {}x{} image of {}-byte pixels", f.index,
                                  f.pixels.size(), f.width, f.height, bytesPerPixel(f.pixelType)));
@@ -827,6 +992,8 @@ InsertResult PixelReconstructor::insert(const Frame& f, const Mat4& imageToRefer
   job.u16 = f.pixelType == PixelType::U16;
   job.rejectBelow = rejectBelow_;
   job.touched = touched_.data();
+  job.bx = bdims_.x;
+  job.bxy = bdims_.x * bdims_.y;
   std::vector<std::uint8_t> swapped;
   job.pixels = f.pixels.data();
   if (job.u16 && std::endian::native != std::endian::little) {
@@ -903,8 +1070,12 @@ InsertResult PixelReconstructor::insert(const Frame& f, const Mat4& imageToRefer
 
   if (slabOut_.size() < static_cast<std::size_t>(T)) slabOut_.resize(static_cast<std::size_t>(T));
   for (int t = 0; t < T; ++t) {  // (allocated here: nothing may throw inside the parallel region)
-    slabOut_[t].prefix.resize(static_cast<std::size_t>(f.width) + 1);
-    slabOut_[t].count.resize(static_cast<std::size_t>(f.width) + 1);
+    SlabOut& so = slabOut_[t];
+    so.prefix.resize(static_cast<std::size_t>(f.width) + 1);
+    so.prefix32.resize(static_cast<std::size_t>(f.width) + 1);
+    so.count.resize(static_cast<std::size_t>(f.width) + 1);
+    so.marks.resize(static_cast<std::size_t>(f.width) + 32, 0);
+    so.reserveWritten(static_cast<std::size_t>(f.width) * 8);
   }
   // Small frames are not worth waking threads for: the slabs stay the same,
   // fewer threads share them.
@@ -913,18 +1084,24 @@ InsertResult PixelReconstructor::insert(const Frame& f, const Mat4& imageToRefer
 #pragma omp parallel num_threads(worthwhile(T, maskPixels, 32768))
   {
     const int nt = omp_get_num_threads(), tid = omp_get_thread_num();
-    for (int t = tid; t < T; t += nt) splat(job, slabs[t], split, slabOut_[t]);
+    for (int t = tid; t < T; t += nt) {
+      splat(job, slabs[t], split, slabOut_[t]);
+      updateOutput(slabOut_[t]);
+    }
   }
-  for (int t = 0; t < T; ++t) {
-    res.pixelsInserted += slabOut_[t].pixels;
-    slabOut_[t].pixels = 0;
-  }
-
-  // The voxels written are flagged; the bricks that can hold them are found
-  // geometrically, and those that do are the dirty region.
+  // The bricks of the voxels written are the dirty region.
   std::vector<std::uint8_t> flags(brickKnown_.size(), 0);
-  const DirtyRegion reach = candidates(imageToReference);
-  updateOutput(reach.bricks(), T, flags);
+  for (int t = 0; t < T; ++t) {
+    SlabOut& so = slabOut_[t];
+    res.pixelsInserted += so.pixels;
+    so.pixels = 0;
+    for (std::size_t k = 0; k < so.nWritten; ++k) {
+      const std::uint32_t b = so.writtenBrick[k];
+      flags[b] = 1;
+      if (covered(static_cast<std::size_t>(so.written[k]))) brickKnown_[b] = 1;
+    }
+    so.nWritten = 0;
+  }
 #ifndef NDEBUG
   // Every flag must have been found and cleared (a missed brick would leave
   // its output stale).
@@ -947,70 +1124,18 @@ void PixelReconstructor::addBrickId(DirtyRegion& d, std::uint32_t id) const {
   d.addBrick(b % bdims_.x, (b / bdims_.x) % bdims_.y, b / (bdims_.x * bdims_.y));
 }
 
-DirtyRegion PixelReconstructor::candidates(const Mat4& m) const {
-  DirtyRegion r = empty_;
-  // The selected pixels' rectangle, half a pixel wider on each side.
-  const Vec3 ex(m[0]), ey(m[1]);
-  const Vec3 origin = transformPoint(m, Vec3(maskX0_ - 0.5, maskY0_ - 0.5, 0.0));
-  const Vec3 eu = ex * double(maskX1_ - maskX0_ + 1), ev = ey * double(maskY1_ - maskY0_ + 1);
-  // How far from that rectangle a written voxel's centre can be: half a voxel
-  // diagonal (nearest) or a whole one (trilinear), plus the error of PLUS's
-  // 14-bit positions, which grows with the pixel index.
-  const double maxSpacing = std::max(grid_.spacing.x, std::max(grid_.spacing.y, grid_.spacing.z));
-  const double slack = plus_ ? (3.0 + maskX1_ + maskY1_) / 32768.0 + 0.01 : 1e-3;
-  const double reach = (method_ == Method::Nearest ? 0.5 : 1.0) * glm::length(grid_.spacing) + slack * maxSpacing;
-  const double lu = glm::length(eu), lv = glm::length(ev);
-  if (lu > 0.0 && lv > 0.0 && glm::length(glm::cross(eu, ev)) > 1e-9 * lu * lv) {
-    addOrientedSlab(r, origin, eu, ev, Vec3(reach));
-    return r;
-  }
-  // A degenerate pose (the image's axes parallel): its bounding box.
-  Vec3 lo = origin, hi = origin;
-  for (const Vec3 c : {origin + eu, origin + ev, origin + eu + ev}) {
-    lo = glm::min(lo, c);
-    hi = glm::max(hi, c);
-  }
-  const Vec3 vlo = glm::floor(grid_.worldToVoxel(lo - Vec3(reach))), vhi = glm::ceil(grid_.worldToVoxel(hi + Vec3(reach)));
-  const Vec3 top = Vec3(grid_.dims);
-  r.addBox({Index3(glm::clamp(vlo, Vec3(0.0), top)), Index3(glm::clamp(vhi + 1.0, Vec3(0.0), top))});
-  return r;
-}
-
-void PixelReconstructor::updateOutput(const std::vector<std::uint32_t>& bricks, int threads,
-                                      std::vector<std::uint8_t>& written) {
+void PixelReconstructor::updateOutput(SlabOut& so) {
   float* o = out();
-  std::uint8_t* touched = touched_.data();
-  const auto n = static_cast<std::int64_t>(bricks.size());
-#pragma omp parallel for num_threads(worthwhile(threads, bricks.size(), 16)) schedule(dynamic, 4)
-  for (std::int64_t k = 0; k < n; ++k) {
-    const Box3 box = empty_.brickBox(bricks[k]);
-    const std::int64_t len = box.hi.x - box.lo.x;
-    bool known = false, any = false;
-    for (std::int64_t z = box.lo.z; z < box.hi.z; ++z)
-      for (std::int64_t y = box.lo.y; y < box.hi.y; ++y) {
-        const std::size_t row = grid_.linear(box.lo.x, y, z);
-        std::uint8_t* t = touched + row;
-        std::uint8_t rowAny = 0;
-        for (std::int64_t x = 0; x < len; ++x) rowAny |= t[x];
-        if (!rowAny) continue;
-        any = true;
-        for (std::int64_t x = 0; x < len; ++x) {
-          if (!t[x]) continue;
-          t[x] = 0;
-          const std::size_t i = row + static_cast<std::size_t>(x);
-          if (plus_) {
-            o[i] = pcells_[i].v;
-            known |= pcells_[i].a != 0;
-          } else {
-            const FloatCell c = fcells_[i];
-            // One rounding: the exact sums divided once.
-            o[i] = comp_ == Compounding::Mean ? (c.w > 0.0f ? c.s / c.w : 0.0f) : c.s;
-            known |= c.w > 0.0f;
-          }
-        }
-      }
-    if (known) brickKnown_[bricks[k]] = 1;
-    if (any) written[bricks[k]] = 1;
+  for (std::size_t k = 0; k < so.nWritten; ++k) {
+    const auto i = static_cast<std::size_t>(so.written[k]);
+    touched_[i] = 0;
+    if (plus_) {
+      o[i] = pcells_[i].v;
+    } else {
+      const FloatCell c = fcells_[i];
+      // One rounding: the exact sums divided once.
+      o[i] = comp_ == Compounding::Mean ? (c.w > 0.0f ? c.s / c.w : 0.0f) : c.s;
+    }
   }
 }
 
@@ -1045,7 +1170,9 @@ void PixelReconstructor::fillBricks(const std::vector<std::uint32_t>& bricks, in
         for (std::int64_t x = box.lo.x; x < box.hi.x; ++x) {
           const std::size_t i = grid_.linear(x, y, z);
           if (covered(i)) continue;
-          const float v = !anyKnown ? 0.0f : plus_ ? filler.fill(psrc, dims, x, y, z) : filler.fill(fsrc, dims, x, y, z);
+          float v = 0.0f;
+          const bool ok = anyKnown && (plus_ ? filler.tryFill(psrc, dims, x, y, z, v) : filler.tryFill(fsrc, dims, x, y, z, v));
+          filled_[i] = ok;
           if (o[i] != v) {
             o[i] = v;
             ch = true;
@@ -1080,8 +1207,8 @@ Volume PixelReconstructor::weights() const {
 }  // namespace
 
 std::uint64_t pixelBytesPerVoxel(const ReconSettings& s) {
-  // state + F32 output + one "written" flag
-  return (s.arithmeticEnum() == Arithmetic::Plus ? sizeof(PlusCell) : sizeof(FloatCell)) + 4 + 1;
+  // state + F32 output + one "written" flag (+ one "filled" flag)
+  return (s.arithmeticEnum() == Arithmetic::Plus ? sizeof(PlusCell) : sizeof(FloatCell)) + 4 + 1 + (s.fillHoles ? 1 : 0);
 }
 
 std::unique_ptr<Reconstructor> makePixelReconstructor(const Grid& g, const ReconSettings& s) {

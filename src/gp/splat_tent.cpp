@@ -13,16 +13,30 @@
 // by the half-widths), and that slab is also its dirty region.
 //
 // The sums are evaluated voxel by voxel rather than pixel by pixel: a slice
-// visits each voxel of its slab once and adds the contributions of the few
-// pixels whose kernels reach it (about 6 x 2 for the default kernel and
-// probe). It is the same sum as scattering each pixel, but
-//  - each voxel is written once per slice, by one thread, with its terms in a
-//    fixed order, so the result is the same bits for any thread count and any
-//    split of the voxels, with no locks, and its output is refreshed in the
-//    same pass;
-//  - the slice is planar, so dn is the same for every pixel and the weight
-//    splits into tent(dn) times a 2D sum over a small window of pixels, whose
-//    lateral taps run four at a time (see SliceKernel).
+// visits each voxel of its slab once and adds the contributions of every
+// pixel whose kernel reaches it. It is the same sum as scattering each pixel,
+// but each voxel is written once per slice, by one thread, with its terms in
+// a fixed order, so the result is the same bits for any thread count and any
+// split of the voxels, with no locks, and its output is refreshed in the same
+// pass.
+//
+// A voxel does not visit those pixels one by one (about 11 x 3 of them for
+// the default kernel and probe). The slice is planar, so dn is the same for
+// every pixel and the weight splits into tent(dn) times an in-plane sum; and
+// when the pixel grid is not sheared, pixel (c, r) sits at (u, v) =
+// (c*sx, r*syv), so that sum is
+//     sum_r tent(dv_r/ha) * P_r(U),   P_r(U) = sum_c tent((U - c*sx)/hl) * value(c, r)
+// (and the same with the 0/1 mask for sum(w)). A row's "lateral profile" P_r
+// is piecewise linear in U, with kinks only where a pixel's tent has one, at
+// c*sx and c*sx +- hl: on three lattices of period sx. So each slice first
+// computes every row's P_r and M_r at those knots (ProfileRow: fixed short
+// sums of pixels, each knot's in a fixed order), and a voxel then only sums
+// its few rows' profiles at the two knots around U, weighted by the axial
+// tents, and interpolates linearly between them (inPlaneSums). That is exact
+// up to float rounding, not an approximation: a knot on a pixel's kink gets
+// exactly 0 from it, so a voxel that no selected pixel reaches gets exactly 0,
+// and never a negative weight. A sheared pixel grid shifts each row's
+// profile by r*eyu along u, and then each row has its own knot cell.
 //
 // Between consecutive frames that are farther apart than the kernel reaches,
 // intermediate slices are interpolated (see fillInCount), and old data can be
@@ -30,6 +44,7 @@
 // see the notes above TentReconstructor).
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdint>
 #include <cstdlib>
@@ -90,19 +105,25 @@ void selectPixels(const Frame& f, const std::vector<PixelRun>& runs, double reje
   out.x1 = -1;
   out.y1 = -1;
   const bool reject = rejectBelow >= 0.0;
-  for (const PixelRun& run : runs)
+  for (const PixelRun& run : runs) {
+    const std::size_t row = static_cast<std::size_t>(run.y) * static_cast<std::size_t>(f.width);
+    int first = -1, last = -1;  // the run's first and last pixel kept
     for (int c = run.x0; c <= run.x1; ++c) {
-      const std::size_t i = static_cast<std::size_t>(run.y) * static_cast<std::size_t>(f.width) + static_cast<std::size_t>(c);
+      const std::size_t i = row + static_cast<std::size_t>(c);
       const double v = f.pixelType == PixelType::U8 ? static_cast<double>(f.pixels[i]) : f.value(c, run.y);
       if (reject && v < rejectBelow) continue;
       out.value[i] = static_cast<float>(v);
       out.mask[i] = 1.0f;
       ++out.selected;
-      out.x0 = std::min(out.x0, c);
-      out.x1 = std::max(out.x1, c);
-      out.y0 = std::min(out.y0, run.y);
-      out.y1 = std::max(out.y1, run.y);
+      if (first < 0) first = c;
+      last = c;
     }
+    if (first < 0) continue;
+    out.x0 = std::min(out.x0, first);
+    out.x1 = std::max(out.x1, last);
+    out.y0 = std::min(out.y0, run.y);
+    out.y1 = std::max(out.y1, run.y);
+  }
   // No mask needed when every pixel of the rectangle is kept.
   if (out.selected > 0 && out.selected == static_cast<std::uint64_t>(out.x1 - out.x0 + 1) *
                                               static_cast<std::uint64_t>(out.y1 - out.y0 + 1))
@@ -188,11 +209,11 @@ SlicePose interpolatePose(const SlicePose& a, const SlicePose& b, double t) {
 // positions (coarse holes in all but name); anything finer than
 // he only adds work, since at spacing he each point is already the linear
 // interpolation of its two bracketing slices. Fill-in starts exactly when
-// D > he. For the default 1.5 mm half-width, frames 2 mm apart get one
-// intermediate slice (1 mm spacing); the paper interpolated about 3 points
-// between slices 2 mm apart (0.5 mm spacing), which this rule gives for a
-// 0.5 mm elevation half-width: the density follows the kernel rather than
-// being fixed.
+// D > he. For a 1.5 mm half-width, frames 2 mm apart get one intermediate
+// slice (1 mm spacing; the default 3 mm needs none); the paper interpolated
+// about 3 points between slices 2 mm apart (0.5 mm spacing), which this rule
+// gives for a 0.5 mm elevation half-width: the density follows the kernel
+// rather than being fixed.
 int fillInCount(double maxCornerDisplacementMm, double elevationHalfWidthMm) {
   if (!(maxCornerDisplacementMm > elevationHalfWidthMm)) return 0;
   return static_cast<int>(std::ceil(maxCornerDisplacementMm / elevationHalfWidthMm)) - 1;
@@ -208,18 +229,26 @@ struct F4 {
   static F4 set1(float x) { return {_mm_set1_ps(x)}; }
   static F4 zero() { return {_mm_setzero_ps()}; }
   static F4 load(const float* p) { return {_mm_loadu_ps(p)}; }
+  void store(float* p) const { _mm_storeu_ps(p, v); }
   friend F4 operator+(F4 a, F4 b) { return {_mm_add_ps(a.v, b.v)}; }
   friend F4 operator-(F4 a, F4 b) { return {_mm_sub_ps(a.v, b.v)}; }
   friend F4 operator*(F4 a, F4 b) { return {_mm_mul_ps(a.v, b.v)}; }
   static F4 abs(F4 a) { return {_mm_andnot_ps(_mm_set1_ps(-0.0f), a.v)}; }
   static F4 max0(F4 a) { return {_mm_max_ps(a.v, _mm_setzero_ps())}; }
-  // (a0+a2)+(a1+a3) and the same for b.
-  static void sum2(F4 a, F4 b, float& sa, float& sb) {
-    const __m128 x = _mm_add_ps(_mm_unpacklo_ps(a.v, b.v), _mm_unpackhi_ps(a.v, b.v));  // a0+a2 b0+b2 a1+a3 b1+b3
-    const __m128 y = _mm_add_ps(x, _mm_movehl_ps(x, x));
-    sa = _mm_cvtss_f32(y);
-    sb = _mm_cvtss_f32(_mm_shuffle_ps(y, y, 1));
+  // Lane L in every lane.
+  template <int L>
+  static F4 lane(F4 a) { return {_mm_shuffle_ps(a.v, a.v, L * 0x55)}; }
+  // Lanes 2 and 3 in lanes 0 and 1 (and again in 2 and 3).
+  static F4 high(F4 a) { return {_mm_movehl_ps(a.v, a.v)}; }
+  // (a0, a1, b0, b1)
+  static F4 halves(F4 a, F4 b) { return {_mm_movelh_ps(a.v, b.v)}; }
+  // lo = (a0, b0, a1, b1), hi = (a2, b2, a3, b3)
+  static void interleave(F4 a, F4 b, F4& lo, F4& hi) {
+    lo.v = _mm_unpacklo_ps(a.v, b.v);
+    hi.v = _mm_unpackhi_ps(a.v, b.v);
   }
+  float lane0() const { return _mm_cvtss_f32(v); }
+  float lane1() const { return _mm_cvtss_f32(_mm_shuffle_ps(v, v, 1)); }
 #else
   float l[4];
   template <typename Op>
@@ -229,194 +258,317 @@ struct F4 {
   static F4 set1(float x) { return {{x, x, x, x}}; }
   static F4 zero() { return set1(0.0f); }
   static F4 load(const float* p) { return {{p[0], p[1], p[2], p[3]}}; }
+  void store(float* p) const { std::copy_n(l, 4, p); }
   friend F4 operator+(F4 a, F4 b) { return map(a, b, [](float x, float y) { return x + y; }); }
   friend F4 operator-(F4 a, F4 b) { return map(a, b, [](float x, float y) { return x - y; }); }
   friend F4 operator*(F4 a, F4 b) { return map(a, b, [](float x, float y) { return x * y; }); }
   static F4 abs(F4 a) { return map(a, a, [](float x, float) { return std::fabs(x); }); }
   static F4 max0(F4 a) { return map(a, a, [](float x, float) { return x > 0.0f ? x : 0.0f; }); }
-  static void sum2(F4 a, F4 b, float& sa, float& sb) {
-    sa = (a.l[0] + a.l[2]) + (a.l[1] + a.l[3]);
-    sb = (b.l[0] + b.l[2]) + (b.l[1] + b.l[3]);
+  template <int L>
+  static F4 lane(F4 a) { return set1(a.l[L]); }
+  static F4 high(F4 a) { return {{a.l[2], a.l[3], a.l[2], a.l[3]}}; }
+  static F4 halves(F4 a, F4 b) { return {{a.l[0], a.l[1], b.l[0], b.l[1]}}; }
+  static void interleave(F4 a, F4 b, F4& lo, F4& hi) {
+    lo = {{a.l[0], b.l[0], a.l[1], b.l[1]}};
+    hi = {{a.l[2], b.l[2], a.l[3], b.l[3]}};
   }
+  float lane0() const { return l[0]; }
+  float lane1() const { return l[1]; }
 #endif
 };
 
+// std::clamp for doubles, as maxsd and minsd where there is SSE2 (std::clamp
+// compiles to compares and branches, as it must keep the sign of a zero).
+inline double clampD(double x, double lo, double hi) {
+#if defined(__SSE2__)
+  return _mm_cvtsd_f64(_mm_min_sd(_mm_max_sd(_mm_set_sd(x), _mm_set_sd(lo)), _mm_set_sd(hi)));
+#else
+  return std::clamp(x, lo, hi);
+#endif
+}
+
 // floor() for values already clamped to (-2^20, 2^31), without a libm call
-// (exact but within 2^-32 below an integer, where it may round up; such a
-// voxel only misses a weight of that order).
+// (exact but within 2^-32 below an integer, where it may round up; a row of
+// voxels then only gains or loses a voxel on the support's boundary, whose
+// weight is of that order).
 inline std::int64_t floorInt(double x) {
   constexpr std::int64_t kBias = std::int64_t{1} << 20;
   return static_cast<std::int64_t>(x + static_cast<double>(kBias)) - kBias;
 }
 
-// Everything the per-voxel sum needs about one slice. The pixels sit in a
-// zero-padded copy (value * mask and mask), so every voxel reads a fixed
-// window of `rows` pixel rows by `taps` pixel columns (a multiple of 4)
-// without bounds checks: the window always holds every pixel whose kernel
-// reaches the voxel, and the tent (or the zero mask of the padding) makes the
-// others add exactly 0. The window's size is fixed per slice, so its loops
-// have fixed trip counts and the taps run four at a time.
-struct SliceKernel {
-  double hl, ha;
-  double invHe;
-  double sx, eyu, syv, invSx, invSyv;
-  float invHlF, invHaF, syvF;
-  int x0, y0, x1, y1;   // selected rectangle
-  int taps, rows;       // window: columns (multiple of 4) x rows
-  int tapsReal;         // columns that can be reached, <= taps
-  bool masked;          // some pixel inside the rectangle is left out
-  int ox, oy, pw;       // image coordinates of the padded array's (0, 0); its row length
-  const float* val;     // padded value * mask
-  const float* msk;     // padded mask
-  const float* tapOff;  // t * sx for t < taps
+// The knots of the lateral profiles (see the header comment): every pixel
+// period c holds the knots c*sx + off[t], t = 0, 1, 2, with off[0] = 0 and
+// {off[1], off[2]} = {hl mod sx, -hl mod sx}, where the tents of the pixels
+// have their kinks; knot (c, t) has the index 3 * (c - cLo) + t. When hl is a
+// multiple of sx (or of sx/2) some offsets coincide and their cells are
+// empty: a voxel lands in one only by rounding, and then reads a knot's value.
+struct KnotLattice {
+  double sx = 1.0, invSx = 1.0;
+  double off[3] = {0.0, 0.0, 0.0};
+  int cLo = 0, cHi = 0;  // first and last period, a multiple of four of them
+  int periods() const { return cHi - cLo + 1; }
+  // For locating a voxel, in periods: the offsets / sx, 1 / (the cells'
+  // widths / sx) (0 for an empty cell), and the last period a cell may start in.
+  double offP[3] = {0.0, 0.0, 0.0};
+  double invWidthP[3] = {0.0, 0.0, 0.0};
+  double lastP = 0.0;
 };
 
-// The axial part of a voxel's window: the pixel rows within ha of it and
-// their tent weights, in increasing row order. It depends on V only, so when
-// V is the same along a row of voxels (the image's axial axis perpendicular
-// to the grid's x axis, as on the paper's arm, which keeps the probe
-// vertical) it is computed once per row, with the same arithmetic.
-// A row beyond the kernel gets the weight 0, and adds exactly +0 to the sums,
-// so the window has a fixed number of rows.
-constexpr int kMaxRows = 32;  // wider windows take the plain path below
-struct Axial {
-  int r0 = 0;             // first row of the window
-  bool inside = false;    // the whole window lies inside the selected rows
-  float tvSum = 0.0f;
-  std::size_t row0 = 0;   // padded offset of row r0
-  float tv[kMaxRows];     // weight of row r0 + rr
-};
-
-inline double clampedRow(const SliceKernel& K, double V) {
-  // First row strictly inside |V - r*syv| < ha, clamped so the window stays
-  // inside the padding (a clamped window holds no selected pixel).
-  return std::clamp((V - K.ha) * K.invSyv, static_cast<double>(K.y0 - K.rows - 1), static_cast<double>(K.y1));
-}
-
-// Rows: K.rows when known at compile time, else 0.
-template <int Rows>
-inline void axialWindow(const SliceKernel& K, double V, Axial& a) {
-  const int rows = Rows > 0 ? Rows : K.rows;
-  a.r0 = static_cast<int>(floorInt(clampedRow(K, V))) + 1;
-  const auto dv0 = static_cast<float>(V - a.r0 * K.syv);  // from pixel row r0
-  a.tvSum = 0.0f;
-  for (int rr = 0; rr < rows; ++rr) {
-    const float tv = std::max(0.0f, 1.0f - std::fabs(dv0 - static_cast<float>(rr) * K.syvF) * K.invHaF);
-    a.tv[rr] = tv;
-    a.tvSum += tv;
+// Knots for the pixel columns x0..x1. The profiles vanish outside
+// (x0*sx - hl, x1*sx + hl); the first and last periods lie wholly outside, so
+// a voxel beyond them can be clamped into them and reads zeros.
+KnotLattice knotLattice(double sx, double hl, int x0, int x1) {
+  KnotLattice L;
+  L.sx = sx;
+  L.invSx = 1.0 / sx;
+  const double a = std::fmod(hl, sx), b = a > 0.0 ? sx - a : 0.0;
+  L.off[1] = std::min(a, b);
+  L.off[2] = std::max(a, b);
+  for (int t = 0; t < 3; ++t) {
+    L.offP[t] = L.off[t] * L.invSx;
+    const double w = (t < 2 ? L.off[t + 1] : sx) - L.off[t];
+    L.invWidthP[t] = w > 0.0 ? sx / w : 0.0;
   }
-  a.row0 = static_cast<std::size_t>(a.r0 - K.oy) * static_cast<std::size_t>(K.pw);
-  a.inside = a.r0 >= K.y0 && a.r0 + K.rows - 1 <= K.y1;
+  const int reach = static_cast<int>(std::ceil(hl * L.invSx));
+  L.cLo = x0 - reach - 1;
+  L.cHi = L.cLo + (x1 + reach + 1 - L.cLo) / 4 * 4 + 3;  // a multiple of four periods
+  L.lastP = L.cHi - L.cLo - 1;                          // its cell's last knot is (cHi, 0)
+  return L;
 }
 
-// First column strictly inside |u - c*sx| < hl (clamped like the rows) and
-// the voxel's distance from it.
-inline int firstColumn(const SliceKernel& K, double ur, float& d0) {
-  const auto c0 = static_cast<int>(floorInt(std::clamp((ur - K.hl) * K.invSx, static_cast<double>(K.x0 - K.taps - 1),
-                                                       static_cast<double>(K.x1)))) +
-                  1;
-  d0 = static_cast<float>(ur - c0 * K.sx);
-  return c0;
+// The knot cell of lateral coordinate u: the index of its first knot, and
+// where u lies between its two knots (0..1). Clamped to the lattice, and the
+// fraction to its cell, so that a voxel always reads a convex combination of
+// two knots: zero where both are zero, never negative.
+inline int knotCell(const KnotLattice& L, double u, float& frac) {
+  const double x = clampD(u * L.invSx - L.cLo, 0.0, L.lastP);  // periods from cLo
+  const int c = static_cast<int>(x);                          // x >= 0: the floor
+  const double g = x - c;                                     // within the period
+  const int t = static_cast<int>(g >= L.offP[1]) + static_cast<int>(g >= L.offP[2]);
+  frac = static_cast<float>(clampD((g - L.offP[t]) * L.invWidthP[t], 0.0, 1.0));
+  return 3 * c + t;
 }
 
-inline F4 lateralWeights(const SliceKernel& K, F4 d4, int q) {
-  return F4::max0(F4::set1(1.0f) - F4::abs(d4 - F4::load(K.tapOff + 4 * q)) * F4::set1(K.invHlF));
+// The pixels' lateral tent weights at the knots of one offset: pixel
+// c - (j0 + i) weighs w[i] at knot (c, t), for every period c.
+struct LatticeTaps {
+  int j0 = 0;
+  std::vector<float> w;
+  int jEnd() const { return j0 + static_cast<int>(w.size()); }
+};
+
+LatticeTaps latticeTaps(const KnotLattice& L, double hl, int t) {
+  const int reach = static_cast<int>(std::ceil(hl * L.invSx)) + 1;
+  std::vector<float> w;
+  for (int j = -reach; j <= reach; ++j) {
+    const double x = 1.0 - std::abs(j * L.sx + L.off[t]) / hl;
+    // A knot on one of a pixel's kinks (|distance| = hl) must get exactly 0
+    // from it, whatever the rounding of the offsets, or voxels just outside
+    // that pixel's support would get a weight of rounding size.
+    w.push_back(x > 1e-9 ? static_cast<float>(x) : 0.0f);
+  }
+  // Only the nonzero run (a tent's support is an interval).
+  const auto first = std::find_if(w.begin(), w.end(), [](float x) { return x > 0.0f; });
+  const auto last = std::find_if(w.rbegin(), w.rend(), [](float x) { return x > 0.0f; }).base();
+  LatticeTaps taps;
+  if (first < last) {
+    taps.j0 = -reach + static_cast<int>(first - w.begin());
+    taps.w.assign(first, last);
+  }
+  return taps;
 }
 
-inline bool finish(F4 aw, F4 awv, double tn, float& cw, float& cwv) {
-  float sw, swv;
-  F4::sum2(aw, awv, sw, swv);
-  if (!(sw > 0.0f)) return false;
-  const auto tnf = static_cast<float>(tn);
-  cw = sw * tnf;
-  cwv = swv * tnf;
-  return true;
+// One pixel row's profiles at every knot, interleaved as (P, M) pairs in knot
+// order: P = sum over the row's pixels of tent_l * value, M = the same with
+// the mask (1 for a selected pixel, else 0). Each knot's sum runs over its
+// taps in a fixed order; four periods at a time.
+class ProfileRow {
+public:
+  ProfileRow(const KnotLattice& L, double hl) : L_(L) {
+    // The three offsets' taps over the union of their ranges (0 outside
+    // their own), so that each pixel is loaded once for all three. Offset 0
+    // always has taps (the pixel under the knot weighs 1); the others may
+    // have none, when hl < sx.
+    LatticeTaps taps[3];
+    int jMin = 0, jMax = 1;
+    for (int t = 0; t < 3; ++t) {
+      taps[t] = latticeTaps(L, hl, t);
+      if (taps[t].w.empty()) continue;
+      jMin = std::min(jMin, taps[t].j0);
+      jMax = std::max(jMax, taps[t].jEnd());
+    }
+    j0_ = jMin;
+    for (int j = jMin; j < jMax; ++j) {
+      Taps3& w = taps_.emplace_back();
+      for (int t = 0; t < 3; ++t) {
+        const int i = j - taps[t].j0;
+        const bool in = i >= 0 && i < static_cast<int>(taps[t].w.size());
+        w[t] = F4::set1(in ? taps[t].w[static_cast<std::size_t>(i)] : 0.0f);
+      }
+    }
+    // Pixels pLo_ .. cHi - jMin cover every tap of every knot.
+    pLo_ = L.cLo - jMax;
+    const auto span = static_cast<std::size_t>(L.cHi - jMin - pLo_ + 1);
+    val_.assign(span, 0.0f);
+    msk_.assign(span, 0.0f);
+    maskSums_.assign(3 * static_cast<std::size_t>(L.periods()), 0.0f);
+  }
+
+  // Row r of img into out (6 * periods floats). Without a mask the rectangle
+  // is the same on every row, and so is M: it is summed for the first row only.
+  void build(const SliceImage& img, int r, float* out) {
+    const std::size_t src =
+        static_cast<std::size_t>(r) * static_cast<std::size_t>(img.width) + static_cast<std::size_t>(img.x0);
+    const auto dst = static_cast<std::size_t>(img.x0 - pLo_);
+    const auto n = static_cast<std::size_t>(img.x1 - img.x0 + 1);
+    std::copy_n(img.value.data() + src, n, val_.data() + dst);
+    const bool sumMask = img.masked() || !haveMaskSums_;
+    if (img.masked())
+      std::copy_n(img.mask.data() + src, n, msk_.data() + dst);
+    else
+      std::fill_n(msk_.data() + dst, n, 1.0f);
+    const auto periods = static_cast<std::size_t>(L_.periods());
+    for (int c = 0; c < L_.periods(); c += 4, out += 24) {
+      F4 P[3], M[3];
+      convolve(val_.data(), c, P);
+      if (sumMask) convolve(msk_.data(), c, M);
+      for (int t = 0; t < 3; ++t) {
+        float* m = maskSums_.data() + static_cast<std::size_t>(t) * periods + static_cast<std::size_t>(c);
+        if (sumMask)
+          M[t].store(m);
+        else
+          M[t] = F4::load(m);
+      }
+      storeInterleaved(P, M, out);
+    }
+    haveMaskSums_ = true;
+  }
+
+private:
+  // sum[t] = sum_i taps_[i][t] * pixel(cLo + c + l - j0 - i) for the periods
+  // c + l, l = 0..3 (counted from cLo).
+  void convolve(const float* pixels, int c, F4 (&sum)[3]) const {
+    const float* p = pixels + (L_.cLo + c - j0_ - pLo_);
+    F4 a0 = F4::zero(), a1 = F4::zero(), a2 = F4::zero();
+    for (const Taps3& w : taps_) {
+      const F4 x = F4::load(p--);
+      a0 = a0 + w[0] * x;
+      a1 = a1 + w[1] * x;
+      a2 = a2 + w[2] * x;
+    }
+    sum[0] = a0;
+    sum[1] = a1;
+    sum[2] = a2;
+  }
+
+  // P[t] and M[t] of four periods as (P, M) pairs in knot order: period by
+  // period, offset by offset.
+  static void storeInterleaved(const F4 (&P)[3], const F4 (&M)[3], float* out) {
+    F4 lo[3], hi[3];  // (P, M) of periods 0 and 1, and of periods 2 and 3
+    for (int t = 0; t < 3; ++t) F4::interleave(P[t], M[t], lo[t], hi[t]);
+    for (const F4* h : {lo, hi}) {
+      F4::halves(h[0], h[1]).store(out);                          // period 0 (2): offsets 0, 1
+      F4::halves(h[2], F4::high(h[0])).store(out + 4);            // offset 2; period 1 (3): offset 0
+      F4::halves(F4::high(h[1]), F4::high(h[2])).store(out + 8);  // period 1 (3): offsets 1, 2
+      out += 12;
+    }
+  }
+
+  using Taps3 = std::array<F4, 3>;
+  KnotLattice L_;
+  int j0_ = 0;
+  std::vector<Taps3> taps_;  // pixel c - (j0 + i) weighs taps_[i][t] at knot (c, t), in every lane
+  int pLo_ = 0;
+  std::vector<float> val_, msk_;  // one row, zero outside the rectangle
+  std::vector<float> maskSums_;   // M for offsets 0, 1, 2 (planar)
+  bool haveMaskSums_ = false;
+};
+
+// Everything the per-voxel sum needs about one slice: the knots, the
+// profiles of the selected rows and of zero rows above and below them (a
+// voxel's axial window always lies inside), and the axial kernel.
+struct SliceKernel {
+  KnotLattice lat;
+  double ha, syv, invSyv, eyu, invHe;
+  float invHaF;
+  int y0, y1;           // selected rows
+  int rows;             // axial window: every row that can be within ha of a voxel,
+  int chunks;           //   rounded up to chunks of four
+  int oy;               // pixel row of the first profile row
+  double firstBase, firstLo, firstHi;  // for axialWindow
+  std::size_t stride;   // floats per profile row
+  const float* prof;
+  const float* rowOff;  // 4 * chunks: rr * syv, +infinity for rows past `rows`
+};
+
+// A voxel's axial window: the profile rows r0 .. r0 + 4 * chunks - 1 and
+// their tent weights, four to an F4. A row beyond the kernel gets the weight
+// 0 and adds exactly +0, so the window has a fixed number of rows.
+struct Axial {
+  int r0 = 0;
+  std::size_t row0 = 0;  // offset of row r0's profile
+  F4* tv = nullptr;      // K.chunks
+};
+
+inline void axialWindow(const SliceKernel& K, double V, Axial& a) {
+  // The first row strictly inside |V - r*syv| < ha, counted from oy, and
+  // clamped so the window stays inside the padding (a clamped window holds
+  // no selected pixel).
+  const double first = clampD((V - K.ha) * K.invSyv + K.firstBase, K.firstLo, K.firstHi);
+  const int idx = static_cast<int>(first);  // first >= 0: the floor
+  a.r0 = K.oy + idx;
+  const F4 dv0 = F4::set1(static_cast<float>(V - a.r0 * K.syv));  // from pixel row r0
+  for (int q = 0; q < K.chunks; ++q)
+    a.tv[q] = F4::max0(F4::set1(1.0f) - F4::abs(dv0 - F4::load(K.rowOff + 4 * q)) * F4::set1(K.invHaF));
+  a.row0 = static_cast<std::size_t>(idx) * K.stride;
 }
 
-// The slice's contribution to a voxel at lateral coordinate U with the axial
-// window `ax` and elevation weight tn > 0: cw = sum over pixels of w,
-// cwv = sum of w * value, in a fixed order. False when no selected pixel
-// reaches it. Chunks: the window's columns / 4 when known at compile time
-// (the common small kernels), 0 = K.taps / 4 at run time.
-template <bool Sheared, int Chunks, int Rows>
-inline bool inPlaneContribution(const SliceKernel& K, const Axial& ax, double U, double tn, float& cw, float& cwv) {
-  const int chunks = Chunks > 0 ? Chunks : K.taps / 4;
-  const int rows = Rows > 0 ? Rows : K.rows;
-  const auto pw = static_cast<std::size_t>(K.pw);
-  F4 aw = F4::zero(), awv = F4::zero();
-  float d0 = 0.0f;
-  int c0 = 0;
-  // Lateral weights, shared by all rows when the pixel grid is not sheared.
-  constexpr int kCached = Chunks > 0 ? Chunks : 1;
-  F4 tu[kCached];
+// The slice's in-plane sums at lateral coordinate U with the axial window
+// `ax`: sw = sum over pixels of tent_l * tent_a * mask, swv = the same times
+// the value.
+template <bool Sheared>
+inline void inPlaneSums(const SliceKernel& K, const Axial& ax, double U, float& sw, float& swv) {
+  const float* p = K.prof + ax.row0;
+  const std::size_t stride = K.stride;
+  F4 a = F4::zero();
   if constexpr (!Sheared) {
-    c0 = firstColumn(K, U, d0);
-    if constexpr (Chunks > 0) {
-      const F4 d4 = F4::set1(d0);
-      for (int q = 0; q < Chunks; ++q) tu[q] = lateralWeights(K, d4, q);
-      // Every pixel of the window inside the rectangle and none left out:
-      // the weight is (sum of tv) * (sum of tu), and the mask need not be read.
-      if (!K.masked && ax.inside && c0 >= K.x0 && c0 + K.tapsReal - 1 <= K.x1) {
-        const float* v = K.val + ax.row0 + static_cast<std::size_t>(c0 - K.ox);
-        for (int rr = 0; rr < rows; ++rr, v += pw) {
-          const F4 tv4 = F4::set1(ax.tv[rr]);
-          for (int q = 0; q < Chunks; ++q) awv = awv + (tu[q] * tv4) * F4::load(v + 4 * q);
-        }
-        F4 tuSum = tu[0];
-        for (int q = 1; q < Chunks; ++q) tuSum = tuSum + tu[q];
-        float su, swv;
-        F4::sum2(tuSum, awv, su, swv);
-        const float sw = su * ax.tvSum;
-        if (!(sw > 0.0f)) return false;
-        const auto tnf = static_cast<float>(tn);
-        cw = sw * tnf;
-        cwv = swv * tnf;
-        return true;
+    // Every row has its kinks at the same knots: sum the rows' (P, M) at the
+    // cell's two knots, then interpolate once.
+    float frac;
+    p += 2 * knotCell(K.lat, U, frac);
+    int q = 0;
+    do {
+      const F4 t = ax.tv[q];
+      a = a + F4::lane<0>(t) * F4::load(p);
+      a = a + F4::lane<1>(t) * F4::load(p + stride);
+      a = a + F4::lane<2>(t) * F4::load(p + 2 * stride);
+      a = a + F4::lane<3>(t) * F4::load(p + 3 * stride);
+      p += 4 * stride;
+    } while (++q < K.chunks);
+    a = a + F4::set1(frac) * (F4::high(a) - a);
+  } else {
+    // Row r's pixels sit r*eyu further along u: each row has its own cell.
+    alignas(16) float tv[4];
+    for (int q = 0; q < K.chunks; ++q) {
+      ax.tv[q].store(tv);
+      for (int l = 0; l < 4; ++l, p += stride) {
+        const int r = ax.r0 + 4 * q + l;
+        float frac;
+        const F4 x = F4::load(p + 2 * knotCell(K.lat, U - r * K.eyu, frac));
+        a = a + F4::set1(tv[l]) * (x + F4::set1(frac) * (F4::high(x) - x));
       }
     }
   }
-  for (int rr = 0; rr < rows; ++rr) {
-    if constexpr (Sheared) c0 = firstColumn(K, U - (ax.r0 + rr) * K.eyu, d0);
-    const std::size_t off = ax.row0 + static_cast<std::size_t>(rr) * pw + static_cast<std::size_t>(c0 - K.ox);
-    const float* v = K.val + off;
-    const float* m = K.msk + off;
-    const F4 tv4 = F4::set1(ax.tv[rr]), d4 = F4::set1(d0);
-    for (int q = 0; q < chunks; ++q) {
-      const F4 t = (!Sheared && Chunks > 0 ? tu[q] : lateralWeights(K, d4, q)) * tv4;
-      aw = aw + t * F4::load(m + 4 * q);
-      awv = awv + t * F4::load(v + 4 * q);
-    }
-  }
-  return finish(aw, awv, tn, cw, cwv);
+  swv = a.lane0();
+  sw = a.lane1();
 }
 
-// Windows of more than kMaxRows rows (a long axial kernel on fine pixels):
-// the same sums without the per-row table.
-inline bool wideContribution(const SliceKernel& K, double U, double V, double tn, float& cw, float& cwv) {
-  const int r0 = static_cast<int>(floorInt(clampedRow(K, V))) + 1;
-  const auto dv0 = static_cast<float>(V - r0 * K.syv);
-  const std::size_t row0 = static_cast<std::size_t>(r0 - K.oy) * static_cast<std::size_t>(K.pw);
-  F4 aw = F4::zero(), awv = F4::zero();
-  for (int rr = 0; rr < K.rows; ++rr) {
-    const float tv = 1.0f - std::fabs(dv0 - static_cast<float>(rr) * K.syvF) * K.invHaF;
-    if (!(tv > 0.0f)) continue;
-    float d0 = 0.0f;
-    const int c0 = firstColumn(K, U - (r0 + rr) * K.eyu, d0);
-    const std::size_t off = row0 + static_cast<std::size_t>(rr) * static_cast<std::size_t>(K.pw) +
-                            static_cast<std::size_t>(c0 - K.ox);
-    const F4 tv4 = F4::set1(tv), d4 = F4::set1(d0);
-    for (int q = 0; q < K.taps / 4; ++q) {
-      const F4 t = lateralWeights(K, d4, q) * tv4;
-      aw = aw + t * F4::load(K.msk + off + 4 * q);
-      awv = awv + t * F4::load(K.val + off + 4 * q);
-    }
-  }
-  return finish(aw, awv, tn, cw, cwv);
-}
-
-// How a slice's voxels are summed (see contributeRows).
-// Default: the default kernel on the simulated probe (8 taps x 2 rows).
-enum class Path { Wide, Sheared, Plain, Plain1, Plain2, Default };
+// How the slice coordinates change along a row of voxels (grid x). ConstV: V
+// stays the same (the image's axial axis is perpendicular to grid x, as on
+// the paper's arm, which keeps the probe vertical), so the axial window is
+// computed once per row. ConstUV: U does too (the row runs along the slice's
+// normal), so the whole in-plane sum is. Both give the same bits as Any.
+enum class Along { Any, ConstV, ConstUV };
 
 // Asks for transparent huge pages on the whole pages inside [p, p + bytes)
 // (before they are first touched, for it to take effect at once).
@@ -530,11 +682,11 @@ public:
 
 private:
   void splat(const SlicePose& pose, const SliceImage& img, double timeS, const Vec3& dir, DirtyRegion& dirty);
-  template <Path P>
+  SliceKernel sliceKernel(const SlicePose& pose, const SliceImage& img);
+  void buildProfiles(const SliceImage& img, const KnotLattice& lat, int padRows);
+  template <bool Sheared, Along A>
   void contribute(const SliceKernel& K, const SliceFrame& sf, float tf);
-  template <Path P, bool ConstV>
-  void contribute(const SliceKernel& K, const SliceFrame& sf, float tf);
-  template <Path P, bool ConstV, Replacement R>
+  template <bool Sheared, Along A, Replacement R>
   void contributeRows(const SliceKernel& K, const SliceFrame& sf, std::size_t first, std::size_t end, float tf);
   void rebaseCells(const Vec3& dir);
   void applyStored(float tf);
@@ -568,7 +720,7 @@ private:
   std::vector<Row> rows_;
   std::vector<float> contrib_;  // motion_vector: (cw, cwv) per voxel of rows_
   std::vector<std::uint32_t> touched_;
-  std::vector<float> padVal_, padMsk_, tapOff_;
+  std::vector<float> profiles_, rowOff_;  // the slice's lateral profiles and axial offsets (SliceKernel)
   SliceImage cur_, prev_, mid_;
   std::vector<PixelRun> runs_;  // pixels selected in frames of runsWidth_ x runsHeight_
   int runsWidth_ = -1, runsHeight_ = -1;
@@ -693,7 +845,61 @@ void TentReconstructor::forRows(F&& f) {
     f(static_cast<std::size_t>(c * kChunk), static_cast<std::size_t>(std::min(nrows, (c + 1) * kChunk)));
 }
 
-template <Path P, bool ConstV, Replacement R>
+// The profiles of rows y0 - padRows .. y1 + padRows of img (zero outside
+// y0..y1) into profiles_. Rows are independent, so any split of them among
+// the threads gives the same bits.
+void TentReconstructor::buildProfiles(const SliceImage& img, const KnotLattice& lat, int padRows) {
+  const std::size_t stride = 6 * static_cast<std::size_t>(lat.periods());
+  const int rows = img.y1 - img.y0 + 1;
+  const std::size_t pad = static_cast<std::size_t>(padRows) * stride;
+  profiles_.resize(static_cast<std::size_t>(rows) * stride + 2 * pad);
+  std::fill_n(profiles_.data(), pad, 0.0f);
+  std::fill_n(profiles_.data() + profiles_.size() - pad, pad, 0.0f);
+  const int threads = std::min(threads_, rows);
+#pragma omp parallel num_threads(threads) if (threads > 1)
+  {
+    ProfileRow row(lat, hl_);
+    float* const first = profiles_.data() + pad;
+#pragma omp for schedule(static)
+    for (int r = 0; r < rows; ++r) row.build(img, img.y0 + r, first + static_cast<std::size_t>(r) * stride);
+  }
+}
+
+// The slice's kernel, its profiles (into profiles_) and axial offsets (into rowOff_).
+SliceKernel TentReconstructor::sliceKernel(const SlicePose& pose, const SliceImage& img) {
+  // Every pixel row that can be within ha of a voxel (at most
+  // floor(2 ha / syv) + 1 of them) is in its axial window.
+  SliceKernel K{};
+  K.lat = knotLattice(pose.sx, hl_, img.x0, img.x1);
+  K.ha = ha_;
+  K.syv = pose.syv;
+  K.invSyv = 1.0 / pose.syv;
+  K.eyu = pose.eyu;
+  K.invHe = 1.0 / he_;
+  K.invHaF = static_cast<float>(1.0 / ha_);
+  K.y0 = img.y0;
+  K.y1 = img.y1;
+  K.rows = static_cast<int>(std::floor(2.0 * ha_ / pose.syv)) + 1;
+  K.chunks = (K.rows + 3) / 4;
+  // The window starts at most `rows` rows before y0 and reaches at most
+  // 4 * chunks - 1 rows past y1.
+  const int padRows = 4 * K.chunks;
+  K.oy = img.y0 - padRows;
+  // floor((V - ha) / syv) + 1 - oy, clamped to [y0 - rows, y1 + 1] - oy.
+  K.firstBase = 1.0 - K.oy;
+  K.firstLo = img.y0 - K.rows - K.oy;
+  K.firstHi = img.y1 + 1 - K.oy;
+  K.stride = 6 * static_cast<std::size_t>(K.lat.periods());
+  buildProfiles(img, K.lat, padRows);
+  K.prof = profiles_.data();
+  rowOff_.assign(static_cast<std::size_t>(4 * K.chunks), std::numeric_limits<float>::infinity());
+  for (int rr = 0; rr < K.rows; ++rr)
+    rowOff_[static_cast<std::size_t>(rr)] = static_cast<float>(rr) * static_cast<float>(pose.syv);
+  K.rowOff = rowOff_.data();
+  return K;
+}
+
+template <bool Sheared, Along A, Replacement R>
 void TentReconstructor::contributeRows(const SliceKernel& Kref, const SliceFrame& sf, std::size_t first,
                                        std::size_t end, float tf) {
   // Local copies: the compiler cannot tell that the stores below leave them alone.
@@ -704,7 +910,9 @@ void TentReconstructor::contributeRows(const SliceKernel& Kref, const SliceFrame
   const std::int64_t nx = grid_.dims.x, nxy = grid_.dims.x * grid_.dims.y;
   const Vec3 s = sf.step[0], sj = sf.step[1], sk = sf.step[2];
   float cacheT = std::numeric_limits<float>::quiet_NaN(), cacheF = 1.0f;
+  std::vector<F4> tv(static_cast<std::size_t>(K.chunks));
   Axial ax;
+  ax.tv = tv.data();
   for (std::size_t r = first; r < end; ++r) {
     // Rows a slice crosses are often short and a grid row apart: fetch the
     // voxels of a row a few rows ahead while this one computes.
@@ -722,58 +930,50 @@ void TentReconstructor::contributeRows(const SliceKernel& Kref, const SliceFrame
     const Row& row = rows_[r];
     const Vec3 b = sf.base + static_cast<double>(row.j) * sj + static_cast<double>(row.k) * sk;
     const std::int64_t lin0 = row.j * nx + row.k * nxy;
-    constexpr int kRows = P == Path::Default ? 2 : 0;
-    if constexpr (ConstV) axialWindow<kRows>(K, b.y, ax);  // s.y == 0: V is b.y all along the row
+    float rowSw = 0.0f, rowSwv = 0.0f;
+    if constexpr (A != Along::Any) axialWindow(K, b.y, ax);  // s.y == 0: V is b.y all along the row
+    if constexpr (A == Along::ConstUV) inPlaneSums<Sheared>(K, ax, b.x, rowSw, rowSwv);
     for (std::int64_t i = row.i0; i <= row.i1; ++i) {
       const auto di = static_cast<double>(i);
-      const double U = b.x + di * s.x, N = b.z + di * s.z;
+      const double N = b.z + di * s.z;
       const double tn = 1.0 - std::abs(N) * K.invHe;
       float cw = 0.0f, cwv = 0.0f;
-      bool hit = false;
       if (tn > 0.0) {
-        if constexpr (P == Path::Wide) {
-          hit = wideContribution(K, U, b.y + di * s.y, tn, cw, cwv);
-        } else {
-          if constexpr (!ConstV) axialWindow<kRows>(K, b.y + di * s.y, ax);
-          constexpr bool kSheared = P == Path::Sheared;
-          constexpr int kChunks = P == Path::Plain1 ? 1 : P == Path::Plain2 || P == Path::Default ? 2 : 0;
-          hit = inPlaneContribution<kSheared, kChunks, kRows>(K, ax, U, tn, cw, cwv);
+        float sw = rowSw, swv = rowSwv;
+        if constexpr (A != Along::ConstUV) {
+          if constexpr (A == Along::Any) axialWindow(K, b.y + di * s.y, ax);
+          inPlaneSums<Sheared>(K, ax, b.x + di * s.x, sw, swv);
         }
+        const auto tnf = static_cast<float>(tn);
+        cw = sw * tnf;
+        cwv = swv * tnf;
       }
+      const bool hit = cw > 0.0f;  // some selected pixel reaches the voxel
       if constexpr (R == Replacement::MotionVector) {
         // Stored: the cells to rebase are known only once the slice is summed.
         float* c = contrib + 2 * (row.offset + static_cast<std::size_t>(i - row.i0));
         c[0] = hit ? cw : 0.0f;
         c[1] = hit ? cwv : 0.0f;
       } else {
-        if (hit)
-          applyVoxel<R>(acc, out, static_cast<std::size_t>(lin0 + i), cw, cwv, tf, cacheT, cacheF);
+        if (hit) applyVoxel<R>(acc, out, static_cast<std::size_t>(lin0 + i), cw, cwv, tf, cacheT, cacheF);
       }
     }
   }
 }
 
-template <Path P, bool ConstV>
+template <bool Sheared, Along A>
 void TentReconstructor::contribute(const SliceKernel& K, const SliceFrame& sf, float tf) {
   switch (mode_) {
     case Replacement::Accumulate:
-      forRows([&](std::size_t a, std::size_t b) { contributeRows<P, ConstV, Replacement::Accumulate>(K, sf, a, b, tf); });
+      forRows([&](std::size_t a, std::size_t b) { contributeRows<Sheared, A, Replacement::Accumulate>(K, sf, a, b, tf); });
       break;
     case Replacement::Decay:
-      forRows([&](std::size_t a, std::size_t b) { contributeRows<P, ConstV, Replacement::Decay>(K, sf, a, b, tf); });
+      forRows([&](std::size_t a, std::size_t b) { contributeRows<Sheared, A, Replacement::Decay>(K, sf, a, b, tf); });
       break;
     case Replacement::MotionVector:
-      forRows([&](std::size_t a, std::size_t b) { contributeRows<P, ConstV, Replacement::MotionVector>(K, sf, a, b, tf); });
+      forRows([&](std::size_t a, std::size_t b) { contributeRows<Sheared, A, Replacement::MotionVector>(K, sf, a, b, tf); });
       break;
   }
-}
-
-template <Path P>
-void TentReconstructor::contribute(const SliceKernel& K, const SliceFrame& sf, float tf) {
-  if (sf.step[0].y == 0.0)
-    contribute<P, true>(K, sf, tf);
-  else
-    contribute<P, false>(K, sf, tf);
 }
 
 void TentReconstructor::applyStored(float tf) {
@@ -842,56 +1042,6 @@ void TentReconstructor::rebaseCells(const Vec3& dir) {
 void TentReconstructor::splat(const SlicePose& pose, const SliceImage& img, double timeS, const Vec3& dir,
                               DirtyRegion& dirty) {
   const Grid& g = grid_;
-  // Window of pixels around a voxel: every column strictly within hl of it
-  // (at most floor(2 hl / sx) + 1 of them), every row within ha.
-  const int tapsReal = static_cast<int>(std::floor(2.0 * hl_ / pose.sx)) + 1;
-  const int taps = (tapsReal + 3) / 4 * 4;
-  const int rowsWin = static_cast<int>(std::floor(2.0 * ha_ / pose.syv)) + 1;
-  const int padX = taps + 2, padY = rowsWin + 2;
-  const int rw = img.x1 - img.x0 + 1, rh = img.y1 - img.y0 + 1;
-  const int pw = rw + 2 * padX, ph = rh + 2 * padY;
-  padVal_.assign(static_cast<std::size_t>(pw) * static_cast<std::size_t>(ph), 0.0f);
-  padMsk_.assign(padVal_.size(), 0.0f);
-  for (int r = 0; r < rh; ++r) {
-    const std::size_t src = static_cast<std::size_t>(img.y0 + r) * static_cast<std::size_t>(img.width) +
-                            static_cast<std::size_t>(img.x0);
-    const std::size_t dst = static_cast<std::size_t>(r + padY) * static_cast<std::size_t>(pw) + static_cast<std::size_t>(padX);
-    std::copy_n(img.value.data() + src, rw, padVal_.data() + dst);
-    if (img.masked())
-      std::copy_n(img.mask.data() + src, rw, padMsk_.data() + dst);
-    else
-      std::fill_n(padMsk_.data() + dst, rw, 1.0f);
-  }
-  tapOff_.resize(static_cast<std::size_t>(taps));
-  for (int t = 0; t < taps; ++t) tapOff_[static_cast<std::size_t>(t)] = static_cast<float>(t * pose.sx);
-
-  SliceKernel K{};
-  K.hl = hl_;
-  K.ha = ha_;
-  K.invHaF = static_cast<float>(1.0 / ha_);
-  K.syvF = static_cast<float>(pose.syv);
-  K.invHe = 1.0 / he_;
-  K.invHlF = static_cast<float>(1.0 / hl_);
-  K.sx = pose.sx;
-  K.eyu = pose.eyu;
-  K.syv = pose.syv;
-  K.invSx = 1.0 / pose.sx;
-  K.invSyv = 1.0 / pose.syv;
-  K.x0 = img.x0;
-  K.y0 = img.y0;
-  K.x1 = img.x1;
-  K.y1 = img.y1;
-  K.taps = taps;
-  K.tapsReal = tapsReal;
-  K.masked = img.masked();
-  K.rows = rowsWin;
-  K.ox = img.x0 - padX;
-  K.oy = img.y0 - padY;
-  K.pw = pw;
-  K.val = padVal_.data();
-  K.msk = padMsk_.data();
-  K.tapOff = tapOff_.data();
-
   // The pixel centres' extent in slice coordinates, and the kernel's support
   // around it: the open box lo < (U, V, N) < hi.
   double uLo = std::numeric_limits<double>::infinity(), uHi = -uLo;
@@ -958,24 +1108,20 @@ void TentReconstructor::splat(const SlicePose& pose, const SliceImage& img, doub
     }
   if (rows_.empty()) return;
 
+  const SliceKernel K = sliceKernel(pose, img);
   const auto tf = static_cast<float>(timeS - t0_);
   if (mode_ == Replacement::MotionVector && contrib_.size() < 2 * total) contrib_.resize(2 * total);
   // An image whose y axis is perpendicular to its x axis (any rigid pose with
-  // a pixel scale) shares one column window across the rows.
+  // a pixel scale) has the same knots on every row.
   const bool sheared = std::abs(pose.eyu) * (img.y1 + 1) > 1e-9;
-  const int chunks = taps / 4;
-  if (rowsWin > kMaxRows)
-    contribute<Path::Wide, false>(K, sf, tf);
-  else if (sheared)
-    contribute<Path::Sheared>(K, sf, tf);
-  else if (chunks == 1)
-    contribute<Path::Plain1>(K, sf, tf);
-  else if (chunks == 2 && rowsWin == 2)
-    contribute<Path::Default>(K, sf, tf);
-  else if (chunks == 2)
-    contribute<Path::Plain2>(K, sf, tf);
+  if (sheared)
+    contribute<true, Along::Any>(K, sf, tf);
+  else if (sa.y != 0.0)
+    contribute<false, Along::Any>(K, sf, tf);
+  else if (sa.x != 0.0)
+    contribute<false, Along::ConstV>(K, sf, tf);
   else
-    contribute<Path::Plain>(K, sf, tf);
+    contribute<false, Along::ConstUV>(K, sf, tf);
   if (mode_ == Replacement::MotionVector) {
     rebaseCells(dir);
     applyStored(tf);
@@ -992,8 +1138,9 @@ InsertResult TentReconstructor::insert(const Frame& f, const Mat4& imageToRefere
                                  f.pixels.size(), f.width, f.height, f.byteSize()));
   if (!std::isfinite(timeS)) throw InputError(what + ": the timestamp is not finite");
   const SlicePose pose = poseFromMatrix(imageToReference, what);
-  // Each voxel reads a window of pixels as wide as the kernel; a kernel that
-  // spans more than this many pixels is taken for a pose with the wrong scale.
+  // A kernel that spans more than this many pixels (each knot of a profile
+  // sums as many, each voxel as many rows) is taken for a pose with the wrong
+  // scale.
   constexpr double kMaxWindow = 1024.0;
   if (!(2.0 * hl_ / pose.sx <= kMaxWindow) || !(2.0 * ha_ / pose.syv <= kMaxWindow))
     throw InputError(fmt::format("{}: pixels of {:.3g} x {:.3g} mm are too small for the tent kernel "

@@ -280,8 +280,14 @@ BModeSimulator::BModeSimulator(const Phantom& phantom, const ProbeModel& probe, 
   }
 
   speckleLogBiasDb_ = speckleLogBiasDb(osf_, subDy_, sigmaAx_);
+  noiseFloorLevel_ = noiseFloor();
 
-  const double tgc = settings_.tgcDbPerCmMHz < 0.0 ? phantom_.scan.tgcDbPerCmMHz : settings_.tgcDbPerCmMHz;
+  ideal_ = settings_.medium == "ideal";
+  PP5_CHECK(ideal_ || settings_.medium == "physical");
+  // No attenuation in the ideal medium, so nothing to compensate.
+  const double tgc = ideal_                            ? 0.0
+                     : settings_.tgcDbPerCmMHz < 0.0 ? phantom_.scan.tgcDbPerCmMHz
+                                                       : settings_.tgcDbPerCmMHz;
   tgcDbPerMm_ = 2.0 * tgc * probe_.centerMHz / 10.0;
   echoCutoff_.resize(static_cast<std::size_t>(fineRows_));
   for (int f = 0; f < fineRows_; ++f) {
@@ -307,10 +313,47 @@ double BModeSimulator::pixelFromAmplitude(double amplitude) const {
   return std::clamp(255.0 * (20.0 * std::log10(amplitude) + dr) / dr, 0.0, 255.0);
 }
 
-double BModeSimulator::displayLevel(Tissue t) const {
+double BModeSimulator::backscatterPower(Tissue t) const {
   const double db = tissueProperties(t).backscatterDb;
-  if (!std::isfinite(db)) return 0.0;
-  return pixelFromAmplitude(std::pow(10.0, (db + settings_.gainDb + speckleLogBiasDb_) / 20.0));
+  return std::isfinite(db) ? std::pow(10.0, db / 10.0) : 0.0;
+}
+
+double BModeSimulator::expectedLevel(double power) const {
+  // Speckle over any mix of scatterers is a complex Gaussian field, so its
+  // envelope is Rayleigh whatever the mix: the log-compressed mean is the log
+  // of the RMS amplitude less the speckle bias. The noise adds in power; the
+  // floor (a Monte Carlo mean, see noiseFloor) covers what the clamp at
+  // black does to faint echoes.
+  const double speckle = power * std::pow(10.0, settings_.gainDb / 10.0);
+  const double noise = std::pow(10.0, settings_.noiseDb / 10.0);
+  const double level = pixelFromAmplitude(std::sqrt(speckle + noise) * std::pow(10.0, speckleLogBiasDb_ / 20.0));
+  return std::max(level, noiseFloorLevel_);
+}
+
+double BModeSimulator::displayLevel(Tissue t) const {
+  const double power = backscatterPower(t);
+  return power > 0.0 ? expectedLevel(power) : noiseFloorLevel_;
+}
+
+// The expected pixel value where there are no scatterers: electronic noise
+// (complex Gaussian, independent per sub-row), its envelope averaged over an
+// image row's sub-rows, log-compressed and rounded as formImage does. The
+// clamp at black makes it a Monte Carlo mean (fixed seed, about 0.05 level).
+double BModeSimulator::noiseFloor() const {
+  constexpr int kTrials = 20000;
+  const double sigma = std::pow(10.0, settings_.noiseDb / 20.0) / std::sqrt(2.0);
+  const std::uint64_t key = mixSeed(0x5eed, 0x401f);
+  double sum = 0.0;
+  for (int t = 0; t < kTrials; ++t) {
+    double mean = 0.0;
+    for (int i = 0; i < osf_; ++i) {
+      const double re = sigma * gaussianFromHash(latticeHash(key, t, i, 0));
+      const double im = sigma * gaussianFromHash(latticeHash(key, t, i, 1));
+      mean += std::sqrt(re * re + im * im);
+    }
+    sum += static_cast<double>(std::lround(pixelFromAmplitude(mean / osf_)));
+  }
+  return sum / kTrials;
 }
 
 // ---- rendering ----------------------------------------------------------------------
@@ -370,7 +413,7 @@ void BModeSimulator::traceColumns(const FrameGeometry& g, const std::vector<int>
     // Fills the tables for fine rows whose depth lies in [segStart, end).
     auto fillSegment = [&](Tissue tissue, double end) {
       const TissueProperties& tp = tissueProperties(tissue);
-      const double slope = 2.0 * tp.attenuationDbPerCmMHz * f0 / 10.0;  // dB per mm, two-way
+      const double slope = ideal_ ? 0.0 : 2.0 * tp.attenuationDbPerCmMHz * f0 / 10.0;  // dB per mm, two-way
       const double backscatter = std::isfinite(tp.backscatterDb) ? std::pow(10.0, tp.backscatterDb / 20.0) : 0.0;
       // Fine rows before this one lie in the rim.
       const int rimRows = rimEnd > segStart ? static_cast<int>(std::ceil(rimEnd / fineDy_ - 0.5)) : 0;
@@ -423,6 +466,12 @@ void BModeSimulator::traceColumns(const FrameGeometry& g, const std::vector<int>
       }
       const double vb = 0.5 * (lo + hi);
       fillSegment(s.tissue, vb);
+      if (ideal_) {  // no attenuation, echo, loss or rim at the boundary
+        segStart = vb;
+        v = hi;
+        s = sn;
+        continue;
+      }
 
       const TissueProperties& tp = tissueProperties(s.tissue);
       attenDb += 2.0 * tp.attenuationDbPerCmMHz * f0 / 10.0 * (vb - segStart);

@@ -91,11 +91,22 @@ public:
   // attenuation left uncompensated: the log-compression mapping applied to
   // the tissue's mean backscatter amplitude in the log domain (the RMS
   // amplitude less the mean-of-log bias of speckle, 2.51 dB for one Rayleigh
-  // sample, a little less after the sub-row averaging). This is what the
-  // ground-truth volume holds and what an ideal reconstruction would show.
+  // sample, a little less after the sub-row averaging), with the electronic
+  // noise added in power; a medium with no scatterers (water) shows the noise
+  // floor. This is what the ground-truth volume holds and what an ideal
+  // reconstruction would show (exactly so with the "ideal" medium).
   double displayLevel(Tissue t) const;
   // Log compression: amplitude (1.0 = white at 0 dB gain) -> pixel value, clamped to 0..255.
   double pixelFromAmplitude(double amplitude) const;
+  // Mean backscatter power (RMS amplitude squared, 1 = white at 0 dB gain) of
+  // a tissue; 0 for a medium without scatterers.
+  double backscatterPower(Tissue t) const;
+  // Expected pixel value where the mean echo power (before gain) is `power`:
+  // the same mapping as displayLevel, for any mix of tissues (the expected
+  // image, sim/simulate.hpp).
+  double expectedLevel(double power) const;
+  // displayLevel of a medium with no scatterers: the electronic noise floor.
+  double noiseFloorLevel() const { return noiseFloorLevel_; }
 
   const ProbeModel& probe() const { return probe_; }
   const Phantom& phantom() const { return phantom_; }
@@ -104,6 +115,7 @@ public:
 
 private:
   struct Workspace;
+  double noiseFloor() const;
   struct FrameGeometry;
   void traceColumns(const FrameGeometry& g, const std::vector<int>& bodies, Workspace& ws) const;
   void addWires(const FrameGeometry& g, Workspace& ws) const;
@@ -117,6 +129,8 @@ private:
   const Phantom& phantom_;
   ProbeModel probe_;
   BModeSettings settings_;
+  bool ideal_ = false;  // medium "ideal"
+
   std::uint64_t seed_;
 
   // Derived, fixed per probe.
@@ -133,6 +147,7 @@ private:
   double maxHalfSlab_ = 0.0; // largest elevation half-width considered
   double tgcDbPerMm_ = 0.0;
   double speckleLogBiasDb_ = 0.0;  // mean log of speckle relative to its RMS
+  double noiseFloorLevel_ = 0.0;   // expected pixel value of noise alone
   int guard_ = 0;            // extra columns each side for the lateral PSF
   std::vector<float> invTwoSigmaE2_;  // per fine row: 1 / (2 sigma_e^2)
   std::vector<float> halfSlab_;       // per fine row: 3 sigma_e

@@ -35,6 +35,12 @@ void registerBMode(ConfigSchema& c, BModeSettings& b) {
   c.option("sim.bmode.specular_width_deg", &b.specularWidthDeg, 12.0, 1.0, 90.0,
            "Angular width (Gaussian sigma, degrees) over which a smooth interface still echoes back "
            "to the probe as the beam leaves its normal.");
+  c.choice("sim.bmode.medium", &b.medium, "physical", {"physical", "ideal"},
+           "`physical`: attenuation, specular interface echoes, bone rims, transmission loss and shadows, "
+           "compensated by the TGC; `ideal`: speckle from each tissue's backscatter only (no attenuation, TGC, "
+           "interfaces or shadows), for which `pp5echo simulate`'s expected image (`<phantom>_expected.mha`) is "
+           "exact. Accuracy studies (`pp5echo evaluate truth`) use `ideal` to measure the reconstruction rather "
+           "than the physics.");
 }
 
 void registerSweep(ConfigSchema& c, SweepSettings& s) {

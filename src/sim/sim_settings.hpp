@@ -30,6 +30,9 @@ struct BModeSettings {
   double noiseDb = -58.0;         // electronic noise, RMS, relative to white
   double scatterersPerCell = 16.0;
   double specularWidthDeg = 12.0;
+  // physical: attenuation, interface echoes, transmission loss and shadows;
+  // ideal: speckle only, so the expected image is the truth volume (accuracy studies).
+  std::string medium = "physical";
 };
 
 // [sim.sweep]

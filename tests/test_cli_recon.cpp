@@ -1,0 +1,163 @@
+// `pp5echo reconstruct` and `pp5echo evaluate`, end to end, on a small
+// simulated sweep: what they write and report, and how they refuse bad input.
+#include <gtest/gtest.h>
+
+#include <array>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <nlohmann/json.hpp>
+
+#include "core/sequence_io.hpp"
+#include "core/volume_io.hpp"
+
+namespace {
+
+namespace fs = std::filesystem;
+
+struct Result {
+  int status;
+  std::string out;
+};
+
+Result run(const std::string& args) {
+  const std::string cmd = std::string(PP5_BINARY) + " " + args + " 2>&1";
+  FILE* p = popen(cmd.c_str(), "r");
+  EXPECT_NE(p, nullptr);
+  std::string out;
+  std::array<char, 4096> buf{};
+  while (std::size_t n = fread(buf.data(), 1, buf.size(), p)) out.append(buf.data(), n);
+  const int st = pclose(p);
+  return {WIFEXITED(st) ? WEXITSTATUS(st) : -1, out};
+}
+
+nlohmann::json readJson(const fs::path& p) {
+  std::ifstream in(p);
+  return nlohmann::json::parse(in);
+}
+
+// A small doll sweep (8 frames of 64 x 96 pixels), simulated once.
+class ReconCli : public ::testing::Test {
+protected:
+  static void SetUpTestSuite() {
+    dir_ = new fs::path(fs::temp_directory_path() / ("pp5cli-recon-" + std::to_string(::getpid())));
+    fs::remove_all(*dir_);
+    fs::create_directories(*dir_);
+    const Result r = run("simulate " + std::string(PP5_SOURCE_DIR) + "/configs/doll.toml -o " + dir_->string() +
+                         " --set sim.sweep.max_frames=8 --set sim.probe.width_px=64 --set sim.probe.height_px=96"
+                         " --set output.preview_frames=0 --set grid.spacing=[2,2,2]");
+    ASSERT_EQ(r.status, 0) << r.out;
+  }
+  static void TearDownTestSuite() {
+    fs::remove_all(*dir_);
+    delete dir_;
+  }
+  static fs::path dir() { return *dir_; }
+  static std::string seq() { return (*dir_ / "doll_sweep.igs.mha").string(); }
+  static std::string xml() { return (*dir_ / "doll_config.xml").string(); }
+  static std::string toml() { return std::string(PP5_SOURCE_DIR) + "/configs/doll.toml"; }
+  static fs::path* dir_;
+};
+fs::path* ReconCli::dir_ = nullptr;
+
+TEST_F(ReconCli, WritesTheVolumeAndTheWeightsAndReportsTheFrames) {
+  const fs::path vol = dir() / "v.mha", w = dir() / "w.nrrd";
+  const Result r = run("reconstruct " + seq() + " --plus-config " + xml() + " -c " + toml() +
+                       " --set grid.spacing=[2,2,2] -o " + vol.string() + " --weights " + w.string());
+  ASSERT_EQ(r.status, 0) << r.out;
+  EXPECT_NE(r.out.find("reconstructed 8 of 8 frames"), std::string::npos) << r.out;
+  const pp5::Volume v = pp5::readVolume(vol.string()), wv = pp5::readVolume(w.string());
+  EXPECT_EQ(v.grid.dims, wv.grid.dims);
+  EXPECT_DOUBLE_EQ(v.grid.spacing.x, 2.0);
+  std::size_t covered = 0;
+  for (std::size_t i = 0; i < wv.grid.voxelCount(); ++i) covered += wv.value(i) > 0.0 ? 1 : 0;
+  EXPECT_GT(covered, wv.grid.voxelCount() / 4);
+}
+
+TEST_F(ReconCli, InvalidFramesAreSkippedAndCounted) {
+  std::vector<pp5::Frame> frames = pp5::readAllFrames(seq());
+  ASSERT_EQ(frames.size(), 8u);
+  frames[1].imageValid = false;
+  frames[4].imageValid = false;
+  const fs::path bad = dir() / "two_invalid.igs.mha";
+  pp5::writeAllFrames(bad.string(), frames);
+  const Result r = run("reconstruct " + bad.string() + " --plus-config " + xml() + " -c " + toml() +
+                       " --set grid.spacing=[2,2,2] -o " + (dir() / "v2.mha").string());
+  ASSERT_EQ(r.status, 0) << r.out;
+  EXPECT_NE(r.out.find("reconstructed 6 of 8 frames"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("skipped 2 (2 INVALID status"), std::string::npos) << r.out;
+
+  // Every frame INVALID: nothing to place is an error, not an empty volume.
+  for (auto& f : frames) f.imageValid = false;
+  const fs::path none = dir() / "all_invalid.igs.mha";
+  pp5::writeAllFrames(none.string(), frames);
+  const fs::path out = dir() / "v3.mha";
+  const Result e = run("reconstruct " + none.string() + " --plus-config " + xml() + " -o " + out.string());
+  EXPECT_EQ(e.status, 1) << e.out;
+  EXPECT_NE(e.out.find("none of its 8 frames can be placed"), std::string::npos) << e.out;
+  EXPECT_FALSE(fs::exists(out));
+}
+
+TEST_F(ReconCli, AnEmptySequenceIsAnError) {
+  // The simulated file's header with no frames at all.
+  std::ifstream in(seq(), std::ios::binary);
+  std::string header, line;
+  while (std::getline(in, line)) {
+    if (line.rfind("DimSize", 0) == 0) line = "DimSize = 64 96 0";
+    if (line.rfind("CompressedData ", 0) == 0) line = "CompressedData = False";
+    if (line.rfind("CompressedDataSize", 0) == 0 || line.rfind("Seq_Frame", 0) == 0) continue;
+    header += line + "\n";
+    if (line.rfind("ElementDataFile", 0) == 0) break;
+  }
+  const fs::path empty = dir() / "empty.igs.mha";
+  std::ofstream(empty, std::ios::binary) << header;
+  const fs::path out = dir() / "v4.mha";
+  const Result r = run("reconstruct " + empty.string() + " --plus-config " + xml() + " -o " + out.string());
+  EXPECT_EQ(r.status, 1) << r.out;
+  EXPECT_NE(r.out.find("no frames"), std::string::npos) << r.out;
+  EXPECT_FALSE(fs::exists(out));
+}
+
+TEST_F(ReconCli, AGridTooLargeIsRefusedBeforeAllocating) {
+  const fs::path out = dir() / "huge.mha";
+  const Result r = run("reconstruct " + seq() + " --plus-config " + xml() + " -c " + toml() +
+                       " --set grid.spacing=[0.001,0.001,0.001] -o " + out.string());
+  EXPECT_EQ(r.status, 1) << r.out;
+  EXPECT_NE(r.out.find("use a coarser spacing"), std::string::npos) << r.out;
+  EXPECT_FALSE(fs::exists(out));
+}
+
+TEST_F(ReconCli, EvaluateTruthAndLeaveOutWriteTheirFigures) {
+  const fs::path tj = dir() / "truth.json";
+  const Result t = run("evaluate truth " + seq() + " --plus-config " + xml() + " -c " + toml() + " --truth " +
+                       (dir() / "doll_truth.mha").string() + " --json " + tj.string());
+  ASSERT_EQ(t.status, 0) << t.out;
+  const auto j = readJson(tj);
+  EXPECT_EQ(j["protocol"], "truth");
+  EXPECT_EQ(j["frames_inserted"], 8);
+  EXPECT_GT(j["voxels_compared"].get<double>(), 0.0);
+  EXPECT_GE(j["voxels_compared"].get<double>(), j["tissue_voxels_compared"].get<double>());
+  EXPECT_TRUE(std::isfinite(j["rmse"].get<double>()));
+  EXPECT_GT(j["rmse"].get<double>(), 0.0);
+  EXPECT_GT(j["rmse_tissue"].get<double>(), 0.0);
+  EXPECT_NE(t.out.find("RMSE, tissue"), std::string::npos);
+
+  const fs::path lj = dir() / "leave.json";
+  const Result l = run("evaluate leave-out " + seq() + " --plus-config " + xml() + " -c " + toml() +
+                       " --keep-every 2 --json " + lj.string());
+  ASSERT_EQ(l.status, 0) << l.out;
+  const auto k = readJson(lj);
+  EXPECT_EQ(k["frames_kept"], 4);
+  EXPECT_EQ(k["frames_held_out"], 4);
+  EXPECT_GT(k["pixels_compared"].get<double>(), 0.0);
+  EXPECT_GT(k["rmse"].get<double>(), 0.0);
+  EXPECT_GE(k["rmse"].get<double>(), k["mae"].get<double>());
+}
+
+}  // namespace
