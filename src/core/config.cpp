@@ -185,6 +185,76 @@ void ConfigSchema::option(const std::string& key, glm::ivec3* field, glm::ivec3 
        [=] { return formatArray(&(*field)[0], 3, fmtI); }});
 }
 
+namespace {
+
+std::string formatPoints(const std::vector<glm::dvec4>& pts, int width) {
+  std::string s = "[";
+  for (std::size_t i = 0; i < pts.size(); ++i) s += (i ? ", " : "") + formatArray(&pts[i][0], width, fmtD);
+  return s + "]";
+}
+
+std::string formatStrings(const std::vector<std::string>& v) {
+  std::string s = "[";
+  for (std::size_t i = 0; i < v.size(); ++i) s += (i ? ", " : "") + quote(v[i]);
+  return s + "]";
+}
+
+}  // namespace
+
+void ConfigSchema::option(const std::string& key, std::vector<glm::dvec4>* field, const std::vector<glm::dvec4>& def,
+                          int width, double lo, double hi, bool ascending, const std::string& doc) {
+  PP5_CHECK(width >= 2 && width <= 4);
+  PP5_CHECK(!def.empty());
+  const std::string type = fmt::format("list of [{}]", width == 2 ? "float, float" : width == 3 ? "float, float, float"
+                                                                                                 : "float, float, float, float");
+  add({key, type, formatPoints(def, width),
+       fmt::format("each {} .. {}{}", lo, hi, ascending ? "; first components increasing" : ""), doc,
+       [=] { *field = def; },
+       [=](const toml::node& n) -> std::string {
+         const auto* arr = n.as_array();
+         if (!arr || arr->empty()) return fmt::format("must be a non-empty array of [{} numbers] points", width);
+         std::vector<glm::dvec4> pts;
+         for (std::size_t i = 0; i < arr->size(); ++i) {
+           glm::dvec4 p(0.0);
+           const std::string e = readFloatArray(*arr->get(i), &p, width, lo, hi);
+           if (!e.empty()) return fmt::format("point {}: {}", i, e);
+           if (ascending && !pts.empty() && !(p[0] > pts.back()[0]))
+             return fmt::format("point {}: {} does not follow {} (the points must be in increasing order)", i, p[0],
+                                pts.back()[0]);
+           pts.push_back(p);
+         }
+         *field = std::move(pts);
+         return "";
+       },
+       [=] { return formatPoints(*field, width); }});
+}
+
+void ConfigSchema::choices(const std::string& key, std::vector<std::string>* field,
+                           const std::vector<std::string>& def, const std::vector<std::string>& allowed,
+                           const std::string& doc) {
+  PP5_CHECK(!def.empty());
+  std::string list;
+  for (const auto& c : allowed) list += (list.empty() ? "" : ", ") + c;
+  add({key, "list of strings", formatStrings(def), "each one of: " + list, doc, [=] { *field = def; },
+       [=](const toml::node& n) -> std::string {
+         const auto* arr = n.as_array();
+         if (!arr || arr->empty()) return "must be a non-empty array of strings";
+         std::vector<std::string> v;
+         for (std::size_t i = 0; i < arr->size(); ++i) {
+           const auto* str = arr->get(i)->as_string();
+           if (!str) return fmt::format("element {} must be a string", i);
+           const std::string x = str->get();
+           if (std::find(allowed.begin(), allowed.end(), x) == allowed.end())
+             return fmt::format("element {} = \"{}\" is not one of: {}", i, x, list);
+           if (std::find(v.begin(), v.end(), x) != v.end()) return fmt::format("\"{}\" is listed twice", x);
+           v.push_back(x);
+         }
+         *field = std::move(v);
+         return "";
+       },
+       [=] { return formatStrings(*field); }});
+}
+
 void ConfigSchema::option(const std::string& key, glm::ivec2* field, glm::ivec2 def, int lo, int hi,
                           const std::string& doc) {
   add({key, "[int, int]", formatArray(&def[0], 2, fmtI), fmt::format("each {} .. {}", lo, hi), doc,

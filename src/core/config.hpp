@@ -41,6 +41,14 @@ public:
   void option(const std::string& key, glm::dvec2* field, glm::dvec2 def, double lo, double hi, const std::string& doc);
   void option(const std::string& key, glm::ivec3* field, glm::ivec3 def, int lo, int hi, const std::string& doc);
   void option(const std::string& key, glm::ivec2* field, glm::ivec2 def, int lo, int hi, const std::string& doc);
+  // A non-empty list of points, each an array of `width` numbers (2..4) within
+  // [lo, hi], stored in the first `width` components: [[0, 0.0], [40, 0.2], ...].
+  // With `ascending`, the points' first components must increase strictly.
+  void option(const std::string& key, std::vector<glm::dvec4>* field, const std::vector<glm::dvec4>& def, int width,
+              double lo, double hi, bool ascending, const std::string& doc);
+  // A non-empty list of distinct strings, each one of `choices`.
+  void choices(const std::string& key, std::vector<std::string>* field, const std::vector<std::string>& def,
+               const std::vector<std::string>& choices, const std::string& doc);
 
   // Sets every field to its default.
   void applyDefaults() const;

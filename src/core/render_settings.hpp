@@ -1,0 +1,46 @@
+#pragma once
+// [render]: the view and the ray lattice, shared by the GP's sampler, the
+// PP's cache and the pipeline that drives them.
+#include <string>
+#include <vector>
+
+#include "core/camera.hpp"
+#include "core/grid.hpp"
+
+namespace pp5 {
+
+class ConfigSchema;
+
+struct RenderSettings {
+  int width = 512;
+  int height = 512;
+  std::string projection = "perspective";  // perspective | orthographic
+  double fovDeg = 30.0;                    // perspective: vertical field of view
+  // The eye orbits the grid's centre: azimuth about +z from +x, elevation
+  // above the xy plane; its distance is `distance` times the radius of the
+  // grid's bounding sphere (perspective), and an orthographic view frames
+  // that sphere.
+  double azimuthDeg = -120.0;
+  double elevationDeg = 35.0;
+  double distance = 3.2;
+  // The global lattice: ray r samples at t0(r) + k * step, k < max_samples,
+  // t0(r) where it enters the grid's box. 0 = half the smallest voxel spacing.
+  double stepMm = 0.0;
+  int maxSamples = 512;
+  // The transfer function's alpha is the opacity of this length of ray; each
+  // sample's is corrected to the step: 1 - (1 - alpha)^(step / unit).
+  double opacityUnitMm = 1.0;
+  // Composition modes, the first one live (over | additive | mip).
+  std::vector<std::string> compositing = {"over", "mip"};
+  int threads = 0;  // 0 = every core
+
+  Projection projectionEnum() const;
+  double step(const Grid& g) const;
+};
+
+void registerOptions(ConfigSchema& schema, RenderSettings& s);
+
+// The camera of `s` looking at grid `g` (image size, projection, orbit).
+Camera makeCamera(const RenderSettings& s, const Grid& g);
+
+}  // namespace pp5
