@@ -12,5 +12,6 @@ void addSimulateCommand(CLI::App& app, int& exitCode);
 void addFrameCommand(CLI::App& app, int& exitCode);
 void addReconstructCommand(CLI::App& app, int& exitCode);
 void addEvaluateCommand(CLI::App& app, int& exitCode);
+void addRunCommand(CLI::App& app, int& exitCode);
 
 }  // namespace pp5::app

@@ -22,6 +22,7 @@ int main(int argc, char** argv) {
   pp5::app::addFrameCommand(app, exitCode);
   pp5::app::addReconstructCommand(app, exitCode);
   pp5::app::addEvaluateCommand(app, exitCode);
+  pp5::app::addRunCommand(app, exitCode);
 
   try {
     app.parse(argc, argv);

@@ -25,6 +25,27 @@ void registerAll(ConfigSchema& schema, Settings& s) {
                 "A grid over the limit is refused before anything is allocated.");
 
   gp::registerOptions(schema, s.recon);
+  registerOptions(schema, s.render);
+  gp::registerOptions(schema, s.shading);
+  registerOptions(schema, s.tf);
+  pp::registerOptions(schema, s.cache);
+
+  schema.section("run", "`pp5echo run`: the source it streams and the outputs it writes.");
+  schema.choice("run.source", &s.run.source, "simulator", {"simulator", "sequence"},
+                "`simulator`: the [sim] sweep, frame by frame as it is simulated; `sequence`: a PLUS sequence file "
+                "(`run.sequence`, with `run.plus_config` for the calibration).");
+  schema.option("run.sequence", &s.run.sequence, "", "PLUS sequence file for `run.source = \"sequence\"`.");
+  schema.option("run.plus_config", &s.run.plusConfig, "",
+                "PLUS device-set XML giving the sequence's ImageToReference chain.");
+  schema.option("run.buildup_every", &s.run.buildupEvery, 1, 1, 100000,
+                "Every n-th frame's image goes into the build-up animation (`buildup.gif`).");
+  schema.option("run.buildup_fps", &s.run.buildupFps, 15.0, 0.5, 100.0, "Frame rate of `buildup.gif`.");
+  schema.option("run.orbit_frames", &s.run.orbitFrames, 36, 0, 3600,
+                "Frames of the rotating movie loop of the final volume (`orbit.gif`, one turn about +z); 0 = none.");
+  schema.option("run.orbit_fps", &s.run.orbitFps, 12.0, 0.5, 100.0, "Frame rate of `orbit.gif`.");
+  schema.option("run.mpr", &s.run.mpr, true,
+                "Write three orthogonal slices through the final volume's centre (`mpr_axial.png`, ...).");
+  schema.option("run.volume", &s.run.volume, true, "Write the final reconstructed volume (`volume.mha`, 8 bit).");
 
   schema.section("output", "Where results are written.");
   schema.option("output.dir", &s.output.dir, "out/doll", "Output folder, unless the command line gives `-o`.");

@@ -6,7 +6,11 @@
 
 #include "core/config.hpp"
 #include "core/grid.hpp"
+#include "core/render_settings.hpp"
+#include "core/transfer_function.hpp"
 #include "gp/reconstruction.hpp"
+#include "gp/shading.hpp"
+#include "pp/ray_cache.hpp"
 #include "sim/sim_settings.hpp"
 
 namespace pp5::app {
@@ -31,10 +35,28 @@ struct OutputSettings {
   int previewFrames = 4;         // frames written as PNG by `simulate`
 };
 
+// [run]: what `pp5echo run` streams and which outputs it writes.
+struct RunSettings {
+  std::string source = "simulator";  // simulator | sequence
+  std::string sequence;              // run.source = "sequence": the PLUS sequence ...
+  std::string plusConfig;            // ... and its PLUS device-set XML (calibration)
+  int buildupEvery = 1;              // every n-th frame goes into the build-up animation
+  double buildupFps = 15.0;
+  int orbitFrames = 36;              // frames of the rotating movie loop; 0 = none
+  double orbitFps = 12.0;
+  bool mpr = true;                   // three orthogonal slices through the volume
+  bool volume = true;                // the reconstructed volume as .mha
+};
+
 struct Settings {
   sim::SimSettings sim;
   GridSettings grid;
   gp::ReconSettings recon;
+  RenderSettings render;
+  gp::ShadeSettings shading;
+  TransferFunctionSettings tf;
+  pp::RayCacheSettings cache;
+  RunSettings run;
   OutputSettings output;
 };
 

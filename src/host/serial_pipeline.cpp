@@ -1,0 +1,111 @@
+#include "host/serial_pipeline.hpp"
+
+#include <chrono>
+
+#include "core/error.hpp"
+
+namespace pp5::host {
+
+namespace {
+
+double msSince(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+}
+
+gp::Box3 wholeGrid(const Grid& g) { return {Index3(0), g.dims}; }
+
+}  // namespace
+
+SerialPipeline::SerialPipeline(const Grid& grid, const PipelineSettings& s, std::uint64_t memoryLimitBytes)
+    : s_(s), grid_(grid), tf_(s.tf) {
+  if (s_.render.compositing.empty()) throw InputError("render.compositing: no composition mode given");
+  live_ = pp::compositeModeFromName(s_.render.compositing.front());
+  s_.shading.threads = s_.render.threads;
+  s_.cache.validate();
+  // The reconstruction, then the shade buffer (4 bytes a voxel) on top of it.
+  recon_ = gp::makeReconstructor(grid_, s_.recon, memoryLimitBytes, "reconstruction grid ([grid])");
+  checkGridFits(grid_, 4, "shade buffer ([grid])", memoryLimitBytes);
+  shade_ = gp::ShadeBuffer(grid_);
+  space_ = gp::EmptySpaceMap(shade_, s_.render.threads);
+  setCamera(makeCamera(s_.render, grid_));
+}
+
+void SerialPipeline::setCamera(const Camera& camera) {
+  camera_ = camera;
+  lattice_ = gp::SampleLattice(camera_, grid_, s_.render.step(grid_), s_.render.maxSamples, s_.render.threads);
+  const pp::TileRect tile{0, 0, camera_.width, camera_.height};
+  cache_ = std::make_unique<pp::RayCache>(tile, camera_.width, lattice_.counts(), s_.cache, live_, 1);
+  cache_->setThreads(s_.render.threads);
+  resampleAll();
+}
+
+void SerialPipeline::resampleAll() {
+  gp::shade(recon_->output(), tf_, s_.shading, camera_, wholeGrid(grid_), shade_);
+  space_ = gp::EmptySpaceMap(shade_, s_.render.threads);
+  cache_->clear();
+  gp::SampleCollector collect;
+  gp::sampleAll(shade_, lattice_, s_.render, collect, &space_);
+  const std::vector<RaySample> samples = collect.samples();
+  cache_->put(samples.data(), samples.size());
+  cache_->composite();
+}
+
+FrameStats SerialPipeline::insert(const Frame& f, const Mat4& pose, double timeS) {
+  using Clock = std::chrono::steady_clock;
+  FrameStats st;
+  st.index = frames_++;
+
+  auto t = Clock::now();
+  const gp::InsertResult r = recon_->insert(f, pose, timeS);
+  st.reconMs = msSince(t);
+  st.fillInSlices = r.fillInSlices;
+  st.dirtyBricks = r.dirty.bricks().size();
+  st.dirtyVoxels = r.dirty.voxelCount();
+  if (r.dirty.empty()) return st;
+
+  t = Clock::now();
+  gp::shade(recon_->output(), tf_, s_.shading, camera_, r.dirty, shade_);
+  const std::vector<gp::Box3> shaded = gp::shadingBoxes(r.dirty);
+  for (const gp::Box3& b : shaded) st.shadedVoxels += b.intersect(wholeGrid(grid_)).voxelCount();
+  space_.update(shade_, shaded);
+  st.shadeMs = msSince(t);
+
+  t = Clock::now();
+  const std::vector<gp::WorldBox> boxes = gp::stencilBoxes(grid_, shaded);
+  dbuf_.build(camera_, boxes);
+  st.dbufferPixels = dbuf_.touched().size();
+  gp::SampleCollector collect;
+  gp::sampleRegion(shade_, lattice_, dbuf_, s_.render, collect, &space_);
+  const std::vector<RaySample> samples = collect.samples();
+  st.samples = samples.size();
+  st.sampleMs = msSince(t);
+
+  t = Clock::now();
+  cache_->put(samples.data(), samples.size());
+  const pp::CompositeStats cs = cache_->composite();
+  st.compositeMs = msSince(t);
+  st.raysComposited = cs.rays;
+  st.blocksComposited = cs.blocks;
+  return st;
+}
+
+void SerialPipeline::finish() {
+  recon_->finish();
+  resampleAll();
+}
+
+pp::TileImage SerialPipeline::renderFromScratch(pp::CompositeMode mode) const {
+  gp::ShadeBuffer shade(grid_);
+  gp::shade(recon_->output(), tf_, s_.shading, camera_, wholeGrid(grid_), shade);
+  const gp::EmptySpaceMap space(shade, s_.render.threads);
+  gp::SampleCollector collect;
+  gp::sampleAll(shade, lattice_, s_.render, collect, &space);
+  const std::vector<RaySample> samples = collect.samples();
+  pp::RayCache cache(pp::TileRect{0, 0, camera_.width, camera_.height}, camera_.width, lattice_.counts(), s_.cache, mode,
+                     s_.render.threads);
+  cache.put(samples.data(), samples.size());
+  cache.composite();
+  return cache.image();
+}
+
+}  // namespace pp5::host

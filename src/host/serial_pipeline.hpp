@@ -1,0 +1,95 @@
+#pragma once
+// The single-process pipeline: every stage of a graphics processor and a
+// pixel processor called in order, frame by frame. It is the reference that
+// every distributed run is held to (design.md, "one serial reference").
+//
+// Per frame: reconstruct -> dirty bricks -> re-shade them (with the gradient
+// margin) -> D-buffer of the boxes whose samples the new shades can change ->
+// sample those lattice points -> put them in the ray cache -> recomposite the
+// changed blocks and rays of the live mode.
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "core/frame.hpp"
+#include "core/render_settings.hpp"
+#include "core/transfer_function.hpp"
+#include "gp/ray_sampler.hpp"
+#include "gp/reconstruction.hpp"
+#include "gp/sample_lattice.hpp"
+#include "gp/shade_buffer.hpp"
+#include "gp/shading.hpp"
+#include "pp/ray_cache.hpp"
+
+namespace pp5::host {
+
+struct PipelineSettings {
+  gp::ReconSettings recon;
+  RenderSettings render;
+  gp::ShadeSettings shading;
+  TransferFunctionSettings tf;
+  pp::RayCacheSettings cache;
+};
+
+// What one frame cost and touched (the stats file's row).
+struct FrameStats {
+  std::uint64_t index = 0;
+  double reconMs = 0, shadeMs = 0, sampleMs = 0, compositeMs = 0;
+  std::uint64_t dirtyBricks = 0, dirtyVoxels = 0;  // reconstruction's dirty region
+  std::uint64_t shadedVoxels = 0;                   // re-shaded (dirty + gradient margin)
+  std::uint64_t dbufferPixels = 0;                  // rays the D-buffer gave an interval
+  std::uint64_t samples = 0;                        // lattice samples re-sampled
+  std::uint64_t raysComposited = 0, blocksComposited = 0;
+  int fillInSlices = 0;
+  double totalMs() const { return reconMs + shadeMs + sampleMs + compositeMs; }
+};
+
+class SerialPipeline {
+public:
+  // Refuses (InputError) a grid whose reconstruction and shade buffer do not fit in memory.
+  SerialPipeline(const Grid& grid, const PipelineSettings& settings, std::uint64_t memoryLimitBytes = 0);
+
+  FrameStats insert(const Frame& f, const Mat4& imageToReference, double timeS);
+  // The reconstruction's final passes (e.g. hole filling at the end), then a
+  // full re-shade and re-sample: what a view or shading change also does.
+  void finish();
+
+  // A new view: the lattice is rebuilt, everything re-shaded (a light at the
+  // viewer moves with it) and re-sampled, and the live image recomposited.
+  void setCamera(const Camera& camera);
+  const Camera& camera() const { return camera_; }
+
+  // The live image (the first composition mode), maintained incrementally.
+  const pp::TileImage& image() const { return cache_->image(); }
+  // A from-scratch render of the current grid in `mode`: shade everything,
+  // sample every ray, composite in full. The reference the incremental image
+  // must equal.
+  pp::TileImage renderFromScratch(pp::CompositeMode mode) const;
+  // The current cache composited in full in another mode.
+  pp::TileImage compositeFull(pp::CompositeMode mode) const { return cache_->compositeFull(mode); }
+
+  const gp::Reconstructor& reconstructor() const { return *recon_; }
+  const gp::ShadeBuffer& shadeBuffer() const { return shade_; }
+  const pp::RayCache& cache() const { return *cache_; }
+  const PipelineSettings& settings() const { return s_; }
+  pp::CompositeMode liveMode() const { return live_; }
+
+private:
+  PipelineSettings s_;
+  Grid grid_;
+  pp::CompositeMode live_ = pp::CompositeMode::Over;
+  std::unique_ptr<gp::Reconstructor> recon_;
+  TransferFunction tf_;
+  Camera camera_;
+  gp::SampleLattice lattice_;
+  gp::ShadeBuffer shade_;
+  gp::EmptySpaceMap space_;
+  gp::DBuffer dbuf_;
+  std::unique_ptr<pp::RayCache> cache_;
+  std::uint64_t frames_ = 0;
+
+  void resampleAll();
+};
+
+}  // namespace pp5::host
