@@ -29,6 +29,9 @@ double lerpPoints(const std::vector<glm::dvec4>& pts, double x, int c) {
 
 }  // namespace
 
+std::vector<glm::dvec4> defaultOpacityPoints() { return kOpacity; }
+std::vector<glm::dvec4> defaultColourPoints() { return kColour; }
+
 void registerOptions(ConfigSchema& schema, TransferFunctionSettings& s) {
   schema.section("render.tf", "Classification: piecewise-linear transfer functions from grey value to opacity and colour.");
   schema.option("render.tf.opacity", &s.opacity, kOpacity, 2, 0.0, 255.0, true,

@@ -18,11 +18,15 @@ struct Rgba {
   bool operator==(const Rgba&) const = default;
 };
 
+// The [render.tf] defaults.
+std::vector<glm::dvec4> defaultOpacityPoints();
+std::vector<glm::dvec4> defaultColourPoints();
+
 struct TransferFunctionSettings {
   // Opacity points (value, alpha) and colour points (value, r, g, b); values
   // 0..255 increasing, components 0..1. Stored as dvec4 (unused components 0).
-  std::vector<glm::dvec4> opacity;
-  std::vector<glm::dvec4> colour;
+  std::vector<glm::dvec4> opacity = defaultOpacityPoints();
+  std::vector<glm::dvec4> colour = defaultColourPoints();
 };
 void registerOptions(ConfigSchema& schema, TransferFunctionSettings& s);
 
