@@ -1161,7 +1161,9 @@ InsertResult TentReconstructor::insert(const Frame& f, const Mat4& imageToRefere
   }
   selectPixels(f, runs_, settings_.pixelRejectionThreshold, cur_);
   InsertResult res;
-  res.dirty = DirtyRegion(grid_);
+  // 8-voxel bricks: the slab a slice changes is about 2 he thick, and coarser
+  // bricks would make shading and re-sampling (which follow them) do 2-3x the work.
+  res.dirty = DirtyRegion(grid_, 8);
   res.pixelsInserted = cur_.selected;
   if (!hasT0_) {
     t0_ = timeS;

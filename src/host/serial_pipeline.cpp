@@ -1,6 +1,8 @@
 #include "host/serial_pipeline.hpp"
 
 #include <chrono>
+#include <mutex>
+#include <span>
 
 #include "core/error.hpp"
 
@@ -43,10 +45,14 @@ void SerialPipeline::resampleAll() {
   gp::shade(recon_->output(), tf_, s_.shading, camera_, wholeGrid(grid_), shade_);
   space_ = gp::EmptySpaceMap(shade_, s_.render.threads);
   cache_->clear();
-  gp::SampleCollector collect;
-  gp::sampleAll(shade_, lattice_, s_.render, collect, &space_);
-  const std::vector<RaySample> samples = collect.samples();
-  cache_->put(samples.data(), samples.size());
+  // Batches go straight into the cache as the sampling threads produce them:
+  // a full view holds tens of millions of samples, too many to gather first.
+  std::mutex m;
+  gp::CallbackSink sink([&](int, std::uint32_t, std::span<const RaySample> batch) {
+    const std::lock_guard<std::mutex> lock(m);
+    cache_->put(batch.data(), batch.size());
+  });
+  gp::sampleAll(shade_, lattice_, s_.render, sink, &space_);
   cache_->composite();
 }
 
@@ -74,16 +80,23 @@ FrameStats SerialPipeline::insert(const Frame& f, const Mat4& pose, double timeS
   const std::vector<gp::WorldBox> boxes = gp::stencilBoxes(grid_, shaded);
   dbuf_.build(camera_, boxes);
   st.dbufferPixels = dbuf_.touched().size();
-  gp::SampleCollector collect;
-  gp::sampleRegion(shade_, lattice_, dbuf_, s_.render, collect, &space_);
-  const std::vector<RaySample> samples = collect.samples();
-  st.samples = samples.size();
-  st.sampleMs = msSince(t);
+  // Samples go into the cache as they come (sampling and putting overlap);
+  // the time of the puts is counted as compositing.
+  std::mutex m;
+  double putMs = 0.0;
+  gp::CallbackSink sink([&](int, std::uint32_t, std::span<const RaySample> batch) {
+    const std::lock_guard<std::mutex> lock(m);
+    const auto tp = Clock::now();
+    cache_->put(batch.data(), batch.size());
+    st.samples += batch.size();
+    putMs += msSince(tp);
+  });
+  gp::sampleRegion(shade_, lattice_, dbuf_, s_.render, sink, &space_);
+  st.sampleMs = msSince(t) - putMs;
 
   t = Clock::now();
-  cache_->put(samples.data(), samples.size());
   const pp::CompositeStats cs = cache_->composite();
-  st.compositeMs = msSince(t);
+  st.compositeMs = msSince(t) + putMs;
   st.raysComposited = cs.rays;
   st.blocksComposited = cs.blocks;
   return st;
@@ -98,12 +111,14 @@ pp::TileImage SerialPipeline::renderFromScratch(pp::CompositeMode mode) const {
   gp::ShadeBuffer shade(grid_);
   gp::shade(recon_->output(), tf_, s_.shading, camera_, wholeGrid(grid_), shade);
   const gp::EmptySpaceMap space(shade, s_.render.threads);
-  gp::SampleCollector collect;
-  gp::sampleAll(shade, lattice_, s_.render, collect, &space);
-  const std::vector<RaySample> samples = collect.samples();
   pp::RayCache cache(pp::TileRect{0, 0, camera_.width, camera_.height}, camera_.width, lattice_.counts(), s_.cache, mode,
                      s_.render.threads);
-  cache.put(samples.data(), samples.size());
+  std::mutex m;
+  gp::CallbackSink sink([&](int, std::uint32_t, std::span<const RaySample> batch) {
+    const std::lock_guard<std::mutex> lock(m);
+    cache.put(batch.data(), batch.size());
+  });
+  gp::sampleAll(shade, lattice_, s_.render, sink, &space);
   cache.composite();
   return cache.image();
 }

@@ -1,1 +1,738 @@
-// Placeholder: being written (issue 4).
+#include "pp/ray_cache.hpp"
+
+#include <immintrin.h>
+#include <omp.h>
+
+#include <algorithm>
+#include <bit>
+#include <climits>
+#include <cmath>
+
+#include <fmt/format.h>
+
+#include "core/config.hpp"
+#include "core/error.hpp"
+
+namespace pp5::pp {
+
+CompositeMode compositeModeFromName(const std::string& name) {
+  if (name == "over") return CompositeMode::Over;
+  if (name == "additive") return CompositeMode::Additive;
+  if (name == "mip") return CompositeMode::Mip;
+  throw InputError(fmt::format("render.compositing: unknown mode '{}' (over, additive or mip)", name));
+}
+
+const char* compositeModeName(CompositeMode m) {
+  switch (m) {
+    case CompositeMode::Over: return "over";
+    case CompositeMode::Additive: return "additive";
+    case CompositeMode::Mip: return "mip";
+  }
+  return "?";
+}
+
+SampleFormat sampleFormatFromName(const std::string& name) {
+  if (name == "rgba8") return SampleFormat::Rgba8;
+  if (name == "half") return SampleFormat::Half;
+  if (name == "float") return SampleFormat::Float;
+  throw InputError(fmt::format("render.cache.format: unknown format '{}' (rgba8, half or float)", name));
+}
+
+const char* sampleFormatName(SampleFormat f) {
+  switch (f) {
+    case SampleFormat::Rgba8: return "rgba8";
+    case SampleFormat::Half: return "half";
+    case SampleFormat::Float: return "float";
+  }
+  return "?";
+}
+
+std::size_t sampleFormatBytes(SampleFormat f) {
+  switch (f) {
+    case SampleFormat::Rgba8: return 4;
+    case SampleFormat::Half: return 8;
+    case SampleFormat::Float: return 16;
+  }
+  return 0;
+}
+
+namespace {
+// Bounds the decode buffer each compositing thread keeps on its stack.
+constexpr int kMaxBlockSize = 1024;
+}  // namespace
+
+SampleFormat RayCacheSettings::formatEnum() const { return sampleFormatFromName(format); }
+
+void RayCacheSettings::validate() const {
+  if (blockSize < 1 || blockSize > kMaxBlockSize || !std::has_single_bit(static_cast<unsigned>(blockSize)))
+    throw InputError(fmt::format("render.cache.block_size = {}: must be a power of two from 1 to {}", blockSize,
+                                 kMaxBlockSize));
+  formatEnum();
+  if (!(terminationAlpha >= 0.5 && terminationAlpha <= 1.0))
+    throw InputError(fmt::format("render.cache.termination_alpha = {}: must be within 0.5 .. 1", terminationAlpha));
+  if (!(additiveScale > 0.0)) throw InputError(fmt::format("render.cache.additive_scale = {}: must be > 0", additiveScale));
+}
+
+void registerOptions(ConfigSchema& c, RayCacheSettings& s) {
+  c.section("render.cache",
+            "The pixel processor's ray-sample cache: blocks of samples with partial composites, the storage "
+            "format of a sample, early ray termination.");
+  c.option("render.cache.block_size", &s.blockSize, 32, 1, kMaxBlockSize,
+           "Samples per block, a power of two. A changed sample recomposites its block, then the ray's block "
+           "partials; each block also costs 17 bytes of partial and flag, and termination stops at a block "
+           "boundary.");
+  c.choice("render.cache.format", &s.format, "half", {"rgba8", "half", "float"},
+           "How a sample's premultiplied colour and opacity are stored: `half` (8 bytes, IEEE binary16; images "
+           "within a small fraction of an 8-bit level of `float`), `float` (16 bytes, exact) or `rgba8` (4 bytes; "
+           "quantises the small per-sample opacities of a fine lattice, and images are off by tens of levels).");
+  c.option("render.cache.early_termination", &s.earlyTermination, true,
+           "\"over\": stop walking a ray's blocks once its accumulated alpha reaches `termination_alpha`.");
+  c.option("render.cache.termination_alpha", &s.terminationAlpha, 1.0 - 1.0 / 512.0, 0.5, 1.0,
+           "Accumulated alpha that ends a ray (early termination); what lies behind can change the pixel by at "
+           "most 1 - termination_alpha. 1 stops only at full opacity, which changes nothing.");
+  c.option("render.cache.additive_scale", &s.additiveScale, 0.25, 1e-6, 1e6,
+           "\"additive\": the sums of the samples' premultiplied colour and alpha are multiplied by this, then "
+           "clamped to 1, for display.");
+}
+
+// ---------------------------------------------------------------------------
+// Compositing kernels. One walk function serves composite(), a from-scratch
+// render and compositeFull(): the same instructions in the same order, which
+// is what makes incremental and full renders equal bit for bit.
+
+namespace {
+
+using Partial = RayCache::Partial;
+
+template <CompositeMode M>
+constexpr Partial identityPartial() {
+  if constexpr (M == CompositeMode::Over) return {0.f, 0.f, 0.f, 1.f};
+  else return {0.f, 0.f, 0.f, 0.f};
+}
+
+Partial identityPartial(CompositeMode m) {
+  switch (m) {
+    case CompositeMode::Over: return identityPartial<CompositeMode::Over>();
+    case CompositeMode::Additive: return identityPartial<CompositeMode::Additive>();
+    case CompositeMode::Mip: return identityPartial<CompositeMode::Mip>();
+  }
+  return {};
+}
+
+// Folds the partial (r, g, b, w), which lies behind acc, into acc. For
+// "over" a sample is the partial (r, g, b, 1 - a).
+template <CompositeMode M>
+inline void fold(Partial& acc, float r, float g, float b, float w) {
+  if constexpr (M == CompositeMode::Over) {
+    acc.r += acc.w * r;
+    acc.g += acc.w * g;
+    acc.b += acc.w * b;
+    acc.w *= w;
+  } else if constexpr (M == CompositeMode::Additive) {
+    acc.r += r;
+    acc.g += g;
+    acc.b += b;
+    acc.w += w;
+  } else {
+    acc.r = r > acc.r ? r : acc.r;
+    acc.g = g > acc.g ? g : acc.g;
+    acc.b = b > acc.b ? b : acc.b;
+    acc.w = w > acc.w ? w : acc.w;
+  }
+}
+
+template <SampleFormat F>
+struct Storage;
+template <>
+struct Storage<SampleFormat::Rgba8> {
+  using T = std::uint8_t;
+};
+template <>
+struct Storage<SampleFormat::Half> {
+  using T = std::uint16_t;
+};
+template <>
+struct Storage<SampleFormat::Float> {
+  using T = float;
+};
+
+// 4 * n stored values as floats; float storage is used in place.
+template <SampleFormat F>
+inline const float* decode(const typename Storage<F>::T* src, int n, float* scratch) {
+  if constexpr (F == SampleFormat::Float) {
+    return src;
+  } else if constexpr (F == SampleFormat::Half) {
+    halfToFloatN(src, 4 * static_cast<std::size_t>(n), scratch);
+    return scratch;
+  } else {
+    for (int i = 0; i < 4 * n; ++i) scratch[i] = static_cast<float>(src[i]) * (1.0f / 255.0f);
+    return scratch;
+  }
+}
+
+template <CompositeMode M>
+inline void foldSample(Partial& p, const float* s) {
+  fold<M>(p, s[0], s[1], s[2], M == CompositeMode::Over ? 1.0f - s[3] : s[3]);
+}
+
+#if defined(__SSE2__)
+// Four lanes at once, each a scalar fold<M> of its own samples: the same bits
+// as the scalar loop below.
+template <CompositeMode M>
+inline void foldLanes(__m128& r, __m128& g, __m128& b, __m128& w, __m128 sr, __m128 sg, __m128 sb, __m128 sa) {
+  if constexpr (M == CompositeMode::Over) {
+    r = _mm_add_ps(r, _mm_mul_ps(w, sr));
+    g = _mm_add_ps(g, _mm_mul_ps(w, sg));
+    b = _mm_add_ps(b, _mm_mul_ps(w, sb));
+    w = _mm_mul_ps(w, _mm_sub_ps(_mm_set1_ps(1.0f), sa));
+  } else if constexpr (M == CompositeMode::Additive) {
+    r = _mm_add_ps(r, sr);
+    g = _mm_add_ps(g, sg);
+    b = _mm_add_ps(b, sb);
+    w = _mm_add_ps(w, sa);
+  } else {
+    r = _mm_max_ps(sr, r);  // sr > r ? sr : r, as fold<Mip>
+    g = _mm_max_ps(sg, g);
+    b = _mm_max_ps(sb, b);
+    w = _mm_max_ps(sa, w);
+  }
+}
+#endif
+
+// A block's partial. The block is cut into four runs, composited side by side
+// and then folded front to back: "over" is associative, and the runs are
+// independent chains, about three times faster than one chain of n steps.
+// The runs are lanes 0..2 of n/4 samples and lane 3 with the rest. Not
+// inlined: every caller runs the same instructions, so a block's partial has
+// the same bits whichever path computes it.
+template <SampleFormat F, CompositeMode M>
+[[gnu::noinline]] Partial blockPartial(const typename Storage<F>::T* src, int n, float* scratch) {
+  const float* s = decode<F>(src, n, scratch);
+  const int q = n / 4;
+  Partial lane[4];
+  for (auto& l : lane) l = identityPartial<M>();
+#if defined(__SSE2__)
+  if (q > 0) {
+    const Partial id = identityPartial<M>();
+    __m128 r = _mm_set1_ps(id.r), g = _mm_set1_ps(id.g), b = _mm_set1_ps(id.b), w = _mm_set1_ps(id.w);
+    const float *s0 = s, *s1 = s + 4 * q, *s2 = s + 8 * q, *s3 = s + 12 * q;
+    for (int i = 0; i < q; ++i) {
+      __m128 x0 = _mm_loadu_ps(s0 + 4 * i), x1 = _mm_loadu_ps(s1 + 4 * i), x2 = _mm_loadu_ps(s2 + 4 * i),
+             x3 = _mm_loadu_ps(s3 + 4 * i);
+      _MM_TRANSPOSE4_PS(x0, x1, x2, x3);
+      foldLanes<M>(r, g, b, w, x0, x1, x2, x3);
+    }
+    alignas(16) float lr[4], lg[4], lb[4], lw[4];
+    _mm_store_ps(lr, r);
+    _mm_store_ps(lg, g);
+    _mm_store_ps(lb, b);
+    _mm_store_ps(lw, w);
+    for (int j = 0; j < 4; ++j) lane[j] = Partial{lr[j], lg[j], lb[j], lw[j]};
+  }
+#else
+  for (int i = 0; i < q; ++i)
+    for (int j = 0; j < 4; ++j) foldSample<M>(lane[j], s + 4 * (j * q + i));
+#endif
+  for (int k = 4 * q; k < n; ++k) foldSample<M>(lane[3], s + 4 * k);
+  Partial p = lane[0];
+  for (int j = 1; j < 4; ++j) fold<M>(p, lane[j].r, lane[j].g, lane[j].b, lane[j].w);
+  return p;
+}
+
+struct RayView {
+  std::uint64_t sample, block;
+  std::uint32_t count;
+};
+
+// Walks the ray's blocks front to back, stopping before the first block at
+// which "over" has reached the termination limit. With `partials`, clean
+// blocks are reused and the dirty ones reached are recomputed, stored and
+// cleaned; without, every block reached is computed. Returns the composite;
+// `end` is the number of blocks folded, `computed` counts blocks computed.
+// Not inlined, for the reason blockPartial is not.
+template <SampleFormat F, CompositeMode M>
+[[gnu::noinline]] Partial walkRay(const RayView& ray, const typename Storage<F>::T* samples, int blockSize, int blockShift,
+                Partial* partials, std::uint8_t* dirty, float limit, std::uint32_t& end, std::uint64_t& computed,
+                float* scratch) {
+  Partial acc = identityPartial<M>();
+  const std::uint32_t nb = (ray.count + static_cast<std::uint32_t>(blockSize) - 1) >> blockShift;
+  std::uint32_t b = 0;
+  for (; b < nb; ++b) {
+    if constexpr (M == CompositeMode::Over) {
+      if (acc.w <= limit) break;
+    }
+    Partial p;
+    if (!partials || dirty[ray.block + b]) {
+      const std::uint32_t first = b << blockShift;
+      const int n = static_cast<int>(std::min<std::uint32_t>(static_cast<std::uint32_t>(blockSize), ray.count - first));
+      p = blockPartial<F, M>(samples + 4 * (ray.sample + first), n, scratch);
+      ++computed;
+      if (partials) {
+        partials[ray.block + b] = p;
+        dirty[ray.block + b] = 0;
+      }
+    } else {
+      p = partials[ray.block + b];
+    }
+    fold<M>(acc, p.r, p.g, p.b, p.w);
+  }
+  end = b;
+  return acc;
+}
+
+template <CompositeMode M>
+inline void finish(const Partial& acc, float additiveScale, float* out) {
+  if constexpr (M == CompositeMode::Over) {
+    out[0] = acc.r;
+    out[1] = acc.g;
+    out[2] = acc.b;
+    out[3] = 1.0f - acc.w;
+  } else if constexpr (M == CompositeMode::Additive) {
+    out[0] = std::min(1.0f, acc.r * additiveScale);
+    out[1] = std::min(1.0f, acc.g * additiveScale);
+    out[2] = std::min(1.0f, acc.b * additiveScale);
+    out[3] = std::min(1.0f, acc.w * additiveScale);
+  } else {
+    out[0] = acc.r;
+    out[1] = acc.g;
+    out[2] = acc.b;
+    out[3] = acc.w;
+  }
+}
+
+int resolveThreads(int threads) { return threads > 0 ? threads : omp_get_max_threads(); }
+
+// Below this many rays a parallel region costs more than it saves.
+constexpr std::size_t kMinParallelRays = 512;
+
+inline std::uint8_t toU8(float v) {
+  // NaN lands on 0 too.
+  const float c = v > 0.0f ? (v < 1.0f ? v : 1.0f) : 0.0f;
+  return static_cast<std::uint8_t>(c * 255.0f + 0.5f);
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------
+// Half conversions. F16C converts 8 values an instruction; the target
+// attribute confines AVX to these functions (and to the half put loop), so
+// nothing else, FMA contraction included, changes with the CPU.
+
+namespace {
+
+// A function-local static, so that it is set even when called during
+// another file's static initialisation.
+bool f16c() {
+  static const bool has = [] {
+    __builtin_cpu_init();
+    return __builtin_cpu_supports("f16c") && __builtin_cpu_supports("avx");
+  }();
+  return has;
+}
+
+__attribute__((target("avx,f16c"))) void halfToFloatF16c(const std::uint16_t* src, std::size_t n, float* dst) {
+  std::size_t i = 0;
+  for (; i + 8 <= n; i += 8)
+    _mm256_storeu_ps(dst + i, _mm256_cvtph_ps(_mm_loadu_si128(reinterpret_cast<const __m128i*>(src + i))));
+  for (; i < n; ++i) dst[i] = halfToFloat(src[i]);
+}
+
+__attribute__((target("avx,f16c"))) void floatToHalfF16c(const float* src, std::size_t n, std::uint16_t* dst) {
+  std::size_t i = 0;
+  for (; i + 8 <= n; i += 8)
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(dst + i),
+                     _mm256_cvtps_ph(_mm256_loadu_ps(src + i), _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC));
+  for (; i < n; ++i) dst[i] = floatToHalf(src[i]);
+}
+
+}  // namespace
+
+bool halfConversionUsesF16c() { return f16c(); }
+
+void halfToFloatN(const std::uint16_t* src, std::size_t n, float* dst) {
+  if (f16c()) return halfToFloatF16c(src, n, dst);
+  for (std::size_t i = 0; i < n; ++i) dst[i] = halfToFloat(src[i]);
+}
+
+void floatToHalfN(const float* src, std::size_t n, std::uint16_t* dst) {
+  if (f16c()) return floatToHalfF16c(src, n, dst);
+  for (std::size_t i = 0; i < n; ++i) dst[i] = floatToHalf(src[i]);
+}
+
+// ---------------------------------------------------------------------------
+// Storing samples.
+
+namespace {
+
+struct EncodeFloat {
+  [[gnu::always_inline]] static inline void encode(const RaySample& s, float* d) { std::memcpy(d, &s.r, 16); }
+};
+struct EncodeHalf {
+  [[gnu::always_inline]] static inline void encode(const RaySample& s, std::uint16_t* d) {
+    d[0] = floatToHalf(s.r);
+    d[1] = floatToHalf(s.g);
+    d[2] = floatToHalf(s.b);
+    d[3] = floatToHalf(s.a);
+  }
+};
+struct EncodeHalfF16c {
+  __attribute__((target("avx,f16c"))) static inline void encode(const RaySample& s, std::uint16_t* d) {
+    const __m128i h = _mm_cvtps_ph(_mm_loadu_ps(&s.r), _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
+    _mm_storel_epi64(reinterpret_cast<__m128i*>(d), h);
+  }
+};
+struct EncodeRgba8 {
+  [[gnu::always_inline]] static inline void encode(const RaySample& s, std::uint8_t* d) {
+    d[0] = toU8(s.r);
+    d[1] = toU8(s.g);
+    d[2] = toU8(s.b);
+    d[3] = toU8(s.a);
+  }
+};
+
+}  // namespace
+
+struct RayCacheAccess {
+  template <class Enc, class T>
+  static inline void putLoop(RayCache& c, T* store, const RaySample* samples, std::size_t n) {
+    // A ray's samples usually arrive together: map a pixel to its ray once.
+    std::uint32_t lastPixel = 0;
+    RayCache::Ray* ray = nullptr;
+    std::uint32_t local = 0;
+    const auto w = static_cast<std::uint32_t>(c.imageWidth_);
+    const TileRect& t = c.tile_;
+    std::uint8_t* dirty = c.dirty_.data();
+    const int shift = c.blockShift_;
+    // The tile-local ray of a pixel, or -1 outside the tile.
+    auto localOf = [&](std::uint32_t pixel) -> std::int64_t {
+      const std::uint32_t tx = pixel % w - static_cast<std::uint32_t>(t.x0);
+      const std::uint32_t ty = pixel / w - static_cast<std::uint32_t>(t.y0);
+      if (tx >= static_cast<std::uint32_t>(t.width) || ty >= static_cast<std::uint32_t>(t.height)) return -1;
+      return static_cast<std::int64_t>(ty) * t.width + tx;
+    };
+    // Writes miss: prefetch the ray record kFar samples ahead, then the
+    // sample's line and dirty flag kNear ahead, once per ray met.
+    constexpr std::size_t kNear = 32, kFar = 64;
+    std::uint32_t farPixel = 0xffffffffu, nearPixel = 0xffffffffu;
+    for (std::size_t i = 0; i < n; ++i) {
+      if (i + kFar < n && samples[i + kFar].pixel != farPixel) {
+        farPixel = samples[i + kFar].pixel;
+        const std::int64_t l = localOf(farPixel);
+        if (l >= 0) __builtin_prefetch(&c.rays_[static_cast<std::size_t>(l)]);
+      }
+      if (i + kNear < n && samples[i + kNear].pixel != nearPixel) {
+        const RaySample& a = samples[i + kNear];
+        nearPixel = a.pixel;
+        const std::int64_t l = localOf(nearPixel);
+        if (l >= 0) {
+          const RayCache::Ray& r = c.rays_[static_cast<std::size_t>(l)];
+          __builtin_prefetch(store + 4 * (r.sample + a.k), 1);
+          __builtin_prefetch(dirty + r.block + (a.k >> shift), 1);
+        }
+      }
+      const RaySample& s = samples[i];
+      if (!ray || s.pixel != lastPixel) {
+        const std::int64_t l = localOf(s.pixel);
+        if (l < 0) outsideTile(c, s);
+        local = static_cast<std::uint32_t>(l);
+        ray = &c.rays_[local];
+        lastPixel = s.pixel;
+      }
+      if (s.k >= ray->count) beyondRay(s, ray->count);
+      Enc::encode(s, store + 4 * (ray->sample + s.k));
+      const std::uint32_t b = s.k >> shift;
+      // A block behind the termination point cannot change the pixel: it is
+      // marked but not listed, and waits until a change in front makes the
+      // walk reach it.
+      dirty[ray->block + b] = 1;
+      if (b < ray->end) {
+        const auto b16 = static_cast<std::uint16_t>(b);
+        if (!ray->listed) {
+          ray->listed = 1;
+          ray->firstDirty = ray->lastDirty = b16;
+          c.dirtyRays_.push_back(local);
+        } else {
+          ray->firstDirty = std::min(ray->firstDirty, b16);
+          ray->lastDirty = std::max(ray->lastDirty, b16);
+        }
+      }
+    }
+    c.counters_.samplesPut += n;
+  }
+
+  [[noreturn]] static void outsideTile(const RayCache& c, const RaySample& s) {
+    const auto w = static_cast<std::uint32_t>(c.imageWidth_);
+    throw InvariantError(fmt::format("RayCache::put: a sample of pixel ({}, {}) lies outside the tile at ({}, {}) of "
+                                     "{} x {}",
+                                     s.pixel % w, s.pixel / w, c.tile_.x0, c.tile_.y0, c.tile_.width, c.tile_.height));
+  }
+  [[noreturn]] static void beyondRay(const RaySample& s, unsigned count) {
+    throw InvariantError(
+        fmt::format("RayCache::put: sample k = {} of pixel {} beyond its ray's {} samples", s.k, s.pixel, count));
+  }
+
+  // flatten: the loop and its encoder are compiled here, for this target.
+  __attribute__((target("avx,f16c"), flatten)) static void putHalfF16c(RayCache& c, const RaySample* s, std::size_t n) {
+    putLoop<EncodeHalfF16c>(c, c.samples16_.data(), s, n);
+  }
+  static void put(RayCache& c, const RaySample* s, std::size_t n) {
+    switch (c.format_) {
+      case SampleFormat::Rgba8: putLoop<EncodeRgba8>(c, c.samples8_.data(), s, n); break;
+      case SampleFormat::Half:
+        if (f16c()) putHalfF16c(c, s, n);
+        else putLoop<EncodeHalf>(c, c.samples16_.data(), s, n);
+        break;
+      case SampleFormat::Float: putLoop<EncodeFloat>(c, c.samples32_.data(), s, n); break;
+    }
+  }
+};
+
+// ---------------------------------------------------------------------------
+
+RayCache::RayCache(const TileRect& tile, int imageWidth, std::span<const std::uint16_t> sampleCounts,
+                   const RayCacheSettings& settings, CompositeMode live, int threads)
+    : tile_(tile), imageWidth_(imageWidth), live_(live), threads_(threads) {
+  settings.validate();
+  format_ = settings.formatEnum();
+  blockSize_ = settings.blockSize;
+  blockShift_ = std::countr_zero(static_cast<unsigned>(blockSize_));
+  transmittanceLimit_ = settings.earlyTermination ? static_cast<float>(1.0 - settings.terminationAlpha) : -1.0f;
+  additiveScale_ = static_cast<float>(settings.additiveScale);
+  PP5_CHECK(!tile.empty());
+  PP5_CHECK_GE(tile.x0, 0);
+  PP5_CHECK_GE(tile.y0, 0);
+  PP5_CHECK_LE(static_cast<long>(tile.x0) + tile.width, static_cast<long>(imageWidth));
+  const std::size_t n = static_cast<std::size_t>(tile.width) * static_cast<std::size_t>(tile.height);
+  PP5_CHECK_EQ(sampleCounts.size(), n);
+
+  rays_.resize(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    Ray& r = rays_[i];
+    r = Ray{};
+    r.sample = sampleTotal_;
+    r.block = static_cast<std::uint32_t>(blockTotal_);
+    r.count = sampleCounts[i];
+    // An untouched ray is transparent; "over" never reaches the limit on it.
+    r.end = blocksOf(r.count);
+    sampleTotal_ += r.count;
+    blockTotal_ += r.end;
+    // A ray records its first block in 32 bits.
+    PP5_CHECK_LE(blockTotal_, std::uint64_t{0xffffffffu});
+  }
+  switch (format_) {
+    case SampleFormat::Rgba8: samples8_.assign(4 * sampleTotal_, 0); break;
+    case SampleFormat::Half: samples16_.assign(4 * sampleTotal_, 0); break;
+    case SampleFormat::Float: samples32_.assign(4 * sampleTotal_, 0.0f); break;
+  }
+  // A block of transparent samples composites to the identity exactly, so
+  // blocks start clean and nothing is dirty until samples arrive.
+  partials_.assign(blockTotal_, identityPartial(live_));
+  dirty_.assign(blockTotal_, 0);
+  image_.width = tile.width;
+  image_.height = tile.height;
+  image_.rgba.assign(4 * n, 0.0f);
+}
+
+void RayCache::put(const RaySample* samples, std::size_t n) { RayCacheAccess::put(*this, samples, n); }
+
+template <SampleFormat F, CompositeMode M>
+CompositeStats RayCache::compositeDirty() {
+  using T = typename Storage<F>::T;
+  const T* store;
+  if constexpr (F == SampleFormat::Rgba8) store = samples8_.data();
+  else if constexpr (F == SampleFormat::Half) store = samples16_.data();
+  else store = samples32_.data();
+
+  CompositeStats st;
+  const std::size_t nd = dirtyRays_.size();
+  ++counters_.composites;
+  if (nd == 0) return st;
+
+  const int nt = resolveThreads(threads_);
+  const std::uint32_t tw = static_cast<std::uint32_t>(tile_.width);
+  std::uint64_t blocks = 0;
+  int xmin = INT_MAX, ymin = INT_MAX, xmax = INT_MIN, ymax = INT_MIN;
+  Ray* rays = rays_.data();
+  Partial* partials = partials_.data();
+  std::uint8_t* dirty = dirty_.data();
+  float* image = image_.rgba.data();
+  const std::uint32_t* list = dirtyRays_.data();
+  const int bs = blockSize_, shift = blockShift_;
+  const float limit = transmittanceLimit_, scale = additiveScale_;
+
+  // Rays ahead to prefetch: enough to cover a miss to memory per ray.
+  constexpr std::size_t kAhead = 8;
+  // Prefetch at most this much of a ray's dirty samples; the hardware
+  // prefetcher follows a longer run.
+  constexpr std::size_t kPrefetchBytes = 1024;
+  constexpr std::size_t kLine = 64;
+  const std::size_t sampleBytes = 4 * sizeof(T);
+
+#pragma omp parallel num_threads(nt) if (nt > 1 && nd >= kMinParallelRays) \
+    reduction(+ : blocks) reduction(min : xmin, ymin) reduction(max : xmax, ymax)
+  {
+    alignas(64) float scratch[4 * kMaxBlockSize];
+#pragma omp for schedule(dynamic, 256)
+    for (std::size_t i = 0; i < nd; ++i) {
+      if (i + 2 * kAhead < nd) __builtin_prefetch(rays + list[i + 2 * kAhead]);
+      if (i + kAhead < nd) {
+        const Ray& a = rays[list[i + kAhead]];
+        const std::uint64_t first = a.sample + (static_cast<std::uint64_t>(a.firstDirty) << shift);
+        const std::uint64_t last = std::min<std::uint64_t>(
+            a.sample + a.count, a.sample + (static_cast<std::uint64_t>(a.lastDirty + 1) << shift));
+        const char* p = reinterpret_cast<const char*>(store + 4 * first);
+        const std::size_t bytes = std::min<std::size_t>((last - first) * sampleBytes, kPrefetchBytes);
+        for (std::size_t o = 0; o < bytes; o += kLine) __builtin_prefetch(p + o);
+        __builtin_prefetch(partials + a.block);
+        __builtin_prefetch(dirty + a.block);
+      }
+      const std::uint32_t local = list[i];
+      Ray& r = rays[local];
+      std::uint32_t end = 0;
+      const Partial acc = walkRay<F, M>(RayView{r.sample, r.block, r.count}, store, bs, shift, partials, dirty, limit,
+                                        end, blocks, scratch);
+      r.end = static_cast<std::uint16_t>(end);
+      finish<M>(acc, scale, image + 4 * static_cast<std::size_t>(local));
+      r.listed = 0;
+      const int x = static_cast<int>(local % tw), y = static_cast<int>(local / tw);
+      xmin = std::min(xmin, x);
+      xmax = std::max(xmax, x);
+      ymin = std::min(ymin, y);
+      ymax = std::max(ymax, y);
+    }
+  }
+  dirtyRays_.clear();
+  st.rays = nd;
+  st.blocks = blocks;
+  st.changed = TileRect{xmin, ymin, xmax - xmin + 1, ymax - ymin + 1};
+  counters_.raysComposited += nd;
+  counters_.blocksComposited += blocks;
+  return st;
+}
+
+CompositeStats RayCache::composite() {
+  // Dispatch once per call: the kernels are specialised per format and mode.
+#define PP5_CACHE_MODE(F)                                                            \
+  switch (live_) {                                                                   \
+    case CompositeMode::Over: return compositeDirty<F, CompositeMode::Over>();       \
+    case CompositeMode::Additive: return compositeDirty<F, CompositeMode::Additive>(); \
+    case CompositeMode::Mip: return compositeDirty<F, CompositeMode::Mip>();         \
+  }                                                                                  \
+  break;
+  switch (format_) {
+    case SampleFormat::Rgba8: PP5_CACHE_MODE(SampleFormat::Rgba8)
+    case SampleFormat::Half: PP5_CACHE_MODE(SampleFormat::Half)
+    case SampleFormat::Float: PP5_CACHE_MODE(SampleFormat::Float)
+  }
+#undef PP5_CACHE_MODE
+  return {};
+}
+
+template <SampleFormat F, CompositeMode M>
+void RayCache::compositeAll(TileImage& out) const {
+  using T = typename Storage<F>::T;
+  const T* store;
+  if constexpr (F == SampleFormat::Rgba8) store = samples8_.data();
+  else if constexpr (F == SampleFormat::Half) store = samples16_.data();
+  else store = samples32_.data();
+
+  const int nt = resolveThreads(threads_);
+  const int w = tile_.width, h = tile_.height;
+  const int bs = blockSize_, shift = blockShift_;
+  const float limit = transmittanceLimit_, scale = additiveScale_;
+  const Ray* rays = rays_.data();
+  float* image = out.rgba.data();
+#pragma omp parallel num_threads(nt) if (nt > 1 && rays_.size() >= kMinParallelRays)
+  {
+    alignas(64) float scratch[4 * kMaxBlockSize];
+#pragma omp for schedule(dynamic, 1)
+    for (int y = 0; y < h; ++y) {
+      for (int x = 0; x < w; ++x) {
+        const std::size_t local = static_cast<std::size_t>(y) * w + x;
+        const Ray& r = rays[local];
+        std::uint32_t end = 0;
+        std::uint64_t computed = 0;
+        const Partial acc = walkRay<F, M>(RayView{r.sample, r.block, r.count}, store, bs, shift, nullptr, nullptr,
+                                          limit, end, computed, scratch);
+        finish<M>(acc, scale, image + 4 * local);
+      }
+    }
+  }
+}
+
+TileImage RayCache::compositeFull(CompositeMode mode) const {
+  TileImage out;
+  out.width = tile_.width;
+  out.height = tile_.height;
+  out.rgba.assign(4 * rays_.size(), 0.0f);
+#define PP5_CACHE_MODE(F)                                                             \
+  switch (mode) {                                                                     \
+    case CompositeMode::Over: compositeAll<F, CompositeMode::Over>(out); break;       \
+    case CompositeMode::Additive: compositeAll<F, CompositeMode::Additive>(out); break; \
+    case CompositeMode::Mip: compositeAll<F, CompositeMode::Mip>(out); break;         \
+  }                                                                                   \
+  break;
+  switch (format_) {
+    case SampleFormat::Rgba8: PP5_CACHE_MODE(SampleFormat::Rgba8)
+    case SampleFormat::Half: PP5_CACHE_MODE(SampleFormat::Half)
+    case SampleFormat::Float: PP5_CACHE_MODE(SampleFormat::Float)
+  }
+#undef PP5_CACHE_MODE
+  return out;
+}
+
+void RayCache::clear() {
+  std::fill(samples8_.begin(), samples8_.end(), std::uint8_t{0});
+  std::fill(samples16_.begin(), samples16_.end(), std::uint16_t{0});
+  std::fill(samples32_.begin(), samples32_.end(), 0.0f);
+  std::fill(partials_.begin(), partials_.end(), identityPartial(live_));
+  std::fill(dirty_.begin(), dirty_.end(), std::uint8_t{0});
+  for (Ray& r : rays_) {
+    r.listed = 0;
+    r.end = blocksOf(r.count);
+  }
+  dirtyRays_.clear();
+  std::fill(image_.rgba.begin(), image_.rgba.end(), 0.0f);
+}
+
+void RayCache::invalidate() {
+  std::fill(dirty_.begin(), dirty_.end(), std::uint8_t{1});
+  dirtyRays_.resize(rays_.size());
+  for (std::size_t i = 0; i < rays_.size(); ++i) {
+    Ray& r = rays_[i];
+    r.listed = 1;
+    r.firstDirty = 0;
+    r.lastDirty = static_cast<std::uint16_t>(std::max(1, static_cast<int>(blocksOf(r.count))) - 1);
+    dirtyRays_[i] = static_cast<std::uint32_t>(i);
+  }
+}
+
+std::size_t RayCache::memoryBytes() const {
+  return rays_.capacity() * sizeof(Ray) + samples8_.capacity() + samples16_.capacity() * sizeof(std::uint16_t) +
+         samples32_.capacity() * sizeof(float) + partials_.capacity() * sizeof(Partial) + dirty_.capacity() +
+         dirtyRays_.capacity() * sizeof(std::uint32_t) +
+         image_.rgba.capacity() * sizeof(float);
+}
+
+// ---------------------------------------------------------------------------
+
+void toRgb8(const TileImage& im, const float background[3], std::uint8_t* rgb) {
+  const std::size_t n = static_cast<std::size_t>(im.width) * im.height;
+  for (std::size_t i = 0; i < n; ++i) {
+    const float* p = im.rgba.data() + 4 * i;
+    const float t = 1.0f - p[3];
+    for (int c = 0; c < 3; ++c) rgb[3 * i + c] = toU8(p[c] + t * background[c]);
+  }
+}
+
+void toRgba8(const TileImage& im, std::uint8_t* rgba) {
+  const std::size_t n = static_cast<std::size_t>(im.width) * im.height;
+  for (std::size_t i = 0; i < n; ++i) {
+    const float* p = im.rgba.data() + 4 * i;
+    const float a = p[3];
+    for (int c = 0; c < 3; ++c) rgba[4 * i + c] = a > 0.0f ? toU8(p[c] / a) : 0;
+    rgba[4 * i + 3] = toU8(a);
+  }
+}
+
+}  // namespace pp5::pp

@@ -1,0 +1,271 @@
+#pragma once
+// The pixel processor's hierarchical ray-sample cache and its compositing.
+//
+// A RayCache holds every lattice sample of the rays of one screen tile. Each
+// ray's samples are grouped in blocks of `block_size`, and each block keeps
+// its partial composite for the live mode, because "over", sum and max are all
+// associative: a changed sample costs one block recomputed and one walk over
+// the ray's block partials, not the ray.
+//
+// Early ray termination ("over" only) works on blocks: walking a ray's blocks
+// front to back, the walk stops before the first block at which the
+// accumulated alpha has reached the threshold, so a pixel differs from the
+// unterminated composite by at most 1 - threshold in any channel. The
+// incremental path and a from-scratch render run the very same walk over the
+// same partials, so they give the same bits; a block behind the termination
+// point is left dirty, and is composited only once a change in front makes it
+// reachable again.
+//
+// A block's partial is computed as four runs side by side (lanes 0..2 of n/4
+// samples, lane 3 the rest), each folded front to back, then the four folded
+// in order; "over" carries transmittance T (r += T * s.r, T *= 1 - s.a). The
+// bits are a function of the samples, the block size and the mode only
+// (tests/test_ray_cache.cpp pins the order down).
+//
+// Output: a float RGBA image of the tile, premultiplied by alpha and not
+// composited over anything; toRgb8 puts it over a background for display.
+//  - over:     front to back (Levoy), premultiplied colour and its alpha.
+//  - additive: the sums of the samples' premultiplied colour and alpha, each
+//              times `additive_scale`, clamped to [0, 1].
+//  - mip:      the per-channel maximum of the samples' premultiplied colour
+//              and alpha (a max of each channel alone is associative and needs
+//              no tie-break; for a grey transfer function it is the max by
+//              luminance).
+//
+// One RayCache is used by one thread at a time; caches of different tiles
+// share nothing, so they can be used concurrently. composite() may use OpenMP
+// over the dirty rays; every ray is composited by one thread in a fixed order,
+// so the bits do not depend on the thread count.
+#include <cstddef>
+#include <cstdint>
+#include <cstring>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "core/ray_sample.hpp"
+
+namespace pp5 {
+class ConfigSchema;
+}
+
+namespace pp5::pp {
+
+enum class CompositeMode : std::uint8_t { Over, Additive, Mip };
+// "over" | "additive" | "mip" (render.compositing); anything else is an InputError.
+CompositeMode compositeModeFromName(const std::string& name);
+const char* compositeModeName(CompositeMode m);
+
+// How the cache stores a sample's premultiplied r, g, b, a.
+enum class SampleFormat : std::uint8_t {
+  Rgba8,  // 4 bytes, value / 255: small per-sample opacities quantise badly
+  Half,   // 8 bytes, IEEE binary16, rounded to nearest even
+  Float,  // 16 bytes, exact
+};
+SampleFormat sampleFormatFromName(const std::string& name);  // "rgba8" | "half" | "float"
+const char* sampleFormatName(SampleFormat f);
+std::size_t sampleFormatBytes(SampleFormat f);
+
+// [render.cache]
+struct RayCacheSettings {
+  int blockSize = 32;  // samples per block, a power of two
+  std::string format = "half";
+  bool earlyTermination = true;
+  double terminationAlpha = 1.0 - 1.0 / 512.0;
+  double additiveScale = 0.25;
+
+  SampleFormat formatEnum() const;
+  // Throws InputError naming the key when a value the schema cannot express
+  // (block_size a power of two) is wrong.
+  void validate() const;
+};
+void registerOptions(ConfigSchema& schema, RayCacheSettings& s);
+
+// A screen rectangle in pixels; x0, y0 in the whole image.
+struct TileRect {
+  int x0 = 0, y0 = 0, width = 0, height = 0;
+  bool empty() const { return width <= 0 || height <= 0; }
+};
+
+// Float RGBA of one tile, premultiplied, row-major, 4 floats per pixel.
+struct TileImage {
+  int width = 0, height = 0;
+  std::vector<float> rgba;
+  const float* pixel(int x, int y) const { return rgba.data() + 4 * (static_cast<std::size_t>(y) * width + x); }
+};
+
+// What one composite() did. `changed` bounds the pixels it rewrote, in tile
+// coordinates (x0, y0 relative to the tile); empty when none.
+struct CompositeStats {
+  std::uint64_t rays = 0;
+  std::uint64_t blocks = 0;
+  TileRect changed;
+};
+
+// Running totals since construction or resetCounters().
+struct RayCacheCounters {
+  std::uint64_t samplesPut = 0;
+  std::uint64_t composites = 0;        // composite() calls
+  std::uint64_t raysComposited = 0;    // rays walked and written by composite()
+  std::uint64_t blocksComposited = 0;  // block partials recomputed from samples by composite()
+};
+
+class RayCache {
+public:
+  // `sampleCounts`: per pixel of the tile, row-major, the number of lattice
+  // samples of its ray (the GP's SampleLattice). `threads`: OpenMP threads
+  // for compositing, 0 = every core.
+  RayCache(const TileRect& tile, int imageWidth, std::span<const std::uint16_t> sampleCounts,
+           const RayCacheSettings& settings, CompositeMode live = CompositeMode::Over, int threads = 1);
+
+  const TileRect& tile() const { return tile_; }
+  CompositeMode liveMode() const { return live_; }
+  SampleFormat format() const { return format_; }
+  int blockSize() const { return blockSize_; }
+  void setThreads(int threads) { threads_ = threads; }
+
+  // Stores the samples (a later put of the same pixel and k replaces the
+  // earlier one) and marks their blocks dirty, and their rays where the block
+  // is in front of the ray's termination point. A sample outside the tile or
+  // beyond its ray's count throws InvariantError; the samples before it in
+  // the batch are stored.
+  void put(const RaySample* samples, std::size_t n);
+  void put(std::span<const RaySample> samples) { put(samples.data(), samples.size()); }
+
+  // Brings the live image up to date: recomputes the dirty blocks that the
+  // walks reach, recombines the dirty rays and rewrites only their pixels.
+  CompositeStats composite();
+  // The live mode's image, as of the last composite().
+  const TileImage& image() const { return image_; }
+
+  // Every ray of `mode` composited from the samples, storing nothing; for
+  // the modes that are not live (e.g. at the end of a run). For the live mode
+  // it gives the same bits as composite().
+  TileImage compositeFull(CompositeMode mode) const;
+
+  // Every sample transparent again, the image cleared; the counts stay.
+  void clear();
+  // Marks every block and ray dirty, so that the next composite() recomputes
+  // the whole tile from its samples (what a full render costs).
+  void invalidate();
+
+  // Bytes held: samples, block partials, dirty flags, per-ray records, the
+  // image and the dirty-ray list.
+  std::size_t memoryBytes() const;
+  std::uint64_t sampleCount() const { return sampleTotal_; }
+  std::uint64_t blockCount() const { return blockTotal_; }
+
+  const RayCacheCounters& counters() const { return counters_; }
+  void resetCounters() { counters_ = {}; }
+
+  // The partial composite of one block for a mode: r, g, b and, for "over",
+  // the block's transmittance (1 - alpha) so that blocks combine with one
+  // multiply; for additive and mip, alpha's sum or max.
+  struct Partial {
+    float r, g, b, w;
+  };
+
+private:
+  struct Ray {
+    std::uint64_t sample;  // index of the ray's first sample
+    std::uint32_t block;   // index of its first block
+    std::uint16_t count;   // lattice samples
+    std::uint16_t end;     // blocks folded by its last walk: the termination point
+    // While listed: the first and last dirty blocks in front of `end`, where
+    // composite() prefetches, since a walk waits on memory for its samples.
+    std::uint16_t firstDirty, lastDirty;
+    std::uint8_t listed;  // in dirtyRays_
+  };
+
+  TileRect tile_;
+  int imageWidth_;
+  CompositeMode live_;
+  SampleFormat format_;
+  int blockSize_;
+  int blockShift_;
+  float transmittanceLimit_;  // terminate once T <= this; -1 = never
+  float additiveScale_;
+  int threads_;
+
+  std::uint64_t sampleTotal_ = 0, blockTotal_ = 0;
+  std::vector<Ray> rays_;
+  // One of these holds the samples, 4 values each, by format_.
+  std::vector<std::uint8_t> samples8_;
+  std::vector<std::uint16_t> samples16_;
+  std::vector<float> samples32_;
+  std::vector<Partial> partials_;
+  std::vector<std::uint8_t> dirty_;
+  std::vector<std::uint32_t> dirtyRays_;
+  TileImage image_;
+  RayCacheCounters counters_;
+
+  friend struct RayCacheAccess;
+  std::uint16_t blocksOf(std::uint16_t count) const {
+    return static_cast<std::uint16_t>((count + (1u << blockShift_) - 1) >> blockShift_);
+  }
+  template <SampleFormat F, CompositeMode M>
+  CompositeStats compositeDirty();
+  template <SampleFormat F, CompositeMode M>
+  void compositeAll(TileImage& out) const;
+};
+
+// 8-bit output. Rounded to nearest, clamped to [0, 255].
+// RGB: the premultiplied image over an opaque background colour (0..1).
+void toRgb8(const TileImage& im, const float background[3], std::uint8_t* rgb);
+// RGBA with straight (unpremultiplied) alpha, as PNG expects; colour 0 where
+// alpha is 0.
+void toRgba8(const TileImage& im, std::uint8_t* rgba);
+
+// IEEE binary16 conversions used by the half format, bit-identical to GCC's
+// _Float16 conversions (round to nearest even; subnormals, inf and NaN kept).
+// Written out because without F16C the compiler calls libgcc for each value;
+// branch-free, since zero and subnormal values are common in sample data and
+// a branch on them mispredicts.
+inline std::uint16_t floatToHalf(float f) {
+  std::uint32_t u;
+  std::memcpy(&u, &f, 4);
+  const std::uint32_t sign = (u >> 16) & 0x8000u;
+  u &= 0x7fffffffu;
+  // Normal: rebias the exponent (-112 << 23, mod 2^32), round to nearest even.
+  const std::uint32_t normal = (u + 0xc8000fffu + ((u >> 13) & 1u)) >> 13;
+  // Below half's smallest normal: adding 0.5 (ulp 2^-24, half's subnormal
+  // step) makes the FPU round to the subnormal grid.
+  float a;
+  std::memcpy(&a, &u, 4);
+  a += 0.5f;
+  std::uint32_t v;
+  std::memcpy(&v, &a, 4);
+  const std::uint32_t sub = v - 0x3f000000u;
+  // 65520 and above round to inf; NaN stays NaN, quiet.
+  const std::uint32_t big = u > 0x7f800000u ? (0x7e00u | ((u >> 13) & 0x3ffu)) : 0x7c00u;
+  const std::uint32_t h = u >= 0x47800000u ? big : u < 0x38800000u ? sub : normal;
+  return static_cast<std::uint16_t>(h | sign);
+}
+
+inline float halfToFloat(std::uint16_t h) {
+  const std::uint32_t m = static_cast<std::uint32_t>(h & 0x7fffu) << 13;
+  const std::uint32_t e = m & 0x0f800000u;
+  const std::uint32_t isSub = 0u - static_cast<std::uint32_t>(e == 0);
+  const std::uint32_t isInf = 0u - static_cast<std::uint32_t>(e == 0x0f800000u);
+  const std::uint32_t normal = m + (112u << 23) + (isInf & (112u << 23));
+  // Zero and subnormals through a normal float, never a subnormal one (slow on x86).
+  const std::uint32_t v = m + (113u << 23), magicBits = 113u << 23;
+  float fv, magic;
+  std::memcpy(&fv, &v, 4);
+  std::memcpy(&magic, &magicBits, 4);
+  const float sub = fv - magic;
+  std::uint32_t subBits;
+  std::memcpy(&subBits, &sub, 4);
+  const std::uint32_t u = (isSub & subBits) | (~isSub & normal) | (static_cast<std::uint32_t>(h & 0x8000u) << 16);
+  float f;
+  std::memcpy(&f, &u, 4);
+  return f;
+}
+
+// n values at once: F16C instructions where the CPU has them (checked once),
+// else the functions above; the same bits either way.
+void halfToFloatN(const std::uint16_t* src, std::size_t n, float* dst);
+void floatToHalfN(const float* src, std::size_t n, std::uint16_t* dst);
+bool halfConversionUsesF16c();
+
+}  // namespace pp5::pp
