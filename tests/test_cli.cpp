@@ -1,6 +1,8 @@
 // The command line, end to end: runs the real pp5echo binary.
 #include <gtest/gtest.h>
 
+#include "cli_test_util.hpp"
+
 #include <algorithm>
 #include <array>
 #include <cstdio>
@@ -13,22 +15,8 @@
 
 namespace {
 
-struct Result {
-  int status;
-  std::string out;
-};
-
-// Runs pp5echo with `args`; stdout+stderr captured.
-Result run(const std::string& args) {
-  const std::string cmd = std::string(PP5_BINARY) + " " + args + " 2>&1";
-  FILE* p = popen(cmd.c_str(), "r");
-  EXPECT_NE(p, nullptr);
-  std::string out;
-  std::array<char, 4096> buf{};
-  while (std::size_t n = fread(buf.data(), 1, buf.size(), p)) out.append(buf.data(), n);
-  const int st = pclose(p);
-  return {WIFEXITED(st) ? WEXITSTATUS(st) : -1, out};
-}
+using Result = pp5::test::CliResult;
+Result run(const std::string& args) { return pp5::test::runCli(args); }
 
 std::string readFile(const std::filesystem::path& p) {
   std::ifstream in(p);

@@ -2,6 +2,8 @@
 // simulated sweep: what they write and report, and how they refuse bad input.
 #include <gtest/gtest.h>
 
+#include "cli_test_util.hpp"
+
 #include <array>
 #include <cmath>
 #include <cstdio>
@@ -21,21 +23,8 @@ namespace {
 
 namespace fs = std::filesystem;
 
-struct Result {
-  int status;
-  std::string out;
-};
-
-Result run(const std::string& args) {
-  const std::string cmd = std::string(PP5_BINARY) + " " + args + " 2>&1";
-  FILE* p = popen(cmd.c_str(), "r");
-  EXPECT_NE(p, nullptr);
-  std::string out;
-  std::array<char, 4096> buf{};
-  while (std::size_t n = fread(buf.data(), 1, buf.size(), p)) out.append(buf.data(), n);
-  const int st = pclose(p);
-  return {WIFEXITED(st) ? WEXITSTATUS(st) : -1, out};
-}
+using Result = pp5::test::CliResult;
+Result run(const std::string& args) { return pp5::test::runCli(args); }
 
 nlohmann::json readJson(const fs::path& p) {
   std::ifstream in(p);

@@ -1,0 +1,28 @@
+#pragma once
+// Runs the real pp5echo binary for the command-line tests.
+#include <gtest/gtest.h>
+
+#include <array>
+#include <cstdio>
+#include <string>
+#include <sys/wait.h>
+
+namespace pp5::test {
+
+struct CliResult {
+  int status;       // exit status, -1 if it did not exit normally
+  std::string out;  // stdout and stderr together
+};
+
+inline CliResult runCli(const std::string& args) {
+  const std::string cmd = std::string(PP5_BINARY) + " " + args + " 2>&1";
+  FILE* p = popen(cmd.c_str(), "r");
+  EXPECT_NE(p, nullptr);
+  std::string out;
+  std::array<char, 4096> buf{};
+  while (std::size_t n = fread(buf.data(), 1, buf.size(), p)) out.append(buf.data(), n);
+  const int st = pclose(p);
+  return {WIFEXITED(st) ? WEXITSTATUS(st) : -1, out};
+}
+
+}  // namespace pp5::test
