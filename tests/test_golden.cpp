@@ -48,10 +48,14 @@ std::vector<std::uint8_t> render(const GoldenCase& c, const std::string& mode, i
   ps.render.height = h = 128;
   ps.render.compositing = {mode};
   ps.render.threads = 2;
-  if (c.phantom == "forearm") {
+  if (c.phantom == "forearm") {  // as configs/forearm.toml
     ps.recon.kernelLateralMm = 0.55;
     ps.recon.kernelAxialMm = 0.4;
     ps.recon.kernelElevationMm = 1.1;
+    ps.tf.opacity = {{0, 0.0, 0, 0}, {150, 0.0, 0, 0}, {190, 0.25, 0, 0}, {255, 0.8, 0, 0}};
+    ps.tf.colour = {{0, 0.0, 0.0, 0.0}, {150, 0.75, 0.6, 0.5}, {220, 1.0, 0.95, 0.85}, {255, 1.0, 1.0, 1.0}};
+    ps.render.azimuthDeg = -60.0;
+    ps.render.elevationDeg = 50.0;
   }
   host::SerialPipeline pipe(g, ps);
   sim.run(2, [&](Frame&& f) { pipe.insert(f, poses[f.index], f.timestamp); });
