@@ -684,8 +684,14 @@ void sampleAll(const ShadeBuffer& shade, const SampleLattice& lattice, const Ren
 
 void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const DBuffer& dbuffer,
                   const RenderSettings& settings, SampleSink& sink, const EmptySpaceMap* space,
-                  const SamplerOptions& options) {
+                  const SamplerOptions& options, const EmptySpaceMap* before) {
   checkSameGrid(shade.grid(), lattice.grid());
+  PP5_CHECK(!before || space);
+  if (before) {
+    checkSameGrid(before->grid(), lattice.grid());
+    PP5_CHECK(before->brickDims() == space->brickDims());
+  }
+  const std::uint8_t* distBefore = before ? before->distances() : nullptr;
   PP5_CHECK_EQ(dbuffer.width(), lattice.width());
   PP5_CHECK_EQ(dbuffer.height(), lattice.height());
   PP5_CHECK_GT(options.batchSamples, std::size_t{0});
@@ -745,6 +751,48 @@ void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const 
           if (hiK < 0.0) continue;
           const std::int64_t k1 = std::min<std::int64_t>(n - 1, static_cast<std::int64_t>(std::min(hiK, 65535.0)));
           if (k0 > k1) continue;
+          if (distBefore) {
+            // Water around the object is empty in both maps: jump over the
+            // cube of bricks both know to be empty (as sampleAll does), and
+            // sample the rest one at a time.
+            double slope[3], offset[3];
+            int side[3];
+            for (int a = 0; a < 3; ++a) {
+              const double dl = vr.delta[a];
+              const double inv = dl != 0.0 ? 1.0 / dl : 0.0;
+              side[a] = inv > 0.0 ? 1 : (inv < 0.0 ? -1 : 0);
+              slope[a] = EmptySpaceMap::kBrickCells * inv;
+              offset[a] = (-static_cast<double>(vr.base[a]) - side[a] * kSkipMarginVoxels) * inv;
+            }
+            std::int64_t k = k0;
+            while (k <= k1) {
+              const auto ku = static_cast<std::uint32_t>(k);
+              const int b[3] = {interp.cellAxis(vr, ku, 0) >> kBrickShift, interp.cellAxis(vr, ku, 1) >> kBrickShift,
+                                interp.cellAxis(vr, ku, 2) >> kBrickShift};
+              const auto brick = static_cast<std::size_t>((static_cast<std::int64_t>(b[2]) * bd.y + b[1]) * bd.x + b[0]);
+              const int d = std::min<int>(dist[brick], distBefore[brick]);
+              if (d > 0) {
+                double kExit = std::numeric_limits<double>::infinity();
+                for (int a = 0; a < 3; ++a)
+                  if (side[a] != 0)
+                    kExit = std::min(kExit, (side[a] > 0 ? b[a] + d : b[a] - d + 1) * slope[a] + offset[a]);
+                k = kExit >= static_cast<double>(k1) ? k1 + 1
+                                                      : std::max(k + 1, static_cast<std::int64_t>(std::max(kExit, 0.0)) + 1);
+                continue;
+              }
+              float* rgba = stage.slot();
+              if (dist[brick] == 0) {
+                interp.locate4(vr, ku, c);
+                interp.at(c, 0, rgba);
+              } else {
+                rgba[0] = rgba[1] = rgba[2] = rgba[3] = 0.0f;
+              }
+              stage.commit(ku);
+              ++k;
+            }
+            done = std::max(done, k1);
+            continue;
+          }
           interp.locate4(vr, static_cast<std::uint32_t>(k0), c);
           for (std::int64_t g = k0; g <= k1; g += 4) {
             if (g + 4 <= k1) {
@@ -754,8 +802,12 @@ void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const 
             const int lanes = static_cast<int>(std::min<std::int64_t>(4, k1 - g + 1));
             for (int l = 0; l < lanes; ++l) {
               float* rgba = stage.slot();
-              if (!dist || dist[((c.i[2][l] >> kBrickShift) * bd.y + (c.i[1][l] >> kBrickShift)) * bd.x +
-                                (c.i[0][l] >> kBrickShift)] == 0) {
+              const std::size_t brick =
+                  dist ? static_cast<std::size_t>(((c.i[2][l] >> kBrickShift) * bd.y + (c.i[1][l] >> kBrickShift)) *
+                                                      bd.x +
+                                                  (c.i[0][l] >> kBrickShift))
+                       : 0;
+              if (!dist || dist[brick] == 0) {
                 const std::int64_t idx = interp.index(c, l);
                 if (idx != loaded) {
                   interp.load(idx, vox);

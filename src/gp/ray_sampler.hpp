@@ -161,10 +161,15 @@ void sampleAll(const ShadeBuffer& shade, const SampleLattice& lattice, const Ren
 
 // Every lattice sample inside the D-buffer's spans (t_k in [t_in, t_out]),
 // transparent ones included. `space` (optional) only saves the interpolation
-// of samples it knows are transparent.
+// of samples it knows are transparent. `before` (optional, with `space`): the
+// map of the shade buffer before this update; a sample that both maps know
+// to be transparent was 0 and stays 0, so it is not emitted at all. That is
+// exact only when the receiving cache holds every sample of the previous
+// shade buffer (the incremental pipeline's invariant): water around an
+// object then costs nothing to re-sample.
 void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const DBuffer& dbuffer,
                   const RenderSettings& settings, SampleSink& sink, const EmptySpaceMap* space = nullptr,
-                  const SamplerOptions& options = {});
+                  const SamplerOptions& options = {}, const EmptySpaceMap* before = nullptr);
 
 // One sample, by the same arithmetic (the reference in tests).
 RaySample sampleAt(const ShadeBuffer& shade, const SampleLattice& lattice, const RenderSettings& settings,

@@ -70,9 +70,12 @@ FrameStats SerialPipeline::insert(const Frame& f, const Mat4& pose, double timeS
   if (r.dirty.empty()) return st;
 
   t = Clock::now();
-  gp::shade(recon_->output(), tf_, s_.shading, camera_, r.dirty, shade_);
+  // The dirty bricks and their gradient margin (what shade(dirty) shades),
+  // worked out once for shading, the empty-space map and the D-buffer.
   const std::vector<gp::Box3> shaded = gp::shadingBoxes(r.dirty);
+  for (const gp::Box3& b : shaded) gp::shade(recon_->output(), tf_, s_.shading, camera_, b, shade_);
   for (const gp::Box3& b : shaded) st.shadedVoxels += b.intersect(wholeGrid(grid_)).voxelCount();
+  const gp::EmptySpaceMap before = space_;  // a few kB: one byte per 8^3 cells
   space_.update(shade_, shaded);
   st.shadeMs = msSince(t);
 
@@ -91,7 +94,7 @@ FrameStats SerialPipeline::insert(const Frame& f, const Mat4& pose, double timeS
     st.samples += batch.size();
     putMs += msSince(tp);
   });
-  gp::sampleRegion(shade_, lattice_, dbuf_, s_.render, sink, &space_);
+  gp::sampleRegion(shade_, lattice_, dbuf_, s_.render, sink, &space_, {}, &before);
   st.sampleMs = msSince(t) - putMs;
 
   t = Clock::now();
