@@ -164,7 +164,9 @@ TEST(Evaluation, HoleFilledVoxelsHaveAValueButAreNotCovered) {
     EXPECT_TRUE(r->hasValue(onFrame));
     EXPECT_FALSE(r->covered(between));
     EXPECT_EQ(r->hasValue(between), fill);
-    if (fill) EXPECT_FLOAT_EQ(r->output().value(between), 90.0f);
+    if (fill) {
+      EXPECT_FLOAT_EQ(r->output().value(between), 90.0f);
+    }
     // Far outside the frames no kernel reaches: no value, filled or not.
     EXPECT_FALSE(r->hasValue(far));
     EXPECT_EQ(r->output().value(far), 0.0);

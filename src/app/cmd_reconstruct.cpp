@@ -13,20 +13,6 @@
 
 namespace pp5::app {
 
-namespace {
-
-Volume toOutputType(const Volume& v, ScalarType type) {
-  if (type == ScalarType::F32) return v;
-  Volume out;
-  out.grid = v.grid;
-  out.type = type;
-  out.bytes.resize(v.grid.voxelCount() * static_cast<std::size_t>(scalarBytes(type)));
-  const std::size_t n = v.grid.voxelCount();
-  for (std::size_t i = 0; i < n; ++i) out.setValue(i, v.value(i));  // setValue rounds and clamps
-  return out;
-}
-
-}  // namespace
 
 void addReconstructCommand(CLI::App& app, int& exitCode) {
   struct Opts {
@@ -72,14 +58,8 @@ void addReconstructCommand(CLI::App& app, int& exitCode) {
     }
     if (o->threads >= 0) rs.threads = o->threads;
 
-    Grid grid;
-    if (useToml && !s.grid.autoExtent) {
-      grid.origin = s.grid.origin;
-      grid.spacing = s.grid.spacing;
-      grid.dims = Index3(s.grid.dims);
-    } else {
-      grid = chooseGrid(seq, rs, spacing, margin, configExtent);
-    }
+    const Grid grid =
+        useToml && !s.grid.autoExtent ? s.grid.fixedGrid() : chooseGrid(seq, rs, spacing, margin, configExtent);
     const std::string what = useToml && !o->config.empty() ? o->config : o->plusConfig;
     auto recon = gp::makeReconstructor(grid, rs, useToml ? s.grid.memoryLimitBytes() : 0, what);
     spdlog::info("reconstruct: {} frames of {}x{} into {}x{}x{} voxels of {} mm ({} / {}, {} arithmetic)",
@@ -87,7 +67,7 @@ void addReconstructCommand(CLI::App& app, int& exitCode) {
                  grid.dims.y, grid.dims.z, grid.spacing.x, rs.method, rs.compounding, rs.arithmetic);
 
     const ReconRunStats st = runReconstruction(seq, *recon);
-    writeVolume(o->output, toOutputType(recon->output(), o->type == "float32" ? ScalarType::F32 : ScalarType::U8));
+    writeVolume(o->output, recon->output().as(o->type == "float32" ? ScalarType::F32 : ScalarType::U8));
     if (!o->weights.empty()) writeVolume(o->weights, recon->weights());
 
     std::uint64_t covered = 0;

@@ -45,14 +45,6 @@ struct Source {
   std::function<void(const FrameSink&)> run;
 };
 
-Grid fixedGrid(const GridSettings& g) {
-  Grid out;
-  out.origin = g.origin;
-  out.spacing = g.spacing;
-  out.dims = Index3(g.dims);
-  return out;
-}
-
 Source simulatorSource(const Settings& s) {
   auto sim = std::make_shared<sim::SweepSimulator>(s.sim);
   Source src;
@@ -61,13 +53,7 @@ Source simulatorSource(const Settings& s) {
     throw InputError("sim.sweep: the sweep captured no frames; lengthen it or lower sim.sweep.capture_interval_mm");
   src.description = fmt::format("simulated {} sweep over the {} phantom, {} probe, {} frames", s.sim.sweep.kind,
                                 s.sim.phantom, sim->probe().name, src.frames);
-  if (s.grid.autoExtent) {
-    std::vector<Mat4> poses;
-    for (std::size_t i = 0; i < sim->frameCount(); ++i) poses.push_back(sim->imageToReference(i));
-    src.grid = sim::fitGrid(poses, sim->probe().width, sim->probe().height, s.grid.spacing, s.grid.marginMm);
-  } else {
-    src.grid = fixedGrid(s.grid);
-  }
+  src.grid = sweepGrid(s, *sim);
   const int threads = s.sim.threads;
   src.run = [sim, threads](const FrameSink& sink) {
     sim->run(threads, [&](Frame&& f) { sink(f, sim->imageToReference(f.index), f.timestamp); });
@@ -83,7 +69,7 @@ Source sequenceSource(const Settings& s) {
   src.frames = seq->reader->info().frameCount;
   src.description = fmt::format("{} ({} frames of {}x{})", s.run.sequence, src.frames, seq->reader->info().width,
                                 seq->reader->info().height);
-  src.grid = s.grid.autoExtent ? chooseGrid(*seq, s.recon, s.grid.spacing, s.grid.marginMm, false) : fixedGrid(s.grid);
+  src.grid = s.grid.autoExtent ? chooseGrid(*seq, s.recon, s.grid.spacing, s.grid.marginMm, false) : s.grid.fixedGrid();
   src.run = [seq](const FrameSink& sink) {
     Frame f;
     for (std::uint64_t i = 0; seq->reader->next(f); ++i)
@@ -111,9 +97,7 @@ int runCommand(const RunOptions& o) {
   registerAll(schema, s);
   loadSettings(schema, o.file, o.overrides);
   const std::string dir = o.outDir.empty() ? s.output.dir : o.outDir;
-  std::error_code ec;
-  fs::create_directories(dir, ec);
-  if (ec || !fs::is_directory(dir)) throw InputError(dir + ": cannot create the output folder");
+  makeOutputDir(dir);
 
   Source src = s.run.source == "sequence" ? sequenceSource(s) : simulatorSource(s);
   host::PipelineSettings ps{s.recon, s.render, s.shading, s.tf, s.cache};
@@ -184,11 +168,7 @@ int runCommand(const RunOptions& o) {
       wrote.push_back(fs::path(p).filename().string());
   }
   if (s.run.volume) {
-    Volume v8;
-    const Volume& out = pipe.reconstructor().output();
-    v8.allocate(out.grid, ScalarType::U8);
-    for (std::size_t i = 0; i < out.grid.voxelCount(); ++i) v8.setValue(i, out.value(i));
-    writeVolume((fs::path(dir) / "volume.mha").string(), v8, true);
+    writeVolume((fs::path(dir) / "volume.mha").string(), pipe.reconstructor().output().as(ScalarType::U8), true);
     wrote.push_back("volume.mha");
   }
   double orbitMs = 0.0;

@@ -64,20 +64,6 @@ void writeTextAtomically(const std::string& path, const std::string& text) {
   out.commit();
 }
 
-Grid truthGrid(const Settings& s, const sim::SweepSimulator& sim) {
-  if (!s.grid.autoExtent) {
-    Grid g;
-    g.origin = s.grid.origin;
-    g.spacing = s.grid.spacing;
-    g.dims = Index3(s.grid.dims);
-    return g;
-  }
-  // Around the reported poses, as a reconstruction of the sequence would be.
-  std::vector<Mat4> poses;
-  for (std::size_t i = 0; i < sim.frameCount(); ++i) poses.push_back(sim.imageToReference(i));
-  return sim::fitGrid(poses, sim.probe().width, sim.probe().height, s.grid.spacing, s.grid.marginMm);
-}
-
 PlusVolumeReconstruction reconstructionElement(const Grid& g) {
   PlusVolumeReconstruction r;
   r.imageCoordinateFrame = "Image";
@@ -99,16 +85,14 @@ int runSimulate(const SimulateOptions& opts) {
   const std::string dir = opts.outDir.empty() ? s.output.dir : opts.outDir;
   auto log = logger();
 
-  std::error_code ec;
-  fs::create_directories(dir, ec);
-  if (ec || !fs::is_directory(dir)) throw InputError(dir + ": cannot create the output folder");
+  makeOutputDir(dir);
 
   const sim::SweepSimulator sim(s.sim);
   const std::size_t n = sim.frameCount();
   if (n == 0) throw InputError("sim.sweep: the sweep captured no frames; lengthen it or lower sim.sweep.capture_interval_mm");
 
   // Refuse a truth grid that cannot fit before spending time on the frames.
-  const Grid grid = truthGrid(s, sim);
+  const Grid grid = sweepGrid(s, sim);
   const ScalarType truthType = s.sim.truthType == "uint8" ? ScalarType::U8 : ScalarType::F32;
   checkGridFits(grid, 8 + static_cast<std::uint64_t>(scalarBytes(truthType)), "truth volume ([grid])",
                 s.grid.memoryLimitBytes());

@@ -3,6 +3,7 @@
 #include <filesystem>
 
 #include "core/error.hpp"
+#include "sim/simulate.hpp"
 
 namespace pp5::app {
 
@@ -51,6 +52,27 @@ void registerAll(ConfigSchema& schema, Settings& s) {
   schema.option("output.dir", &s.output.dir, "out/doll", "Output folder, unless the command line gives `-o`.");
   schema.option("output.preview_frames", &s.output.previewFrames, 4, 0, 1000,
                 "How many input frames `simulate` also writes as PNG, evenly spread over the sweep.");
+}
+
+Grid GridSettings::fixedGrid() const {
+  Grid g;
+  g.origin = origin;
+  g.spacing = spacing;
+  g.dims = Index3(dims);
+  return g;
+}
+
+Grid sweepGrid(const Settings& s, const sim::SweepSimulator& sim) {
+  if (!s.grid.autoExtent) return s.grid.fixedGrid();
+  std::vector<Mat4> poses;
+  for (std::size_t i = 0; i < sim.frameCount(); ++i) poses.push_back(sim.imageToReference(i));
+  return sim::fitGrid(poses, sim.probe().width, sim.probe().height, s.grid.spacing, s.grid.marginMm);
+}
+
+void makeOutputDir(const std::string& dir) {
+  std::error_code ec;
+  std::filesystem::create_directories(dir, ec);
+  if (ec || !std::filesystem::is_directory(dir)) throw InputError(dir + ": cannot create the output folder");
 }
 
 void loadSettings(ConfigSchema& schema, const std::string& file, const std::vector<std::string>& overrides) {

@@ -13,6 +13,10 @@
 #include "pp/ray_cache.hpp"
 #include "sim/sim_settings.hpp"
 
+namespace pp5::sim {
+class SweepSimulator;
+}
+
 namespace pp5::app {
 
 // [grid]: the reconstruction grid (also the grid of the simulated truth volume).
@@ -27,6 +31,8 @@ struct GridSettings {
   std::uint64_t memoryLimitBytes() const {
     return static_cast<std::uint64_t>(memoryLimitGiB * 1024.0 * 1024.0 * 1024.0);
   }
+  // The grid of origin, spacing and dims (what auto_extent = false asks for).
+  Grid fixedGrid() const;
 };
 
 // [output]
@@ -61,6 +67,14 @@ struct Settings {
 };
 
 void registerAll(ConfigSchema& schema, Settings& s);
+
+// The grid of a simulated sweep: around every frame's reported pose (as a
+// reconstruction of the recorded sequence would fit it) plus the margin, or
+// the fixed grid when grid.auto_extent is false.
+Grid sweepGrid(const Settings& s, const sim::SweepSimulator& sim);
+
+// Creates the output folder (and its parents); InputError when it cannot.
+void makeOutputDir(const std::string& dir);
 
 // Defaults, then the file (if any), then `key=value` overrides, in that order.
 void loadSettings(ConfigSchema& schema, const std::string& file, const std::vector<std::string>& overrides);

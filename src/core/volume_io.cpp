@@ -37,6 +37,15 @@ void Volume::allocate(const Grid& g, ScalarType t) {
 
 // Stored little-endian whatever the host, as the files are; assembled byte by
 // byte so the code does not depend on the host's byte order.
+Volume Volume::as(ScalarType t) const {
+  if (t == type) return *this;
+  Volume out;
+  out.allocate(grid, t);
+  const std::size_t n = grid.voxelCount();
+  for (std::size_t i = 0; i < n; ++i) out.setValue(i, value(i));
+  return out;
+}
+
 double Volume::value(std::size_t i) const {
   switch (type) {
     case ScalarType::U8: return bytes[i];

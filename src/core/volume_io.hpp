@@ -23,6 +23,8 @@ struct Volume {
   void allocate(const Grid& g, ScalarType t);  // zero-filled; refuses grids that do not fit
   double value(std::size_t linearIndex) const;
   void setValue(std::size_t linearIndex, double v);  // clamps and rounds for integer types
+  // The same volume in another voxel type (rounded and clamped by setValue).
+  Volume as(ScalarType t) const;
 };
 
 struct VolumeHeader {

@@ -332,6 +332,32 @@ private:
 // error of its position.
 constexpr double kSkipMarginVoxels = 1.0 / 64.0;
 
+// Jumps along a ray over a cube of empty bricks: the cube of bricks within
+// d - 1 of brick b is empty, so the next sample worth looking at is where
+// the ray leaves it, per axis at k = (b + d) * slope + offset (b - d + 1
+// going down), the cube shrunk by the margin.
+struct BrickJump {
+  double inv[3], slope[3], offset[3];
+  int side[3];
+  explicit BrickJump(const VoxelRay& vr) {
+    for (int a = 0; a < 3; ++a) {
+      const double dl = vr.delta[a];
+      inv[a] = dl != 0.0 ? 1.0 / dl : 0.0;
+      side[a] = inv[a] > 0.0 ? 1 : (inv[a] < 0.0 ? -1 : 0);
+      slope[a] = EmptySpaceMap::kBrickCells * inv[a];
+      offset[a] = (-static_cast<double>(vr.base[a]) - side[a] * kSkipMarginVoxels) * inv[a];
+    }
+  }
+  // The sample after the cube (at least k + 1), or kEnd + 1 when the cube reaches past kEnd.
+  template <class K>
+  K next(const int (&b)[3], int d, K k, K kEnd) const {
+    double kExit = std::numeric_limits<double>::infinity();
+    for (int a = 0; a < 3; ++a)
+      if (side[a] != 0) kExit = std::min(kExit, (side[a] > 0 ? b[a] + d : b[a] - d + 1) * slope[a] + offset[a]);
+    return kExit >= static_cast<double>(kEnd) ? kEnd + 1 : std::max(k + 1, static_cast<K>(std::max(kExit, 0.0)) + 1);
+  }
+};
+
 float exponentOf(const SampleLattice& lattice, const RenderSettings& settings) {
   PP5_CHECK_GT(settings.opacityUnitMm, 0.0);
   return static_cast<float>(lattice.step() / settings.opacityUnitMm);
@@ -598,11 +624,11 @@ void sampleAll(const ShadeBuffer& shade, const SampleLattice& lattice, const Ren
           // Only the part of the ray inside the visible bricks' bounds (grown
           // by the margin) can have a visible sample.
           double kIn = 0.0, kOut = static_cast<double>(n - 1);
-          double inv[3];
+          const BrickJump jump(vr);
+          const double* inv = jump.inv;
           for (int a = 0; a < 3; ++a) {
             const double b0 = vr.base[a], dl = vr.delta[a];
             const double lo = occupied.lo[a] - kSkipMarginVoxels, hi = occupied.hi[a] + kSkipMarginVoxels;
-            inv[a] = dl != 0.0 ? 1.0 / dl : 0.0;
             if (dl == 0.0) {
               if (b0 < lo || b0 > hi) kOut = -1.0;
               continue;
@@ -615,15 +641,6 @@ void sampleAll(const ShadeBuffer& shade, const SampleLattice& lattice, const Ren
           std::uint32_t k = static_cast<std::uint32_t>(std::ceil(kIn));
           const std::uint32_t kEnd = static_cast<std::uint32_t>(kOut);  // floor: kOut >= 0
           if (k > kEnd) continue;
-          // Per axis, where the ray leaves the cube of bricks [b - r + 1, b + r):
-          // k = (b + r) * slope + offset (or b - r + 1 going down).
-          double slope[3], offset[3];
-          int side[3];
-          for (int a = 0; a < 3; ++a) {
-            side[a] = inv[a] > 0.0 ? 1 : (inv[a] < 0.0 ? -1 : 0);
-            slope[a] = EmptySpaceMap::kBrickCells * inv[a];
-            offset[a] = (-static_cast<double>(vr.base[a]) - side[a] * kSkipMarginVoxels) * inv[a];
-          }
           Cells4 c, next;
           Interpolator::Voxels vox{};
           std::int64_t loaded = -1;
@@ -631,16 +648,8 @@ void sampleAll(const ShadeBuffer& shade, const SampleLattice& lattice, const Ren
             const int b[3] = {interp.cellAxis(vr, k, 0) >> kBrickShift, interp.cellAxis(vr, k, 1) >> kBrickShift,
                               interp.cellAxis(vr, k, 2) >> kBrickShift};
             const int d = dist[(static_cast<std::int64_t>(b[2]) * bd.y + b[1]) * bd.x + b[0]];
-            if (d > 0) {
-              // Every brick within d - 1 of this one is empty: jump to where
-              // the ray leaves that cube, shrunk by the margin, so that no
-              // sample of a visible brick is skipped.
-              double kExit = std::numeric_limits<double>::infinity();
-              for (int a = 0; a < 3; ++a)
-                if (side[a] != 0)
-                  kExit = std::min(kExit, (side[a] > 0 ? b[a] + d : b[a] - d + 1) * slope[a] + offset[a]);
-              k = kExit >= static_cast<double>(kEnd) ? kEnd + 1
-                                                      : std::max(k + 1, static_cast<std::uint32_t>(std::max(kExit, 0.0)) + 1);
+            if (d > 0) {  // in an empty cube: no sample of a visible brick is skipped
+              k = jump.next(b, d, k, kEnd);
               continue;
             }
             // A visible brick: sample four at a time until a group starts in
@@ -755,15 +764,7 @@ void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const 
             // Water around the object is empty in both maps: jump over the
             // cube of bricks both know to be empty (as sampleAll does), and
             // sample the rest one at a time.
-            double slope[3], offset[3];
-            int side[3];
-            for (int a = 0; a < 3; ++a) {
-              const double dl = vr.delta[a];
-              const double inv = dl != 0.0 ? 1.0 / dl : 0.0;
-              side[a] = inv > 0.0 ? 1 : (inv < 0.0 ? -1 : 0);
-              slope[a] = EmptySpaceMap::kBrickCells * inv;
-              offset[a] = (-static_cast<double>(vr.base[a]) - side[a] * kSkipMarginVoxels) * inv;
-            }
+            const BrickJump jump(vr);
             std::int64_t k = k0;
             while (k <= k1) {
               const auto ku = static_cast<std::uint32_t>(k);
@@ -772,12 +773,7 @@ void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const 
               const auto brick = static_cast<std::size_t>((static_cast<std::int64_t>(b[2]) * bd.y + b[1]) * bd.x + b[0]);
               const int d = std::min<int>(dist[brick], distBefore[brick]);
               if (d > 0) {
-                double kExit = std::numeric_limits<double>::infinity();
-                for (int a = 0; a < 3; ++a)
-                  if (side[a] != 0)
-                    kExit = std::min(kExit, (side[a] > 0 ? b[a] + d : b[a] - d + 1) * slope[a] + offset[a]);
-                k = kExit >= static_cast<double>(k1) ? k1 + 1
-                                                      : std::max(k + 1, static_cast<std::int64_t>(std::max(kExit, 0.0)) + 1);
+                k = jump.next(b, d, k, k1);
                 continue;
               }
               float* rgba = stage.slot();

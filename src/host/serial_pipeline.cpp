@@ -1,6 +1,7 @@
 #include "host/serial_pipeline.hpp"
 
 #include <chrono>
+#include <functional>
 #include <mutex>
 #include <span>
 
@@ -15,6 +16,26 @@ double msSince(std::chrono::steady_clock::time_point t0) {
 }
 
 gp::Box3 wholeGrid(const Grid& g) { return {Index3(0), g.dims}; }
+
+// Puts the sampler's batches into one cache as the sampling threads produce
+// them (a full view holds tens of millions of samples, too many to gather
+// first); `onPut(n, ms)` after each batch, under the same lock.
+class CacheSink final : public gp::SampleSink {
+public:
+  explicit CacheSink(pp::RayCache& cache, std::function<void(std::size_t, double)> onPut = {})
+      : cache_(cache), onPut_(std::move(onPut)) {}
+  void consume(int, std::uint32_t, std::span<const RaySample> batch) override {
+    const std::lock_guard<std::mutex> lock(m_);
+    const auto t = std::chrono::steady_clock::now();
+    cache_.put(batch.data(), batch.size());
+    if (onPut_) onPut_(batch.size(), msSince(t));
+  }
+
+private:
+  pp::RayCache& cache_;
+  std::function<void(std::size_t, double)> onPut_;
+  std::mutex m_;
+};
 
 }  // namespace
 
@@ -45,13 +66,7 @@ void SerialPipeline::resampleAll() {
   gp::shade(recon_->output(), tf_, s_.shading, camera_, wholeGrid(grid_), shade_);
   space_ = gp::EmptySpaceMap(shade_, s_.render.threads);
   cache_->clear();
-  // Batches go straight into the cache as the sampling threads produce them:
-  // a full view holds tens of millions of samples, too many to gather first.
-  std::mutex m;
-  gp::CallbackSink sink([&](int, std::uint32_t, std::span<const RaySample> batch) {
-    const std::lock_guard<std::mutex> lock(m);
-    cache_->put(batch.data(), batch.size());
-  });
+  CacheSink sink(*cache_);
   gp::sampleAll(shade_, lattice_, s_.render, sink, &space_);
   cache_->composite();
 }
@@ -75,7 +90,7 @@ FrameStats SerialPipeline::insert(const Frame& f, const Mat4& pose, double timeS
   const std::vector<gp::Box3> shaded = gp::shadingBoxes(r.dirty);
   for (const gp::Box3& b : shaded) gp::shade(recon_->output(), tf_, s_.shading, camera_, b, shade_);
   for (const gp::Box3& b : shaded) st.shadedVoxels += b.intersect(wholeGrid(grid_)).voxelCount();
-  const gp::EmptySpaceMap before = space_;  // a few kB: one byte per 8^3 cells
+  spaceBefore_ = space_;  // a few kB (a byte per 8^3 cells); assigning keeps the storage
   space_.update(shade_, shaded);
   st.shadeMs = msSince(t);
 
@@ -83,18 +98,13 @@ FrameStats SerialPipeline::insert(const Frame& f, const Mat4& pose, double timeS
   const std::vector<gp::WorldBox> boxes = gp::stencilBoxes(grid_, shaded);
   dbuf_.build(camera_, boxes);
   st.dbufferPixels = dbuf_.touched().size();
-  // Samples go into the cache as they come (sampling and putting overlap);
-  // the time of the puts is counted as compositing.
-  std::mutex m;
+  // Sampling and putting overlap; the time of the puts is counted as compositing.
   double putMs = 0.0;
-  gp::CallbackSink sink([&](int, std::uint32_t, std::span<const RaySample> batch) {
-    const std::lock_guard<std::mutex> lock(m);
-    const auto tp = Clock::now();
-    cache_->put(batch.data(), batch.size());
-    st.samples += batch.size();
-    putMs += msSince(tp);
+  CacheSink sink(*cache_, [&](std::size_t n, double ms) {
+    st.samples += n;
+    putMs += ms;
   });
-  gp::sampleRegion(shade_, lattice_, dbuf_, s_.render, sink, &space_, {}, &before);
+  gp::sampleRegion(shade_, lattice_, dbuf_, s_.render, sink, &space_, {}, &spaceBefore_);
   st.sampleMs = msSince(t) - putMs;
 
   t = Clock::now();
@@ -116,11 +126,7 @@ pp::TileImage SerialPipeline::renderFromScratch(pp::CompositeMode mode) const {
   const gp::EmptySpaceMap space(shade, s_.render.threads);
   pp::RayCache cache(pp::TileRect{0, 0, camera_.width, camera_.height}, camera_.width, lattice_.counts(), s_.cache, mode,
                      s_.render.threads);
-  std::mutex m;
-  gp::CallbackSink sink([&](int, std::uint32_t, std::span<const RaySample> batch) {
-    const std::lock_guard<std::mutex> lock(m);
-    cache.put(batch.data(), batch.size());
-  });
+  CacheSink sink(cache);
   gp::sampleAll(shade, lattice_, s_.render, sink, &space);
   cache.composite();
   return cache.image();

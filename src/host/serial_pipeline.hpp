@@ -85,6 +85,7 @@ private:
   gp::SampleLattice lattice_;
   gp::ShadeBuffer shade_;
   gp::EmptySpaceMap space_;
+  gp::EmptySpaceMap spaceBefore_;  // space_ before the frame being inserted
   gp::DBuffer dbuf_;
   std::unique_ptr<pp::RayCache> cache_;
   std::uint64_t frames_ = 0;
