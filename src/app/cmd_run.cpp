@@ -19,7 +19,18 @@
 #include "core/image_io.hpp"
 #include "core/io_util.hpp"
 #include "core/volume_io.hpp"
+#include <atomic>
+#include <csignal>
+
+#include <mpi.h>
+
+#include "comm/parallel_settings.hpp"
+#include "comm/transport.hpp"
+#include "gp/gp_rank.hpp"
+#include "host/acquisition.hpp"
+#include "host/host_rank.hpp"
 #include "host/outputs.hpp"
+#include "pp/pp_rank.hpp"
 #include "host/serial_pipeline.hpp"
 #include "sim/simulate.hpp"
 
@@ -33,17 +44,13 @@ struct RunOptions {
   std::string file, outDir;
   std::vector<std::string> overrides;
   bool serial = false;
+  bool verify = false;
+  int expectRanks = 0;
+  int gps = -1, pps = -1;
 };
 
-// A source hands frames, with their ImageToReference and time, to `sink` in order.
-using FrameSink = std::function<void(const Frame&, const Mat4&, double)>;
-
-struct Source {
-  std::string description;
-  std::uint64_t frames = 0;
-  Grid grid;
-  std::function<void(const FrameSink&)> run;
-};
+using host::FrameSink;
+using host::Source;
 
 Source simulatorSource(const Settings& s) {
   auto sim = std::make_shared<sim::SweepSimulator>(s.sim);
@@ -78,6 +85,15 @@ Source sequenceSource(const Settings& s) {
   return src;
 }
 
+host::Preprocess preprocessOf(const Settings& s) {
+  host::Preprocess p;
+  p.crop = glm::ivec4(s.run.cropOrigin, s.run.cropSize);
+  if ((s.run.cropSize.x == 0) != (s.run.cropSize.y == 0))
+    throw InputError("run.crop_size: give both a width and a height, or 0 0 for no crop");
+  p.subsample = s.run.subsample;
+  return p;
+}
+
 std::vector<std::uint8_t> rgb8(const pp::TileImage& im) {
   std::vector<std::uint8_t> px(static_cast<std::size_t>(im.width) * static_cast<std::size_t>(im.height) * 3);
   const float black[3] = {0.0f, 0.0f, 0.0f};
@@ -91,7 +107,7 @@ double median(std::vector<double> v) {
   return v[v.size() / 2];
 }
 
-int runCommand(const RunOptions& o) {
+int runSerial(const RunOptions& o) {
   Settings s;
   ConfigSchema schema;
   registerAll(schema, s);
@@ -126,8 +142,17 @@ int runCommand(const RunOptions& o) {
   const auto start = Clock::now();
   auto lastLog = start;
   std::uint64_t done = 0;
-  src.run([&](const Frame& f, const Mat4& pose, double t) {
-    const host::FrameStats st = pipe.insert(f, pose, t);
+  const host::Preprocess pre = preprocessOf(s);
+  Frame cropped;
+  src.run([&](const Frame& in, const Mat4& inPose, double t) {
+    Mat4 pose = inPose;
+    const Frame* fp = &in;
+    if (!pre.identity()) {
+      cropped = in;
+      host::preprocess(pre, cropped, pose);
+      fp = &cropped;
+    }
+    const host::FrameStats st = pipe.insert(*fp, pose, t);
     stats.row({static_cast<double>(st.index), st.reconMs, st.shadeMs, st.sampleMs, st.compositeMs, st.totalMs(),
                static_cast<double>(st.fillInSlices), static_cast<double>(st.dirtyBricks),
                static_cast<double>(st.dirtyVoxels), static_cast<double>(st.shadedVoxels),
@@ -200,6 +225,185 @@ int runCommand(const RunOptions& o) {
   return 0;
 }
 
+
+// ---- the distributed pipeline (under mpirun) --------------------------------
+
+std::atomic<bool> gInterrupted{false};
+extern "C" void onInterrupt(int) { gInterrupted = true; }
+
+// run.script entries: "AFTER_FRAME key = value; key = value".
+std::vector<host::ScriptedControl> parseScript(const Settings& base) {
+  std::vector<host::ScriptedControl> out;
+  Settings cur = base;
+  ConfigSchema schema;
+  registerAll(schema, cur);
+  static const std::vector<std::string> allowed = {"render.azimuth_deg", "render.elevation_deg", "render.distance",
+                                                   "render.projection", "render.fov_deg", "render.compositing"};
+  for (std::size_t i = 0; i < base.run.script.size(); ++i) {
+    const std::string& e = base.run.script[i];
+    const std::string what = fmt::format("run.script[{}] = \"{}\"", i, e);
+    std::size_t pos = 0;
+    unsigned long long frame = 0;
+    try {
+      frame = std::stoull(e, &pos);
+    } catch (const std::exception&) {
+      throw InputError(what + ": it must start with the frame number after which the change applies");
+    }
+    std::string rest = e.substr(pos);
+    std::size_t start = 0;
+    bool any = false;
+    while (start <= rest.size()) {
+      const std::size_t end = std::min(rest.find(';', start), rest.size());
+      std::string a = rest.substr(start, end - start);
+      a.erase(0, a.find_first_not_of(" \t"));
+      a.erase(a.find_last_not_of(" \t") + 1);
+      start = end + 1;
+      if (a.empty()) continue;
+      std::string key = a.substr(0, a.find('='));
+      key.erase(key.find_last_not_of(" \t") + 1);
+      const bool ok = std::find(allowed.begin(), allowed.end(), key) != allowed.end() ||
+                      key.rfind("render.shading.", 0) == 0 || key.rfind("render.tf.", 0) == 0;
+      if (!ok)
+        throw InputError(fmt::format("{}: \"{}\" cannot change during a run (view, shading, transfer function and "
+                                     "render.compositing can)",
+                                     what, key));
+      try {
+        schema.set(a);
+      } catch (const InputError& err) {
+        throw InputError(what + ": " + err.what());
+      }
+      any = true;
+    }
+    if (!any) throw InputError(what + ": no change given after the frame number");
+    out.push_back({frame, comm::makeControlState(cur.render, cur.shading, cur.tf), e});
+  }
+  return out;
+}
+
+struct GridPod {
+  std::int64_t dims[3];
+  double origin[3], spacing[3];
+};
+
+int runDistributed(const RunOptions& o) {
+  int provided = 0;
+  MPI_Init_thread(nullptr, nullptr, MPI_THREAD_FUNNELED, &provided);
+  int rank = 0, size = 1;
+  MPI_Comm_rank(MPI_COMM_WORLD, &rank);
+  MPI_Comm_size(MPI_COMM_WORLD, &size);
+  std::signal(SIGINT, onInterrupt);
+  std::signal(SIGTERM, onInterrupt);
+  std::signal(SIGUSR1, onInterrupt);  // what scripts/mpirun.sh turns Ctrl-C into (mpirun forwards it)
+  const char* role = "host";
+  Settings s;
+  ConfigSchema schema;
+  comm::RankLayout layout;
+  try {
+    registerAll(schema, s);
+    std::vector<std::string> overrides = o.overrides;
+    if (o.gps >= 0) overrides.push_back(fmt::format("parallel.gps={}", o.gps));
+    if (o.pps >= 0) overrides.push_back(fmt::format("parallel.pps={}", o.pps));
+    loadSettings(schema, o.file, overrides);
+    if (o.expectRanks > 0 && size != o.expectRanks)
+      throw InputError(fmt::format("--expect-ranks {}: the job has {} ranks (was it started by another MPI's "
+                                   "launcher?)",
+                                   o.expectRanks, size));
+    layout = comm::RankLayout::choose(size, s.parallel.gps, s.parallel.pps);
+    if (s.parallel.tileSize % 8 != 0)
+      throw InputError(fmt::format("parallel.tile_size = {}: use a multiple of 8", s.parallel.tileSize));
+  } catch (const std::exception& e) {
+    // Every rank reads the same configuration and fails the same way: one message.
+    if (rank == 0) comm::abortJob(rank, role, e.what());
+    MPI_Abort(MPI_COMM_WORLD, 1);
+    return 1;
+  }
+  role = comm::roleName(layout.role(rank));
+  int status = 0;
+  try {
+    comm::Transport t(MPI_COMM_WORLD, s.parallel.timeoutS);
+    const std::string dir = o.outDir.empty() ? s.output.dir : o.outDir;
+    host::Source src;
+    GridPod gp{};
+    if (rank == 0) {
+      makeOutputDir(dir);
+      src = s.run.source == "sequence" ? sequenceSource(s) : simulatorSource(s);
+      for (int a = 0; a < 3; ++a) {
+        gp.dims[a] = src.grid.dims[a];
+        gp.origin[a] = src.grid.origin[a];
+        gp.spacing[a] = src.grid.spacing[a];
+      }
+    }
+    MPI_Bcast(&gp, sizeof gp, MPI_BYTE, 0, MPI_COMM_WORLD);
+    Grid grid;
+    for (int a = 0; a < 3; ++a) {
+      grid.dims[a] = gp.dims[a];
+      grid.origin[a] = gp.origin[a];
+      grid.spacing[a] = gp.spacing[a];
+    }
+    switch (layout.role(rank)) {
+      case comm::Role::Host: {
+        host::HostJob j;
+        j.grid = grid;
+        j.pipeline = {s.recon, s.render, s.shading, s.tf, s.cache};
+        j.parallel = s.parallel;
+        j.layout = layout;
+        j.source = std::move(src);
+        j.preprocess = preprocessOf(s);
+        j.queueFrames = static_cast<std::size_t>(s.run.queueFrames);
+        j.drop = host::dropPolicyFromName(s.run.drop);
+        j.paceFps = s.run.paceFps;
+        j.script = parseScript(s);
+        j.outDir = dir;
+        j.buildupEvery = s.run.buildupEvery;
+        j.buildupFps = s.run.buildupFps;
+        j.orbitFrames = s.run.orbitFrames;
+        j.orbitFps = s.run.orbitFps;
+        j.mpr = s.run.mpr;
+        j.volume = s.run.volume;
+        j.verify = o.verify;
+        j.memoryLimitBytes = s.grid.memoryLimitBytes();
+        j.interrupt = &gInterrupted;
+        spdlog::info("run: {}; grid {}x{}x{} of {} mm; {}x{} image; {} ranks: 1 host, {} GP ({} partition), {} PP "
+                     "({} tiles of {} px), compositing on {}",
+                     j.source.description, grid.dims.x, grid.dims.y, grid.dims.z, grid.spacing.x, s.render.width,
+                     s.render.height, size, layout.gps, s.parallel.gpPartition, layout.pps, s.parallel.tileOwner,
+                     s.parallel.tileSize, s.parallel.compositeOn);
+        {
+          io::AtomicFile settingsFile((fs::path(dir) / "settings.toml").string());
+          settingsFile.write(schema.toToml());
+          settingsFile.commit();
+        }
+        status = host::runHostRank(t, j);
+        break;
+      }
+      case comm::Role::Gp: {
+        gp::GpRankConfig c{grid, s.recon, s.render, s.shading, s.tf, s.parallel, layout, s.grid.memoryLimitBytes()};
+        gp::runGpRank(t, c);
+        break;
+      }
+      case comm::Role::Pp: {
+        pp::PpRankConfig c{grid, s.render, s.shading, s.tf, s.cache, s.parallel, layout};
+        pp::runPpRank(t, c);
+        break;
+      }
+    }
+  } catch (const std::exception& e) {
+    comm::abortJob(rank, role, e.what());
+  }
+  MPI_Finalize();
+  return status;
+}
+
+int runCommand(const RunOptions& o) {
+  if (o.serial || !comm::launchedByMpi()) {
+    if (o.verify) throw InputError("--verify compares the distributed pipeline with the serial one; run it under mpirun");
+    if (o.expectRanks > 1)
+      throw InputError(fmt::format("--expect-ranks {}: this process was not started by mpirun", o.expectRanks));
+    return runSerial(o);
+  }
+  return runDistributed(o);
+}
+
 }  // namespace
 
 void addRunCommand(CLI::App& app, int& exitCode) {
@@ -209,6 +413,12 @@ void addRunCommand(CLI::App& app, int& exitCode) {
   cmd->add_option("-o,--output", o->outDir, "Output folder (default: output.dir)");
   cmd->add_option("--set", o->overrides, "Override an option: key=value (repeatable)");
   cmd->add_flag("--serial", o->serial, "Run the single-process pipeline (what runs without mpirun)");
+  cmd->add_option("--gps", o->gps, "Graphics processors (overrides parallel.gps)");
+  cmd->add_option("--pps", o->pps, "Pixel processors (overrides parallel.pps)");
+  cmd->add_flag("--verify", o->verify,
+                "Under mpirun: also run the serial pipeline on the host and require every image to be bitwise equal "
+                "(needs parallel.composite_on = \"lockstep\")");
+  cmd->add_option("--expect-ranks", o->expectRanks, "Refuse to run unless the job has exactly this many ranks");
   cmd->callback([o, &exitCode] { exitCode = runCommand(*o); });
 }
 

@@ -23,6 +23,7 @@ int main(int argc, char** argv) {
   pp5::app::addReconstructCommand(app, exitCode);
   pp5::app::addEvaluateCommand(app, exitCode);
   pp5::app::addRunCommand(app, exitCode);
+  pp5::app::addBenchCommand(app, exitCode);
 
   try {
     app.parse(argc, argv);

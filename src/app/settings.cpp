@@ -47,6 +47,25 @@ void registerAll(ConfigSchema& schema, Settings& s) {
   schema.option("run.mpr", &s.run.mpr, true,
                 "Write three orthogonal slices through the final volume's centre (`mpr_axial.png`, ...).");
   schema.option("run.volume", &s.run.volume, true, "Write the final reconstructed volume (`volume.mha`, 8 bit).");
+  schema.option("run.script", &s.run.script, {},
+                "Control changes by frame (distributed run): each entry is \"AFTER_FRAME key = value; key = value\", "
+                "with keys among render.azimuth_deg, elevation_deg, distance, projection, fov_deg, compositing (the "
+                "first is live), render.shading.* and render.tf.*; e.g. \"40 render.azimuth_deg = 0\".");
+  schema.option("run.crop_origin", &s.run.cropOrigin, {0, 0}, 0, 100000,
+                "Host preprocessing: the first column and row of the crop, pixels.");
+  schema.option("run.crop_size", &s.run.cropSize, {0, 0}, 0, 100000,
+                "Host preprocessing: crop each frame to this width and height, pixels; 0 0 = no crop.");
+  schema.option("run.subsample", &s.run.subsample, 1, 1, 64,
+                "Host preprocessing: after the crop, keep the mean of each n x n block of pixels.");
+  schema.option("run.pace_fps", &s.run.paceFps, 0.0, 0.0, 10000.0,
+                "Deliver the source's frames at this rate, as a live scanner would (0 = as fast as the pipeline "
+                "takes them); a paced source that falls behind drops frames (`run.drop`).");
+  schema.option("run.queue_frames", &s.run.queueFrames, 8, 1, 100000,
+                "Frames the acquisition thread may queue ahead of the pipeline.");
+  schema.choice("run.drop", &s.run.drop, "oldest", {"oldest", "newest"},
+                "A live source's queue is full: drop the oldest queued frame, or the new one. Drops are counted.");
+
+  comm::registerOptions(schema, s.parallel);
 
   schema.section("output", "Where results are written.");
   schema.option("output.dir", &s.output.dir, "out/doll", "Output folder, unless the command line gives `-o`.");

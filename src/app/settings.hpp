@@ -6,6 +6,7 @@
 
 #include "core/config.hpp"
 #include "core/grid.hpp"
+#include "comm/parallel_settings.hpp"
 #include "core/render_settings.hpp"
 #include "core/transfer_function.hpp"
 #include "gp/reconstruction.hpp"
@@ -52,6 +53,17 @@ struct RunSettings {
   double orbitFps = 12.0;
   bool mpr = true;                   // three orthogonal slices through the volume
   bool volume = true;                // the reconstructed volume as .mha
+  // Scripted control changes: "AFTER_FRAME key = value; key = value".
+  std::vector<std::string> script;
+  // Preprocessing on the host: crop (size 0 0 = none), then subsample.
+  glm::ivec2 cropOrigin{0, 0};
+  glm::ivec2 cropSize{0, 0};
+  int subsample = 1;
+  // Acquisition: pace_fps > 0 delivers frames at that rate like a live scanner,
+  // dropping by `drop` when the pipeline falls behind.
+  double paceFps = 0.0;
+  int queueFrames = 8;
+  std::string drop = "oldest";
 };
 
 struct Settings {
@@ -63,6 +75,7 @@ struct Settings {
   TransferFunctionSettings tf;
   pp::RayCacheSettings cache;
   RunSettings run;
+  comm::ParallelSettings parallel;
   OutputSettings output;
 };
 

@@ -255,6 +255,24 @@ void ConfigSchema::choices(const std::string& key, std::vector<std::string>* fie
        [=] { return formatStrings(*field); }});
 }
 
+void ConfigSchema::option(const std::string& key, std::vector<std::string>* field, const std::vector<std::string>& def,
+                          const std::string& doc) {
+  add({key, "list of strings", formatStrings(def), "", doc, [=] { *field = def; },
+       [=](const toml::node& n) -> std::string {
+         const auto* arr = n.as_array();
+         if (!arr) return "must be an array of strings";
+         std::vector<std::string> v;
+         for (std::size_t i = 0; i < arr->size(); ++i) {
+           const auto* str = arr->get(i)->as_string();
+           if (!str) return fmt::format("element {} must be a string", i);
+           v.push_back(str->get());
+         }
+         *field = std::move(v);
+         return "";
+       },
+       [=] { return formatStrings(*field); }});
+}
+
 void ConfigSchema::option(const std::string& key, glm::ivec2* field, glm::ivec2 def, int lo, int hi,
                           const std::string& doc) {
   add({key, "[int, int]", formatArray(&def[0], 2, fmtI), fmt::format("each {} .. {}", lo, hi), doc,

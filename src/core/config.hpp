@@ -50,6 +50,10 @@ public:
   void choices(const std::string& key, std::vector<std::string>* field, const std::vector<std::string>& def,
                const std::vector<std::string>& choices, const std::string& doc);
 
+  // A list of strings, possibly empty: ["40 render.azimuth_deg = 30", ...].
+  void option(const std::string& key, std::vector<std::string>* field, const std::vector<std::string>& def,
+              const std::string& doc);
+
   // Sets every field to its default.
   void applyDefaults() const;
   // Parses a TOML file over the current values. Unknown keys, wrong types and

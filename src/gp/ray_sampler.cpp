@@ -584,12 +584,176 @@ struct TileGrid {
 constexpr int kBrickShift = 3;
 static_assert(EmptySpaceMap::kBrickCells == 1 << kBrickShift);
 
+// The work tiles to sample: all of them (`list` empty, `all` true), or the
+// ones options.workTiles selects, in ascending order.
+struct TileSelection {
+  bool all = true;
+  std::vector<std::uint32_t> list;
+  TileSelection(const TileGrid& tiles, const std::vector<std::uint8_t>& mask) {
+    if (mask.empty()) return;
+    PP5_CHECK_EQ(mask.size(), static_cast<std::size_t>(tiles.count()));
+    all = false;
+    for (std::uint32_t t = 0; t < tiles.count(); ++t)
+      if (mask[t] != 0) list.push_back(t);
+  }
+};
+
+// The smallest k in [a, b] with pred(k) false (b + 1 when there is none), for
+// a pred that is true up to some k and false from there on. It gallops up
+// from a and then bisects, so a boundary near a costs a call or two.
+template <class P>
+std::int64_t firstFalse(const P& pred, std::int64_t a, std::int64_t b) {
+  if (a > b || !pred(a)) return a;
+  std::int64_t lo = a, hi = b + 1;  // pred(lo) is true; hi is false or past b
+  for (std::int64_t step = 1; lo + step <= b; step *= 2) {
+    if (!pred(lo + step)) {
+      hi = lo + step;
+      break;
+    }
+    lo += step;
+  }
+  while (hi - lo > 1) {
+    const std::int64_t m = lo + (hi - lo) / 2;
+    (pred(m) ? lo : hi) = m;
+  }
+  return hi;
+}
+
+// SamplerOptions::ownedCells for one call: a conservative clip of a ray to
+// the box, and the exact run of the ray's samples whose cell is in it.
+class OwnedCells {
+public:
+  OwnedCells(const Box3& cells, const Index3& cellDims)
+      : box_{glm::max(cells.lo, Index3(0)), glm::min(cells.hi, cellDims)} {
+    const double inf = std::numeric_limits<double>::infinity();
+    for (int a = 0; a < 3; ++a) {
+      // A cell on a face of the grid also takes the points beyond the face
+      // (the cell index is clamped), so the bound goes to infinity there.
+      lo_[a] = box_.lo[a] <= 0 ? -inf : static_cast<double>(box_.lo[a]) - kSkipMarginVoxels;
+      hi_[a] = box_.hi[a] >= cellDims[a] ? inf : static_cast<double>(box_.hi[a]) + kSkipMarginVoxels;
+    }
+  }
+  const Box3& box() const { return box_; }
+  bool empty() const { return box_.empty(); }
+  // The points that can have their cell in the box: [lo, hi] in voxel
+  // coordinates, per axis.
+  double lo(int a) const { return lo_[a]; }
+  double hi(int a) const { return hi_[a]; }
+
+  // Narrows [k0, k1], a range of samples of `vr` that holds all of its owned
+  // samples in it, to exactly the owned ones; false when there are none. Along
+  // the ray each axis' cell is monotone in k (VoxelRay::at rounds
+  // monotonically), so the owned samples are one run: the first sample past
+  // the box's near faces, up to the last one before its far faces.
+  bool exact(const Interpolator& interp, const VoxelRay& vr, std::int64_t& k0, std::int64_t& k1) const {
+    if (k0 > k1) return false;
+    int side[3];
+    for (int a = 0; a < 3; ++a) {
+      side[a] = vr.delta[a] > 0.0f ? 1 : (vr.delta[a] < 0.0f ? -1 : 0);
+      if (side[a] == 0) {  // one cell along this axis for the whole ray
+        const std::int64_t c = interp.cellAxis(vr, static_cast<std::uint32_t>(k0), a);
+        if (c < box_.lo[a] || c >= box_.hi[a]) return false;
+      }
+    }
+    auto cell = [&](std::int64_t k, int a) -> std::int64_t {
+      return interp.cellAxis(vr, static_cast<std::uint32_t>(k), a);
+    };
+    // Not yet in the box along some axis / already past it along some axis.
+    auto before = [&](std::int64_t k) {
+      for (int a = 0; a < 3; ++a)
+        if (side[a] > 0 ? cell(k, a) < box_.lo[a] : (side[a] < 0 && cell(k, a) >= box_.hi[a])) return true;
+      return false;
+    };
+    auto past = [&](std::int64_t k) {
+      for (int a = 0; a < 3; ++a)
+        if (side[a] > 0 ? cell(k, a) >= box_.hi[a] : (side[a] < 0 && cell(k, a) < box_.lo[a])) return true;
+      return false;
+    };
+    const std::int64_t first = firstFalse(before, k0, k1);
+    if (first > k1) return false;
+    const std::int64_t last = k1 - firstFalse([&](std::int64_t j) { return past(k1 - j); }, 0, k1 - first);
+    if (last < first) return false;
+    k0 = first;
+    k1 = last;
+    return true;
+  }
+
+private:
+  Box3 box_;
+  double lo_[3], hi_[3];
+};
+
+// The visible samples of a ray's samples k .. kEnd into the stage: jumps
+// over empty cubes, and samples four at a time in visible bricks. Inlined
+// into each caller, so each gets the code for its own range.
+[[gnu::always_inline]] inline void walkVisible(const Interpolator& interp, const VoxelRay& vr, const BrickJump& jump,
+                                               const std::uint8_t* dist, const Index3& bd, std::uint32_t k,
+                                               const std::uint32_t kEnd, RayStage& stage) {
+  Cells4 c, next;
+  Interpolator::Voxels vox{};
+  std::int64_t loaded = -1;
+  while (k <= kEnd) {
+    const int b[3] = {interp.cellAxis(vr, k, 0) >> kBrickShift, interp.cellAxis(vr, k, 1) >> kBrickShift,
+                      interp.cellAxis(vr, k, 2) >> kBrickShift};
+    const int d = dist[(static_cast<std::int64_t>(b[2]) * bd.y + b[1]) * bd.x + b[0]];
+    if (d > 0) {  // in an empty cube: no sample of a visible brick is skipped
+      k = jump.next(b, d, k, kEnd);
+      continue;
+    }
+    // A visible brick: sample four at a time until a group starts in an
+    // empty brick. The next group is located one ahead, so that its voxels
+    // can be fetched while this one is interpolated.
+    interp.locate4(vr, k, c);
+    for (std::uint32_t g = k;; g += 4) {
+      if (g + 4 <= kEnd) {
+        interp.locate4(vr, g + 4, next);
+        interp.prefetch(next);
+      }
+      const int lanes = static_cast<int>(std::min<std::uint32_t>(4, kEnd - g + 1));
+      for (int l = 0; l < lanes; ++l) {
+        const std::int64_t idx = interp.index(c, l);
+        if (idx != loaded) {
+          interp.load(idx, vox);
+          loaded = idx;
+        }
+        float* rgba = stage.slot();
+        Interpolator::blend(vox, c, l, rgba);
+        if (rgba[3] > 0.0f) stage.commit(g + static_cast<std::uint32_t>(l));
+      }
+      if (g + 4 > kEnd) {
+        k = g + 4;
+        break;
+      }
+      std::swap(c, next);
+      if (dist[(static_cast<std::int64_t>(c.i[2][0] >> kBrickShift) * bd.y + (c.i[1][0] >> kBrickShift)) * bd.x +
+               (c.i[0][0] >> kBrickShift)] != 0) {
+        k = g + 4;
+        break;
+      }
+    }
+  }
+}
+
 }  // namespace
+
+std::uint32_t workTileCount(int width, int height, int tileSize) {
+  PP5_CHECK_GE(width, 0);
+  PP5_CHECK_GE(height, 0);
+  return TileGrid(width, height, tileSize).count();
+}
 
 void sampleAll(const ShadeBuffer& shade, const SampleLattice& lattice, const RenderSettings& settings,
                SampleSink& sink, const EmptySpaceMap* space, const SamplerOptions& options) {
   checkSameGrid(shade.grid(), lattice.grid());
   PP5_CHECK_GT(options.batchSamples, std::size_t{0});
+  const int W = lattice.width(), H = lattice.height();
+  const TileGrid tiles(W, H, options.tileSize);
+  const TileSelection selection(tiles, options.workTiles);
+  const std::int64_t workCount =
+      selection.all ? static_cast<std::int64_t>(tiles.count()) : static_cast<std::int64_t>(selection.list.size());
+  std::optional<OwnedCells> owned;
+  if (options.ownedCells) owned.emplace(*options.ownedCells, lattice.grid().dims - Index3(1));
+  if (workCount == 0 || (owned && owned->empty())) return;
   EmptySpaceMap own;
   if (!space) {
     own = EmptySpaceMap(shade, settings.threads);
@@ -602,16 +766,33 @@ void sampleAll(const ShadeBuffer& shade, const SampleLattice& lattice, const Ren
   const Index3 bd = space->brickDims();
   const Box3 occupied = space->occupiedCells();
   if (occupied.empty()) return;
-  const int W = lattice.width(), H = lattice.height();
-  const TileGrid tiles(W, H, options.tileSize);
-  const int nt = std::min<int>(threadCount(settings.threads), static_cast<int>(tiles.count()));
+  // A visible sample's cell is in the visible bricks' bounds: where those
+  // miss the owned cells, every owned sample is transparent.
+  if (owned && owned->box().intersect(occupied).empty()) return;
+  // Where a ray is walked: the visible bricks' bounds grown by the margin,
+  // and with ownedCells the part of it that can hold an owned cell. (The two
+  // boxes meet, so the clip below gives the intersection of their ranges.)
+  double clipLo[3], clipHi[3];
+  for (int a = 0; a < 3; ++a) {
+    clipLo[a] = occupied.lo[a] - kSkipMarginVoxels;
+    clipHi[a] = occupied.hi[a] + kSkipMarginVoxels;
+    if (owned) {
+      clipLo[a] = std::max(clipLo[a], owned->lo(a));
+      clipHi[a] = std::min(clipHi[a], owned->hi(a));
+    }
+  }
+  const int nt = static_cast<int>(std::min<std::int64_t>(threadCount(settings.threads), workCount));
 
 #pragma omp parallel num_threads(nt)
   {
     Batcher out(sink, omp_get_thread_num(), options.batchSamples);
     RayStage stage(lattice.maxSamples(), e);
+    // This thread's copies: the walk reads them for every ray.
+    const OwnedCells* const mine = owned ? &*owned : nullptr;
+    const double lo[3] = {clipLo[0], clipLo[1], clipLo[2]}, hi[3] = {clipHi[0], clipHi[1], clipHi[2]};
 #pragma omp for schedule(dynamic, 1)
-    for (std::int64_t t = 0; t < static_cast<std::int64_t>(tiles.count()); ++t) {
+    for (std::int64_t w = 0; w < workCount; ++w) {
+      const std::int64_t t = selection.all ? w : selection.list[static_cast<std::size_t>(w)];
       out.startTile(static_cast<std::uint32_t>(t));
       const int x0 = static_cast<int>(t % tiles.nx) * tiles.size, y0 = static_cast<int>(t / tiles.nx) * tiles.size;
       const int x1 = std::min(W, x0 + tiles.size), y1 = std::min(H, y0 + tiles.size);
@@ -622,67 +803,32 @@ void sampleAll(const ShadeBuffer& shade, const SampleLattice& lattice, const Ren
           if (n == 0) continue;
           const VoxelRay vr = lattice.voxelRay(pixel);
           // Only the part of the ray inside the visible bricks' bounds (grown
-          // by the margin) can have a visible sample.
+          // by the margin) can have a visible sample; with ownedCells, only
+          // its part in the owned box (grown likewise) an owned one.
           double kIn = 0.0, kOut = static_cast<double>(n - 1);
           const BrickJump jump(vr);
           const double* inv = jump.inv;
           for (int a = 0; a < 3; ++a) {
             const double b0 = vr.base[a], dl = vr.delta[a];
-            const double lo = occupied.lo[a] - kSkipMarginVoxels, hi = occupied.hi[a] + kSkipMarginVoxels;
             if (dl == 0.0) {
-              if (b0 < lo || b0 > hi) kOut = -1.0;
+              if (b0 < lo[a] || b0 > hi[a]) kOut = -1.0;
               continue;
             }
-            const double t0 = (lo - b0) * inv[a], t1 = (hi - b0) * inv[a];
+            const double t0 = (lo[a] - b0) * inv[a], t1 = (hi[a] - b0) * inv[a];
             kIn = std::max(kIn, std::min(t0, t1));
             kOut = std::min(kOut, std::max(t0, t1));
           }
           if (!(kOut >= kIn)) continue;
-          std::uint32_t k = static_cast<std::uint32_t>(std::ceil(kIn));
+          const std::uint32_t k = static_cast<std::uint32_t>(std::ceil(kIn));
           const std::uint32_t kEnd = static_cast<std::uint32_t>(kOut);  // floor: kOut >= 0
           if (k > kEnd) continue;
-          Cells4 c, next;
-          Interpolator::Voxels vox{};
-          std::int64_t loaded = -1;
-          while (k <= kEnd) {
-            const int b[3] = {interp.cellAxis(vr, k, 0) >> kBrickShift, interp.cellAxis(vr, k, 1) >> kBrickShift,
-                              interp.cellAxis(vr, k, 2) >> kBrickShift};
-            const int d = dist[(static_cast<std::int64_t>(b[2]) * bd.y + b[1]) * bd.x + b[0]];
-            if (d > 0) {  // in an empty cube: no sample of a visible brick is skipped
-              k = jump.next(b, d, k, kEnd);
-              continue;
-            }
-            // A visible brick: sample four at a time until a group starts in
-            // an empty brick. The next group is located one ahead, so that
-            // its voxels can be fetched while this one is interpolated.
-            interp.locate4(vr, k, c);
-            for (std::uint32_t g = k;; g += 4) {
-              if (g + 4 <= kEnd) {
-                interp.locate4(vr, g + 4, next);
-                interp.prefetch(next);
-              }
-              const int lanes = static_cast<int>(std::min<std::uint32_t>(4, kEnd - g + 1));
-              for (int l = 0; l < lanes; ++l) {
-                const std::int64_t idx = interp.index(c, l);
-                if (idx != loaded) {
-                  interp.load(idx, vox);
-                  loaded = idx;
-                }
-                float* rgba = stage.slot();
-                Interpolator::blend(vox, c, l, rgba);
-                if (rgba[3] > 0.0f) stage.commit(g + static_cast<std::uint32_t>(l));
-              }
-              if (g + 4 > kEnd) {
-                k = g + 4;
-                break;
-              }
-              std::swap(c, next);
-              if (dist[(static_cast<std::int64_t>(c.i[2][0] >> kBrickShift) * bd.y + (c.i[1][0] >> kBrickShift)) * bd.x +
-                       (c.i[0][0] >> kBrickShift)] != 0) {
-                k = g + 4;
-                break;
-              }
-            }
+          if (mine) {  // the clip was conservative: now the exact cells
+            std::int64_t k0 = k, k1 = kEnd;
+            if (mine->exact(interp, vr, k0, k1))
+              walkVisible(interp, vr, jump, dist, bd, static_cast<std::uint32_t>(k0), static_cast<std::uint32_t>(k1),
+                          stage);
+          } else {
+            walkVisible(interp, vr, jump, dist, bd, k, kEnd, stage);
           }
           stage.emit(pixel, out);
         }
@@ -711,26 +857,37 @@ void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const 
   const Index3 bd = space ? space->brickDims() : Index3(0);
   const int W = lattice.width(), H = lattice.height();
   const TileGrid tiles(W, H, options.tileSize);
+  const TileSelection selection(tiles, options.workTiles);
+  std::optional<OwnedCells> owned;
+  if (options.ownedCells) owned.emplace(*options.ownedCells, lattice.grid().dims - Index3(1));
+  if (owned && owned->empty()) return;
 
-  // The touched pixels by tile (a counting sort keeps each tile's pixels in
-  // the D-buffer's ascending order).
+  // The touched pixels of the selected tiles, by tile (a counting sort keeps
+  // each tile's pixels in the D-buffer's ascending order).
   const auto touched = dbuffer.touched();
   auto tileOf = [&](std::uint32_t p) {
     const std::uint32_t x = p % static_cast<std::uint32_t>(W), y = p / static_cast<std::uint32_t>(W);
     return (y / static_cast<std::uint32_t>(tiles.size)) * static_cast<std::uint32_t>(tiles.nx) +
            x / static_cast<std::uint32_t>(tiles.size);
   };
+  const std::uint8_t* mask = selection.all ? nullptr : options.workTiles.data();
   std::vector<std::uint32_t> start(tiles.count() + 1, 0);
-  for (const auto p : touched) ++start[tileOf(p) + 1];
+  for (const auto p : touched) {
+    const std::uint32_t t = tileOf(p);
+    if (!mask || mask[t] != 0) ++start[t + 1];
+  }
   std::vector<std::uint32_t> work;
   for (std::uint32_t t = 0; t < tiles.count(); ++t) {
     if (start[t + 1] > 0) work.push_back(t);
     start[t + 1] += start[t];
   }
-  std::vector<std::uint32_t> order(touched.size());
+  std::vector<std::uint32_t> order(start.back());
   {
     std::vector<std::uint32_t> pos(start.begin(), start.end() - 1);
-    for (const auto p : touched) order[pos[tileOf(p)]++] = p;
+    for (const auto p : touched) {
+      const std::uint32_t t = tileOf(p);
+      if (!mask || mask[t] != 0) order[pos[t]++] = p;
+    }
   }
   const double invStep = 1.0 / lattice.step();
   const int nt = std::max(1, std::min<int>(threadCount(settings.threads), static_cast<int>(work.size())));
@@ -739,6 +896,7 @@ void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const 
   {
     Batcher out(sink, omp_get_thread_num(), options.batchSamples);
     RayStage stage(lattice.maxSamples(), e);
+    const OwnedCells* const mine = owned ? &*owned : nullptr;  // this thread's copy
 #pragma omp for schedule(dynamic, 1)
     for (std::int64_t w = 0; w < static_cast<std::int64_t>(work.size()); ++w) {
       const std::uint32_t t = work[static_cast<std::size_t>(w)];
@@ -748,6 +906,26 @@ void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const 
         const std::int64_t n = lattice.count(pixel);
         if (n == 0) continue;
         const VoxelRay vr = lattice.voxelRay(pixel);
+        // The ray's owned samples, [own0, own1] (all of them without ownedCells).
+        std::int64_t own0 = 0, own1 = n - 1;
+        if (mine) {
+          double kIn = 0.0, kOut = static_cast<double>(n - 1);
+          for (int a = 0; a < 3; ++a) {
+            const double b0 = vr.base[a], dl = vr.delta[a];
+            if (dl == 0.0) {
+              if (b0 < mine->lo(a) || b0 > mine->hi(a)) kOut = -1.0;
+              continue;
+            }
+            const double inv = 1.0 / dl;
+            const double ta = (mine->lo(a) - b0) * inv, tb = (mine->hi(a) - b0) * inv;
+            kIn = std::max(kIn, std::min(ta, tb));
+            kOut = std::min(kOut, std::max(ta, tb));
+          }
+          if (!(kOut >= kIn)) continue;
+          own0 = static_cast<std::int64_t>(std::ceil(kIn));
+          own1 = static_cast<std::int64_t>(kOut);  // floor: kOut >= 0
+          if (!mine->exact(interp, vr, own0, own1)) continue;
+        }
         const double t0 = lattice.t0(pixel);
         std::int64_t done = -1;  // spans are disjoint, but rounding must not repeat a sample
         Cells4 c, next;
@@ -760,20 +938,28 @@ void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const 
           if (hiK < 0.0) continue;
           const std::int64_t k1 = std::min<std::int64_t>(n - 1, static_cast<std::int64_t>(std::min(hiK, 65535.0)));
           if (k0 > k1) continue;
+          // The owned part of the span: which samples of it are emitted does
+          // not depend on where the walk starts, so this is the unrestricted
+          // output filtered.
+          const std::int64_t s0 = std::max(k0, own0), s1 = std::min(k1, own1);
+          if (s0 > s1) {
+            done = std::max(done, k1);
+            continue;
+          }
           if (distBefore) {
             // Water around the object is empty in both maps: jump over the
             // cube of bricks both know to be empty (as sampleAll does), and
             // sample the rest one at a time.
             const BrickJump jump(vr);
-            std::int64_t k = k0;
-            while (k <= k1) {
+            std::int64_t k = s0;
+            while (k <= s1) {
               const auto ku = static_cast<std::uint32_t>(k);
               const int b[3] = {interp.cellAxis(vr, ku, 0) >> kBrickShift, interp.cellAxis(vr, ku, 1) >> kBrickShift,
                                 interp.cellAxis(vr, ku, 2) >> kBrickShift};
               const auto brick = static_cast<std::size_t>((static_cast<std::int64_t>(b[2]) * bd.y + b[1]) * bd.x + b[0]);
               const int d = std::min<int>(dist[brick], distBefore[brick]);
               if (d > 0) {
-                k = jump.next(b, d, k, k1);
+                k = jump.next(b, d, k, s1);
                 continue;
               }
               float* rgba = stage.slot();
@@ -789,13 +975,13 @@ void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const 
             done = std::max(done, k1);
             continue;
           }
-          interp.locate4(vr, static_cast<std::uint32_t>(k0), c);
-          for (std::int64_t g = k0; g <= k1; g += 4) {
-            if (g + 4 <= k1) {
+          interp.locate4(vr, static_cast<std::uint32_t>(s0), c);
+          for (std::int64_t g = s0; g <= s1; g += 4) {
+            if (g + 4 <= s1) {
               interp.locate4(vr, static_cast<std::uint32_t>(g + 4), next);
               interp.prefetch(next);
             }
-            const int lanes = static_cast<int>(std::min<std::int64_t>(4, k1 - g + 1));
+            const int lanes = static_cast<int>(std::min<std::int64_t>(4, s1 - g + 1));
             for (int l = 0; l < lanes; ++l) {
               float* rgba = stage.slot();
               const std::size_t brick =

@@ -49,9 +49,32 @@
 // most batchSamples. Batches of different tiles arrive from several threads
 // at once, in no fixed order; each batch's contents are fixed. A sink that
 // needs a fixed overall order sorts by tile (SampleCollector does).
+//
+// A GP's share (design brief, "Two GP partitionings"): SamplerOptions can
+// restrict both functions to the samples one GP owns, and the restricted
+// output is exactly the unrestricted output filtered by the ownership test,
+// bit for bit, so a partition of the cells or of the work tiles emits every
+// sample once, with the same bits as one unrestricted call.
+//  - ownedCells (slab): the samples whose stencil cell (stencilCell()) lies in
+//    a box of cells. The test is the exact cell of the interpolation path,
+//    not geometry: along a ray each axis' cell is a monotone function of k
+//    (p = base + float(k) * delta rounds monotonically), so the owned samples
+//    of a ray are one run of k. A ray is first clipped to the owned box grown
+//    by the skip margin (outwards to infinity on a face of the grid, where the
+//    cell is clamped) and intersected with the visible bricks' bounds, a
+//    conservative range; the run's ends are then found in it by the exact
+//    cell test (a galloping search, usually a sample or two), so a GP walks
+//    no ray through other GPs' cells.
+//  - workTiles (tile): only the work tiles with a non-zero mask entry; the
+//    others cost nothing. A GP that owns screen tiles of the PP's size marks
+//    the work tiles inside them (the work tile divides the PP's tile).
+// The two combine (a sample must pass both). Batches keep their form: a
+// batch still belongs to one work tile, in the same order as before, with
+// the samples of other owners left out.
 #include <cstdint>
 #include <functional>
 #include <mutex>
+#include <optional>
 #include <span>
 #include <vector>
 
@@ -152,21 +175,36 @@ private:
 struct SamplerOptions {
   int tileSize = 32;                 // pixels per side of a work tile
   std::size_t batchSamples = 4096;   // most samples per consume(); keeps a batch in cache
+  // Only the samples whose stencil cell (stencilCell()) lies in this half-open
+  // box of cells (cell c: voxels c .. c + 1; cells 0 .. dims - 2 per axis, the
+  // box is clipped to them); unset = all. Partitioning the cells partitions
+  // the samples.
+  std::optional<Box3> ownedCells;
+  // Only the work tiles whose entry is non-zero: row-major over the image's
+  // work tiles, ceil(width / tileSize) * ceil(height / tileSize) entries
+  // (workTileCount()); empty = all.
+  std::vector<std::uint8_t> workTiles;
 };
 
-// Every sample with a > 0 of every ray; threads from settings.threads.
-// `space`: the shade buffer's empty-space map, built here when null.
+// The work tiles of a width x height image: ceil(width / tileSize) per row,
+// rows top to bottom; the size of SamplerOptions::workTiles.
+std::uint32_t workTileCount(int width, int height, int tileSize);
+
+// Every sample with a > 0 of every ray (of the share options.ownedCells and
+// options.workTiles select); threads from settings.threads. `space`: the
+// shade buffer's empty-space map, built here when null.
 void sampleAll(const ShadeBuffer& shade, const SampleLattice& lattice, const RenderSettings& settings,
                SampleSink& sink, const EmptySpaceMap* space = nullptr, const SamplerOptions& options = {});
 
 // Every lattice sample inside the D-buffer's spans (t_k in [t_in, t_out]),
-// transparent ones included. `space` (optional) only saves the interpolation
-// of samples it knows are transparent. `before` (optional, with `space`): the
-// map of the shade buffer before this update; a sample that both maps know
-// to be transparent was 0 and stays 0, so it is not emitted at all. That is
-// exact only when the receiving cache holds every sample of the previous
-// shade buffer (the incremental pipeline's invariant): water around an
-// object then costs nothing to re-sample.
+// transparent ones included (of the share the options select). `space`
+// (optional) only saves the interpolation of samples it knows are
+// transparent. `before` (optional, with `space`): the map of the shade
+// buffer before this update; a sample that both maps know to be transparent
+// was 0 and stays 0, so it is not emitted at all. That is exact only when the
+// receiving cache holds every sample of the previous shade buffer (the
+// incremental pipeline's invariant): water around an object then costs
+// nothing to re-sample.
 void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const DBuffer& dbuffer,
                   const RenderSettings& settings, SampleSink& sink, const EmptySpaceMap* space = nullptr,
                   const SamplerOptions& options = {}, const EmptySpaceMap* before = nullptr);
@@ -175,7 +213,8 @@ void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const 
 RaySample sampleAt(const ShadeBuffer& shade, const SampleLattice& lattice, const RenderSettings& settings,
                    std::uint32_t pixel, std::uint32_t k);
 
-// The voxel cell (its lowest corner) whose 8 voxels sample k of `pixel` reads.
+// The voxel cell (its lowest corner) whose 8 voxels sample k of `pixel` reads:
+// the cell SamplerOptions::ownedCells tests, by the sampler's arithmetic.
 Index3 stencilCell(const SampleLattice& lattice, std::uint32_t pixel, std::uint32_t k);
 
 // 1 - (1 - a)^e for a in [0, 1], e > 0: the opacity correction, as the

@@ -6,6 +6,7 @@
 
 #include "core/config.hpp"
 #include "core/error.hpp"
+#include "gp/hole_fill.hpp"
 #include "gp/splat_pixel.hpp"
 #include "gp/splat_tent.hpp"
 
@@ -121,6 +122,35 @@ ReconSettings fromPlus(const PlusVolumeReconstruction& v) {
   s.fillHoles = v.fillHoles;
   s.holeFilling = v.holeFilling;
   return s;
+}
+
+Reconstructor::Reconstructor(const Grid& g, const ReconSettings& s) : grid_(g), settings_(s) {
+  window_ = reach_ = Box3{Index3(0), g.dims};
+}
+
+void Reconstructor::setWindow(const Box3& window) {
+  window_ = window.intersect(Box3{Index3(0), grid_.dims});
+  if (window_.empty()) window_ = Box3{};  // one spelling of "nothing"
+  reach_ = reconstructionReach(grid_, settings_, window);
+  windowed_ = !(window_ == Box3{Index3(0), grid_.dims});
+}
+
+Box3 reconstructionReach(const Grid& g, const ReconSettings& s, const Box3& window) {
+  const Box3 all{Index3(0), g.dims};
+  Box3 w = window.intersect(all);
+  if (w.empty()) return Box3{};
+  if (s.methodEnum() == Method::Tent) {
+    if (s.replacementEnum() == Replacement::MotionVector) {
+      const std::int64_t b = std::max(1, s.motionVectorBrick);
+      w.lo = w.lo / Index3(b) * Index3(b);  // lo >= 0: division rounds down
+      w.hi = (w.hi + Index3(b - 1)) / Index3(b) * Index3(b);
+    }
+  } else if (s.fillHoles) {
+    const HoleFiller filler(s.holeFilling.empty() ? HoleFiller::defaultElements() : s.holeFilling,
+                            s.arithmeticEnum() == Arithmetic::Plus);
+    w = w.grown(filler.reach());
+  }
+  return w.intersect(all);
 }
 
 std::unique_ptr<Reconstructor> makeReconstructor(const Grid& g, const ReconSettings& s,

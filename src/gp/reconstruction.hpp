@@ -107,6 +107,46 @@ public:
   // fill_holes_incremental = false). Idempotent.
   virtual void finish() {}
 
+  // ---- Windowed reconstruction (the `slab` partitioning: a GP keeps only its brick and ghosts exact) ----
+  //
+  // Restricts the work to `window` (voxels, clipped to the grid); call before the first frame (InvariantError
+  // otherwise). Afterwards output() and weights() equal an unrestricted reconstructor's, bitwise, at every voxel
+  // of the window, for any sequence of insert/advance/restorePrevious calls that obeys the rules below; voxels
+  // outside it may hold anything. The dirty region returned by insert covers every voxel of the window whose
+  // output changed (it may reach outside).
+  //
+  // The rule: a frame must go to insert() when its splat, or the fill-in between it and the previous frame,
+  // reaches a voxel of reach() (the window as the method needs it, see reconstructionReach) with a nonzero
+  // weight; any other frame may go to advance(). The host's test is geometric and conservative: the support
+  // slabs of the frame and of the fill-in slices (the pixel rectangle grown by the kernel's half-widths, the
+  // tent's dirty region) against the box reach(). (Diffing output() and weights() of a reference run is not
+  // quite enough: a weight lost to float rounding, or a motion-vector rebase, changes the state invisibly.)
+  //
+  // tent: splats only the voxels of reach(), with the same per-voxel arithmetic, so those get the same bits;
+  // each voxel's state depends only on its own history, the slice and, with motion vectors, its cell (which
+  // is why the reach is rounded out to whole cells). The dirty region keeps the bricks that overlap window().
+  // nearest / trilinear: ignore the window and splat every frame given to insert() in full (that is exact, and
+  // the dirty region is the unrestricted one); they keep no state from one frame to the next, so advance() only
+  // checks its inputs and returns an empty result, and restorePrevious() only checks that it may be called.
+  virtual void setWindow(const Box3& window);
+  // The frame's pose and time only, for a frame whose splat (and the fill-in before it) cannot reach the window:
+  // every piece of state advances exactly as insert() would advance it (time origin, previous pose and time,
+  // the jump test, the motion direction and its anchor), nothing is splatted, the dirty region is empty.
+  // The previous frame's pixels are then unknown: the next insert() splats no fill-in slices unless
+  // restorePrevious() gave them. The inputs are checked as insert() checks them, with the same InputError
+  // messages (the frame named by its time, as it has no index here); a refused frame changes nothing.
+  virtual InsertResult advance(int width, int height, const Mat4& imageToReference, double timeS) = 0;
+  // The pixels of the frame last passed to advance(), given afterwards because the fill-in between it and the
+  // next frame can reach the window: the next insert() then fills in exactly as an unrestricted reconstructor
+  // would. Call it right after that advance(), at most once: InvariantError if the last call was not an
+  // advance() or if `f` has another size than the advanced frame; InputError for a pixel buffer of the wrong
+  // size.
+  virtual void restorePrevious(const Frame& f) = 0;
+  // The window given to setWindow, clipped to the grid (the whole grid without one; empty if it missed the grid).
+  const Box3& window() const { return window_; }
+  // reconstructionReach(grid(), settings(), window): the voxels a frame must reach to need insert().
+  const Box3& reach() const { return reach_; }
+
   // Reconstructed values in grey levels (F32), 0 where nothing was inserted.
   virtual const Volume& output() const = 0;
   // Accumulated weight per voxel (F32; 0 = not covered).
@@ -117,10 +157,23 @@ public:
   virtual bool hasValue(std::size_t linearIndex) const { return covered(linearIndex); }
 
 protected:
-  Reconstructor(const Grid& g, const ReconSettings& s) : grid_(g), settings_(s) {}
+  Reconstructor(const Grid& g, const ReconSettings& s);
+  // Whether setWindow asked for less than the whole grid.
+  bool windowed() const { return windowed_; }
   Grid grid_;
   ReconSettings settings_;
+
+private:
+  Box3 window_, reach_;
+  bool windowed_ = false;
 };
+
+// The voxels a windowed reconstructor must see every change of to keep `window` exact: `window` clipped to
+// the grid, rounded out to whole motion-vector cells (recon.motion_vector_brick voxels, aligned to the grid)
+// for the tent method with motion vectors, as a cell's direction and rebasing depend on every voxel in it;
+// grown by the hole-filling reach for the pixel methods with hole filling, as a hole's value depends on the
+// voxels around it. A host deciding which GPs need a frame's pixels tests the frame's support against this box.
+Box3 reconstructionReach(const Grid& g, const ReconSettings& s, const Box3& window);
 
 // Refuses grids that do not fit in memory (InputError naming `what`) before allocating.
 std::unique_ptr<Reconstructor> makeReconstructor(const Grid& g, const ReconSettings& s,

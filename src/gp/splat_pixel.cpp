@@ -864,6 +864,23 @@ public:
 
   InsertResult insert(const Frame& f, const Mat4& imageToReference, double timeS) override;
   void finish() override;
+  // A window changes nothing here: every frame given to insert() is splatted
+  // in full (exact inside any window), and no state links one frame to the
+  // next, so an advanced frame needs nothing but its checks.
+  void setWindow(const Box3& window) override {
+    PP5_CHECK(!started_);
+    Reconstructor::setWindow(window);
+  }
+  InsertResult advance(int width, int height, const Mat4& imageToReference, double timeS) override;
+  void restorePrevious(const Frame& f) override {
+    PP5_CHECK(advanced_.x > 0);  // right after advance()
+    PP5_CHECK_EQ(f.width, advanced_.x);
+    PP5_CHECK_EQ(f.height, advanced_.y);
+    if (f.pixels.size() < f.byteSize())
+      throw InputError(fmt::format("frame {}: {} bytes of pixels for a {}x{} image of {}-byte pixels", f.index,
+                                   f.pixels.size(), f.width, f.height, bytesPerPixel(f.pixelType)));
+    advanced_ = glm::ivec2(0);
+  }
   const Volume& output() const override { return out_; }
   Volume weights() const override;
   bool covered(std::size_t i) const override { return plus_ ? pcells_[i].a != 0 : fcells_[i].w > 0.0f; }
@@ -902,6 +919,17 @@ private:
   int maskW_ = -1, maskH_ = -1;
   std::vector<PixelRun> runs_;
   int maskX0_ = 0, maskX1_ = 0, maskY0_ = 0, maskY1_ = 0;  // the runs' bounding rectangle
+
+  // The checks that insert() and advance() share, in insert()'s order (InputError naming `what`):
+  // the frame's size; the transform; the pose's voxel map (into `map`), for frames with selected pixels.
+  void checkSize(const std::string& what, int width, int height) const;
+  void checkTransform(const std::string& what, const Mat4& imageToReference) const;
+  void checkMap(const std::string& what, int width, int height, const Mat4& imageToReference, PixelMap& map) const;
+  // The pixel runs of frames of this size (runs_ and their bounding rectangle).
+  void selectRuns(int width, int height);
+
+  bool started_ = false;            // a frame was inserted or advanced
+  glm::ivec2 advanced_{0};          // the size of the frame just advanced (0 0: the last call was not advance())
 
   std::optional<HoleFiller> filler_;
   bool incrementalFill_ = false;
@@ -949,41 +977,98 @@ void PixelReconstructor::splat(const Job& job, const Slab& slab, bool split, Sla
 }
 
 
-InsertResult PixelReconstructor::insert(const Frame& f, const Mat4& imageToReference, double /*timeS*/) {
-  if (f.width <= 0 || f.height <= 0)
-    throw InputError(fmt::format("frame {}: the image is empty ({}x{} pixels)", f.index, f.width, f.height));
-  if (f.width >= (1 << 24))  // keeps a row's 8-bit pixel sum exact in 32 bits and in float
-    throw InputError(fmt::format("frame {}: {} pixels per row; at most 16777215 are supported", f.index, f.width));
-  if (f.pixels.size() < f.byteSize())
-    throw InputError(fmt::format("frame {}: {} bytes of pixels for a {}x{} image of {}-byte pixels", f.index,
-                                 f.pixels.size(), f.width, f.height, bytesPerPixel(f.pixelType)));
-  if (!isFinite(imageToReference))
-    throw InputError(fmt::format("frame {}: the ImageToReference transform is not finite", f.index));
-  if (plus_ && f.pixelType != PixelType::U8)
-    throw InputError(fmt::format("frame {}: arithmetic \"plus\" reconstructs 8-bit frames only (PLUS's 8-bit "
-                                 "volume); use arithmetic \"float\" for 16-bit frames",
-                                 f.index));
+void PixelReconstructor::checkSize(const std::string& what, int width, int height) const {
+  if (width <= 0 || height <= 0)
+    throw InputError(fmt::format("{}: the image is empty ({}x{} pixels)", what, width, height));
+  if (width >= (1 << 24))  // keeps a row's 8-bit pixel sum exact in 32 bits and in float
+    throw InputError(fmt::format("{}: {} pixels per row; at most 16777215 are supported", what, width));
+}
 
-  if (f.width != maskW_ || f.height != maskH_) {
-    runs_ = pixelRuns(f.width, f.height, settings_);
-    maskW_ = f.width;
-    maskH_ = f.height;
-    if (!runs_.empty()) {
-      maskX0_ = runs_.front().x0;
-      maskX1_ = runs_.front().x1;
-      for (const PixelRun& r : runs_) {
-        maskX0_ = std::min(maskX0_, r.x0);
-        maskX1_ = std::max(maskX1_, r.x1);
-      }
-      maskY0_ = runs_.front().y;
-      maskY1_ = runs_.back().y;
-    }
+void PixelReconstructor::checkTransform(const std::string& what, const Mat4& imageToReference) const {
+  if (!isFinite(imageToReference))
+    throw InputError(fmt::format("{}: the ImageToReference transform is not finite", what));
+}
+
+void PixelReconstructor::checkMap(const std::string& what, int width, int height, const Mat4& imageToReference,
+                                  PixelMap& map) const {
+  // Voxel index of pixel (i, j): (ImageToReference * (i, j, 0, 1) - origin) / spacing,
+  // with PLUS's association (entries times 1/spacing, §2).
+  for (int a = 0; a < 3; ++a) {
+    const double inv = 1.0 / grid_.spacing[a];
+    map.X[a] = imageToReference[0][a] * inv;
+    map.Y[a] = imageToReference[1][a] * inv;
+    map.O[a] = imageToReference[3][a] * inv + (-grid_.origin[a] * inv);
   }
+  // Every pixel's voxel coordinates lie between those of the frame's corners;
+  // keeping them finite and below 2^50 keeps every conversion defined.
+  for (int a = 0; a < 3; ++a)
+    for (int ci = 0; ci < 4; ++ci) {
+      const double p =
+          map.O[a] + double(ci & 1 ? height - 1 : 0) * map.Y[a] + double(ci & 2 ? width - 1 : 0) * map.X[a];
+      if (!(std::abs(p) < kPositionLimit))
+        throw InputError(fmt::format("{}: the pose puts the image {:g} voxels from the grid", what, p));
+    }
+  if (plus_)
+    for (int a = 0; a < 3; ++a)
+      for (double v : {map.X[a], map.Y[a], map.O[a]})
+        if (!(std::abs(v) < plusmath::kFixedLimit))
+          throw InputError(fmt::format("{}: the pose puts the image {:.0f} voxels from the grid, beyond the "
+                                       "range of PLUS's fixed-point arithmetic ({:.0f})",
+                                       what, v, plusmath::kFixedLimit));
+}
+
+void PixelReconstructor::selectRuns(int width, int height) {
+  if (width == maskW_ && height == maskH_) return;
+  runs_ = pixelRuns(width, height, settings_);
+  maskW_ = width;
+  maskH_ = height;
+  if (!runs_.empty()) {
+    maskX0_ = runs_.front().x0;
+    maskX1_ = runs_.front().x1;
+    for (const PixelRun& r : runs_) {
+      maskX0_ = std::min(maskX0_, r.x0);
+      maskX1_ = std::max(maskX1_, r.x1);
+    }
+    maskY0_ = runs_.front().y;
+    maskY1_ = runs_.back().y;
+  }
+}
+
+InsertResult PixelReconstructor::advance(int width, int height, const Mat4& imageToReference, double timeS) {
+  const std::string what = fmt::format("frame at t = {} s", timeS);
+  checkSize(what, width, height);
+  checkTransform(what, imageToReference);
+  selectRuns(width, height);
+  PixelMap map{};
+  if (!runs_.empty()) checkMap(what, width, height, imageToReference, map);
+  started_ = true;
+  advanced_ = glm::ivec2(width, height);
   InsertResult res;
   res.dirty = empty_;
+  return res;
+}
+
+InsertResult PixelReconstructor::insert(const Frame& f, const Mat4& imageToReference, double /*timeS*/) {
+  const std::string what = fmt::format("frame {}", f.index);
+  checkSize(what, f.width, f.height);
+  if (f.pixels.size() < f.byteSize())
+    throw InputError(fmt::format("{}: {} bytes of pixels for a {}x{} image of {}-byte pixels", what,
+                                 f.pixels.size(), f.width, f.height, bytesPerPixel(f.pixelType)));
+  checkTransform(what, imageToReference);
+  if (plus_ && f.pixelType != PixelType::U8)
+    throw InputError(fmt::format("{}: arithmetic \"plus\" reconstructs 8-bit frames only (PLUS's 8-bit "
+                                 "volume); use arithmetic \"float\" for 16-bit frames",
+                                 what));
+
+  selectRuns(f.width, f.height);
+  InsertResult res;
+  res.dirty = empty_;
+  Job job;
+  if (!runs_.empty()) checkMap(what, f.width, f.height, imageToReference, job.map);
+  started_ = true;
+  advanced_ = glm::ivec2(0);
   if (runs_.empty()) return res;
 
-  Job job;
   job.dims = grid_.dims;
   job.sy = grid_.dims.x;
   job.sz = grid_.dims.x * grid_.dims.y;
@@ -1004,30 +1089,8 @@ InsertResult PixelReconstructor::insert(const Frame& f, const Mat4& imageToRefer
     }
     job.pixels = swapped.data();
   }
-  // Voxel index of pixel (i, j): (ImageToReference * (i, j, 0, 1) - origin) / spacing,
-  // with PLUS's association (entries times 1/spacing, §2).
-  for (int a = 0; a < 3; ++a) {
-    const double inv = 1.0 / grid_.spacing[a];
-    job.map.X[a] = imageToReference[0][a] * inv;
-    job.map.Y[a] = imageToReference[1][a] * inv;
-    job.map.O[a] = imageToReference[3][a] * inv + (-grid_.origin[a] * inv);
-  }
-  // Every pixel's voxel coordinates lie between those of the frame's corners;
-  // keeping them finite and below 2^50 keeps every conversion defined.
-  for (int a = 0; a < 3; ++a)
-    for (int ci = 0; ci < 4; ++ci) {
-      const double p = job.map.O[a] + double(ci & 1 ? f.height - 1 : 0) * job.map.Y[a] +
-                       double(ci & 2 ? f.width - 1 : 0) * job.map.X[a];
-      if (!(std::abs(p) < kPositionLimit))
-        throw InputError(fmt::format("frame {}: the pose puts the image {:g} voxels from the grid", f.index, p));
-    }
   if (plus_) {
     for (int a = 0; a < 3; ++a) {
-      for (double v : {job.map.X[a], job.map.Y[a], job.map.O[a]})
-        if (!(std::abs(v) < plusmath::kFixedLimit))
-          throw InputError(fmt::format("frame {}: the pose puts the image {:.0f} voxels from the grid, beyond the "
-                                       "range of PLUS's fixed-point arithmetic ({:.0f})",
-                                       f.index, v, plusmath::kFixedLimit));
       job.fmap.X[a] = plusmath::toFixed(job.map.X[a]);
       job.fmap.Y[a] = plusmath::toFixed(job.map.Y[a]);
       job.fmap.O[a] = plusmath::toFixed(job.map.O[a]);

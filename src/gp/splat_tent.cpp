@@ -676,11 +676,23 @@ public:
   TentReconstructor(const Grid& g, const ReconSettings& s);
 
   InsertResult insert(const Frame& f, const Mat4& imageToReference, double timeS) override;
+  void setWindow(const Box3& window) override;
+  InsertResult advance(int width, int height, const Mat4& imageToReference, double timeS) override;
+  void restorePrevious(const Frame& f) override;
   const Volume& output() const override { return output_; }
   Volume weights() const override;
   bool covered(std::size_t i) const override { return weightAt(i) > 0.0f; }
 
 private:
+  // The checks on a frame's time and pose that insert() and advance() share (InputError naming `what`).
+  SlicePose checkPose(const std::string& what, const Mat4& imageToReference, double timeS) const;
+  // The pixel runs of frames of this size (runs_, runsBox_).
+  void selectRuns(int width, int height);
+  // The stream state that every frame advances, inserted or not: the time origin, and the jump test and
+  // direction of motion against the previous frame. Returns whether the frame jumped (no fill-in), and the
+  // largest displacement of a corner of the pixel rectangle since the previous frame.
+  bool stepMotion(const SlicePose& pose, double timeS, double& maxCornerMm);
+  void endFrame(const SlicePose& pose, double timeS, bool pixelsKnown);
   void splat(const SlicePose& pose, const SliceImage& img, double timeS, const Vec3& dir, DirtyRegion& dirty);
   SliceKernel sliceKernel(const SlicePose& pose, const SliceImage& img);
   void buildProfiles(const SliceImage& img, const KnotLattice& lat, int padRows);
@@ -727,7 +739,10 @@ private:
   glm::ivec4 runsBox_{0};       // their bounding box: x0 y0 x1 y1
 
   // Stream state.
+  bool started_ = false;     // a frame was inserted or advanced
   bool hasPrev_ = false;
+  bool prevPixels_ = false;  // prev_ holds the previous frame's pixels (not so after advance())
+  bool lastAdvanced_ = false;  // the last frame went to advance(): restorePrevious() may follow
   SlicePose prevPose_;
   double prevTime_ = 0.0;
   bool hasT0_ = false;
@@ -1086,6 +1101,15 @@ void TentReconstructor::splat(const SlicePose& pose, const SliceImage& img, doub
   indexRange(1, jLo, jHi);
   indexRange(2, kLo, kHi);
   indexRange(0, aLo, aHi);
+  // Windowed (setWindow): only the rows and voxels of reach(). A voxel's
+  // arithmetic below is absolute (base + index * step), and a row's run is
+  // found as before and then cut, so every voxel kept gets the same bits.
+  const Box3& win = reach();
+  jLo = std::max(jLo, win.lo.y);
+  jHi = std::min(jHi, win.hi.y - 1);
+  kLo = std::max(kLo, win.lo.z);
+  kHi = std::min(kHi, win.hi.z - 1);
+  const std::int64_t iLo = std::max(aLo, win.lo.x), iHi = std::min(aHi, win.hi.x - 1);
   const Vec3 sa = sf.step[0];
   const Vec3 invSa(std::abs(sa.x) < 1e-12 ? 0.0 : 1.0 / sa.x, std::abs(sa.y) < 1e-12 ? 0.0 : 1.0 / sa.y,
                    std::abs(sa.z) < 1e-12 ? 0.0 : 1.0 / sa.z);
@@ -1100,8 +1124,8 @@ void TentReconstructor::splat(const SlicePose& pose, const SliceImage& img, doub
       clipInterval(a.z, sa.z, invSa.z, lo.z, hi.z, ilo, ihi);
       if (!(ilo < ihi)) continue;
       // ilo and ihi lie in [aLo - 1, aHi + 1] here.
-      const std::int64_t i0 = std::max<std::int64_t>(aLo, floorInt(ilo) + 1);
-      const std::int64_t i1 = std::min<std::int64_t>(aHi, -floorInt(-ihi) - 1);
+      const std::int64_t i0 = std::max<std::int64_t>(iLo, floorInt(ilo) + 1);
+      const std::int64_t i1 = std::min<std::int64_t>(iHi, -floorInt(-ihi) - 1);
       if (i0 > i1) continue;
       rows_.push_back({j, k, i0, i1, total});
       total += static_cast<std::size_t>(i1 - i0 + 1);
@@ -1128,14 +1152,7 @@ void TentReconstructor::splat(const SlicePose& pose, const SliceImage& img, doub
   }
 }
 
-InsertResult TentReconstructor::insert(const Frame& f, const Mat4& imageToReference, double timeS) {
-  // Everything is checked before any state changes, so a refused frame leaves
-  // the reconstruction as it was.
-  const std::string what = fmt::format("frame {}", f.index);
-  if (f.width <= 0 || f.height <= 0) throw InputError(what + ": the image is empty");
-  if (f.pixels.size() != f.byteSize())
-    throw InputError(fmt::format("{}: the pixel buffer holds {} bytes, but a {}x{} image needs {}", what,
-                                 f.pixels.size(), f.width, f.height, f.byteSize()));
+SlicePose TentReconstructor::checkPose(const std::string& what, const Mat4& imageToReference, double timeS) const {
   if (!std::isfinite(timeS)) throw InputError(what + ": the timestamp is not finite");
   const SlicePose pose = poseFromMatrix(imageToReference, what);
   // A kernel that spans more than this many pixels (each knot of a profile
@@ -1146,37 +1163,35 @@ InsertResult TentReconstructor::insert(const Frame& f, const Mat4& imageToRefere
     throw InputError(fmt::format("{}: pixels of {:.3g} x {:.3g} mm are too small for the tent kernel "
                                  "({} x {} mm half-widths span more than {} pixels)",
                                  what, pose.sx, pose.syv, hl_, ha_, kMaxWindow));
+  return pose;
+}
 
-  if (f.width != runsWidth_ || f.height != runsHeight_) {  // the selection depends on the frame size only
-    runs_ = pixelRuns(f.width, f.height, settings_);
-    runsWidth_ = f.width;
-    runsHeight_ = f.height;
-    // Their bounding box (the whole image when it is empty), for the geometry
-    // below, which must not move with the pixels that happen to be rejected.
-    runsBox_ = {f.width, f.height, -1, -1};
-    for (const PixelRun& run : runs_)
-      runsBox_ = {std::min(runsBox_.x, run.x0), std::min(runsBox_.y, run.y), std::max(runsBox_.z, run.x1),
-                  std::max(runsBox_.w, run.y)};
-    if (runs_.empty()) runsBox_ = {0, 0, f.width - 1, f.height - 1};
-  }
-  selectPixels(f, runs_, settings_.pixelRejectionThreshold, cur_);
-  InsertResult res;
-  // 8-voxel bricks: the slab a slice changes is about 2 he thick, and coarser
-  // bricks would make shading and re-sampling (which follow them) do 2-3x the work.
-  res.dirty = DirtyRegion(grid_, 8);
-  res.pixelsInserted = cur_.selected;
+void TentReconstructor::selectRuns(int width, int height) {
+  if (width == runsWidth_ && height == runsHeight_) return;  // the selection depends on the frame size only
+  runs_ = pixelRuns(width, height, settings_);
+  runsWidth_ = width;
+  runsHeight_ = height;
+  // Their bounding box (the whole image when it is empty), for the geometry
+  // below, which must not move with the pixels that happen to be rejected.
+  runsBox_ = {width, height, -1, -1};
+  for (const PixelRun& run : runs_)
+    runsBox_ = {std::min(runsBox_.x, run.x0), std::min(runsBox_.y, run.y), std::max(runsBox_.z, run.x1),
+                std::max(runsBox_.w, run.y)};
+  if (runs_.empty()) runsBox_ = {0, 0, width - 1, height - 1};
+}
+
+bool TentReconstructor::stepMotion(const SlicePose& pose, double timeS, double& maxCornerMm) {
   if (!hasT0_) {
     t0_ = timeS;
     hasT0_ = true;
   }
-
   // Corners of the clip rectangle and fan.
   const double cx0 = runsBox_.x, cy0 = runsBox_.y, cx1 = runsBox_.z, cy1 = runsBox_.w;
   const Vec3 centre = pose.pixel(0.5 * (cx0 + cx1), 0.5 * (cy0 + cy1));
 
   // A jump (or the first frame): no fill-in, and no direction of motion.
   bool jump = true;
-  double maxCornerMm = 0.0;
+  maxCornerMm = 0.0;
   if (hasPrev_) {
     for (const double c : {cx0, cx1})
       for (const double r : {cy0, cy1})
@@ -1195,9 +1210,42 @@ InsertResult TentReconstructor::insert(const Frame& f, const Mat4& imageToRefere
       anchor_ = centre;
     }
   }
+  return jump;
+}
 
-  if (settings_.fillIn && !jump && cur_.selected > 0 && prev_.selected > 0 && prev_.width == cur_.width &&
-      prev_.height == cur_.height) {
+void TentReconstructor::endFrame(const SlicePose& pose, double timeS, bool pixelsKnown) {
+  prevPose_ = pose;
+  prevTime_ = timeS;
+  hasPrev_ = true;
+  prevPixels_ = pixelsKnown;
+  lastAdvanced_ = !pixelsKnown;
+  started_ = true;
+}
+
+InsertResult TentReconstructor::insert(const Frame& f, const Mat4& imageToReference, double timeS) {
+  // Everything is checked before any state changes, so a refused frame leaves
+  // the reconstruction as it was.
+  const std::string what = fmt::format("frame {}", f.index);
+  if (f.width <= 0 || f.height <= 0) throw InputError(what + ": the image is empty");
+  if (f.pixels.size() != f.byteSize())
+    throw InputError(fmt::format("{}: the pixel buffer holds {} bytes, but a {}x{} image needs {}", what,
+                                 f.pixels.size(), f.width, f.height, f.byteSize()));
+  const SlicePose pose = checkPose(what, imageToReference, timeS);
+
+  selectRuns(f.width, f.height);
+  selectPixels(f, runs_, settings_.pixelRejectionThreshold, cur_);
+  InsertResult res;
+  // 8-voxel bricks: the slab a slice changes is about 2 he thick, and coarser
+  // bricks would make shading and re-sampling (which follow them) do 2-3x the work.
+  res.dirty = DirtyRegion(grid_, 8);
+  res.pixelsInserted = cur_.selected;
+  double maxCornerMm = 0.0;
+  const bool jump = stepMotion(pose, timeS, maxCornerMm);
+
+  // Without the previous frame's pixels (it went to advance() and
+  // restorePrevious() did not follow) there is nothing to fill in from.
+  if (settings_.fillIn && !jump && prevPixels_ && cur_.selected > 0 && prev_.selected > 0 &&
+      prev_.width == cur_.width && prev_.height == cur_.height) {
     const int n = fillInCount(maxCornerMm, he_);
     // Pixels kept in both frames lie in the intersection of their boxes.
     const int x0 = std::max(prev_.x0, cur_.x0), x1 = std::min(prev_.x1, cur_.x1);
@@ -1240,10 +1288,52 @@ InsertResult TentReconstructor::insert(const Frame& f, const Mat4& imageToRefere
 
   if (cur_.selected > 0) splat(pose, cur_, timeS, dir_, res.dirty);
   std::swap(prev_, cur_);
-  prevPose_ = pose;
-  prevTime_ = timeS;
-  hasPrev_ = true;
+  endFrame(pose, timeS, true);
+  if (windowed()) {
+    // Only the bricks that overlap the window: the rest of the slab was not
+    // written, and its bricks would only make later stages work for nothing.
+    DirtyRegion clipped(grid_, res.dirty.brickSize());
+    const Index3 bd = clipped.brickDims();
+    for (const std::uint32_t b : res.dirty.bricks())
+      if (!res.dirty.brickBox(b).intersect(window()).empty()) {
+        const std::int64_t id = b;
+        clipped.addBrick(id % bd.x, (id / bd.x) % bd.y, id / (bd.x * bd.y));
+      }
+    res.dirty = std::move(clipped);
+  }
   return res;
+}
+
+void TentReconstructor::setWindow(const Box3& window) {
+  PP5_CHECK(!started_);  // the voxels outside the window would already hold data, and the contract is per stream
+  Reconstructor::setWindow(window);
+}
+
+InsertResult TentReconstructor::advance(int width, int height, const Mat4& imageToReference, double timeS) {
+  // The same checks as insert() (less the pixels'), before any state changes.
+  const std::string what = fmt::format("frame at t = {} s", timeS);
+  if (width <= 0 || height <= 0) throw InputError(what + ": the image is empty");
+  const SlicePose pose = checkPose(what, imageToReference, timeS);
+  selectRuns(width, height);
+  double maxCornerMm = 0.0;
+  (void)stepMotion(pose, timeS, maxCornerMm);
+  endFrame(pose, timeS, false);
+  InsertResult res;
+  res.dirty = DirtyRegion(grid_, 8);
+  return res;
+}
+
+void TentReconstructor::restorePrevious(const Frame& f) {
+  PP5_CHECK(lastAdvanced_);  // only the frame just advanced can be given back
+  PP5_CHECK_EQ(f.width, runsWidth_);  // runs_ are the advanced frame's
+  PP5_CHECK_EQ(f.height, runsHeight_);
+  if (f.pixels.size() != f.byteSize())
+    throw InputError(fmt::format("frame {}: the pixel buffer holds {} bytes, but a {}x{} image needs {}", f.index,
+                                 f.pixels.size(), f.width, f.height, f.byteSize()));
+  // As insert() would have selected them; they are the next fill-in's prev_.
+  selectPixels(f, runs_, settings_.pixelRejectionThreshold, prev_);
+  prevPixels_ = true;
+  lastAdvanced_ = false;
 }
 
 }  // namespace

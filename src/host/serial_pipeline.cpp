@@ -57,15 +57,33 @@ void SerialPipeline::setCamera(const Camera& camera) {
   camera_ = camera;
   lattice_ = gp::SampleLattice(camera_, grid_, s_.render.step(grid_), s_.render.maxSamples, s_.render.threads);
   const pp::TileRect tile{0, 0, camera_.width, camera_.height};
-  cache_ = std::make_unique<pp::RayCache>(tile, camera_.width, lattice_.counts(), s_.cache, live_, 1);
-  cache_->setThreads(s_.render.threads);
+  if (cache_ && cache_->tile().width == tile.width && cache_->tile().height == tile.height) {
+    cache_->reset(lattice_.counts());
+  } else {
+    cache_ = std::make_unique<pp::RayCache>(tile, camera_.width, lattice_.counts(), s_.cache, live_, 1);
+    cache_->setThreads(s_.render.threads);
+  }
+  resampleAll(true);
+}
+
+void SerialPipeline::setStyle(const gp::ShadeSettings& shading, const TransferFunctionSettings& tf) {
+  s_.shading = shading;
+  s_.shading.threads = s_.render.threads;
+  s_.tf = tf;
+  tf_ = TransferFunction(tf);
   resampleAll();
 }
 
-void SerialPipeline::resampleAll() {
+void SerialPipeline::setLiveMode(pp::CompositeMode m) {
+  live_ = m;
+  cache_->setLiveMode(m);
+  cache_->composite();
+}
+
+void SerialPipeline::resampleAll(bool cleared) {
   gp::shade(recon_->output(), tf_, s_.shading, camera_, wholeGrid(grid_), shade_);
   space_ = gp::EmptySpaceMap(shade_, s_.render.threads);
-  cache_->clear();
+  if (!cleared) cache_->clear();
   CacheSink sink(*cache_);
   gp::sampleAll(shade_, lattice_, s_.render, sink, &space_);
   cache_->composite();

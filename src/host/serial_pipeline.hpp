@@ -59,6 +59,10 @@ public:
   // viewer moves with it) and re-sampled, and the live image recomposited.
   void setCamera(const Camera& camera);
   const Camera& camera() const { return camera_; }
+  // New shading or transfer function: everything re-shaded and re-sampled.
+  void setStyle(const gp::ShadeSettings& shading, const TransferFunctionSettings& tf);
+  // A new live composition mode: the cache recomposited in it.
+  void setLiveMode(pp::CompositeMode m);
 
   // The live image (the first composition mode), maintained incrementally.
   const pp::TileImage& image() const { return cache_->image(); }
@@ -90,7 +94,8 @@ private:
   std::unique_ptr<pp::RayCache> cache_;
   std::uint64_t frames_ = 0;
 
-  void resampleAll();
+  // cleared: the cache holds no sample yet (just reset), so it need not be cleared again.
+  void resampleAll(bool cleared = false);
 };
 
 }  // namespace pp5::host

@@ -502,9 +502,14 @@ RayCache::RayCache(const TileRect& tile, int imageWidth, std::span<const std::ui
   PP5_CHECK_GE(tile.x0, 0);
   PP5_CHECK_GE(tile.y0, 0);
   PP5_CHECK_LE(static_cast<long>(tile.x0) + tile.width, static_cast<long>(imageWidth));
-  const std::size_t n = static_cast<std::size_t>(tile.width) * static_cast<std::size_t>(tile.height);
-  PP5_CHECK_EQ(sampleCounts.size(), n);
+  reset(sampleCounts);
+}
 
+void RayCache::reset(std::span<const std::uint16_t> sampleCounts) {
+  const std::size_t n = static_cast<std::size_t>(tile_.width) * static_cast<std::size_t>(tile_.height);
+  PP5_CHECK_EQ(sampleCounts.size(), n);
+  sampleTotal_ = 0;
+  blockTotal_ = 0;
   rays_.resize(n);
   for (std::size_t i = 0; i < n; ++i) {
     Ray& r = rays_[i];
@@ -519,6 +524,8 @@ RayCache::RayCache(const TileRect& tile, int imageWidth, std::span<const std::ui
     // A ray records its first block in 32 bits.
     PP5_CHECK_LE(blockTotal_, std::uint64_t{0xffffffffu});
   }
+  // assign() keeps the vectors' storage when it is large enough: a new view
+  // of the same size costs a fill, not an allocation and its page faults.
   switch (format_) {
     case SampleFormat::Rgba8: samples8_.assign(4 * sampleTotal_, 0); break;
     case SampleFormat::Half: samples16_.assign(4 * sampleTotal_, 0); break;
@@ -528,8 +535,9 @@ RayCache::RayCache(const TileRect& tile, int imageWidth, std::span<const std::ui
   // blocks start clean and nothing is dirty until samples arrive.
   partials_.assign(blockTotal_, identityPartial(live_));
   dirty_.assign(blockTotal_, 0);
-  image_.width = tile.width;
-  image_.height = tile.height;
+  dirtyRays_.clear();
+  image_.width = tile_.width;
+  image_.height = tile_.height;
   image_.rgba.assign(4 * n, 0.0f);
 }
 

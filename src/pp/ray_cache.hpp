@@ -145,9 +145,18 @@ public:
 
   // Every sample transparent again, the image cleared; the counts stay.
   void clear();
+  // New sample counts for the same tile (a new view), every sample
+  // transparent; the storage is reused where it is large enough.
+  void reset(std::span<const std::uint16_t> sampleCounts);
   // Marks every block and ray dirty, so that the next composite() recomputes
   // the whole tile from its samples (what a full render costs).
   void invalidate();
+  // A new live mode: every block's partial is recomputed by the next
+  // composite(), which then gives the bits compositeFull(m) gives.
+  void setLiveMode(CompositeMode m) {
+    live_ = m;
+    invalidate();
+  }
 
   // Bytes held: samples, block partials, dirty flags, per-ray records, the
   // image and the dirty-ray list.

@@ -1,0 +1,232 @@
+#pragma once
+// Every message of the distributed pipeline, in one place (docs/protocol.md).
+//
+// A message is one MPI message: a fixed, trivially copyable struct that
+// starts with a Header, then (for some tags) a payload of plain values whose
+// length follows from the struct. Nothing holds a pointer. Each message
+// carries the frame and epoch it belongs to: the epoch grows with every
+// control change the host broadcasts (view, shading, transfer function,
+// composition mode, the end of input), and a message from an older epoch than
+// the receiver's is recognised and dropped.
+//
+// Frame numbers are the host's stream positions (0, 1, 2, ... of the frames
+// it sent), not the source's indices, so a dropped live frame leaves no gap.
+#include <cstddef>
+#include <cstdint>
+#include <type_traits>
+
+#include "core/ray_sample.hpp"
+
+namespace pp5::comm {
+
+// MPI tags. Each says why the message exists.
+enum Tag : int {
+  // host -> GP: a frame to reconstruct, or (slab, not touched) its pose only,
+  // so that the GP's fill-in and motion state advance as the serial one's.
+  // Costs one credit of the receiving GP.
+  kTagFrame = 1,
+  // host -> GP (slab): the pixels of the previous frame, which the GP got
+  // pose-only, because the fill-in from it to the next frame reaches the GP.
+  kTagPrevious = 2,
+  // host -> GP, PP: new view, shading, transfer function or composition mode
+  // (or the end of input), with the new epoch; everything is re-sampled.
+  kTagControl = 3,
+  // GP -> host: a frame (or control change) done, one credit back, with the
+  // GP's timers for it.
+  kTagCredit = 4,
+  // GP -> PP: the ray samples of one screen tile from one frame.
+  kTagSamples = 5,
+  // GP -> PP: every sample batch of a frame (or of a full re-sample) sent;
+  // a PP knows an update is complete by counting these, one per GP.
+  kTagGpDone = 6,
+  // PP -> host: the changed pixels of one tile (float RGBA, premultiplied).
+  kTagTile = 7,
+  // PP -> host: an image update done (lockstep: one per frame; tick mode: one
+  // per tick that changed something), after its tiles.
+  kTagPpDone = 8,
+  // host -> PP: composite every tile in full in one mode and send it (the
+  // final images in each configured mode).
+  kTagRequest = 9,
+  // host -> GP: send your part of the reconstructed volume.
+  kTagVolumeRequest = 10,
+  // GP -> host: a run of z planes of its part of the reconstructed volume.
+  kTagVolume = 11,
+  // host -> GP, PP: the job is over; report and exit.
+  kTagQuit = 12,
+  // GP, PP -> host: transport counters and timer totals, the last message.
+  kTagReport = 13,
+};
+
+struct Header {
+  std::uint32_t tag = 0;
+  std::uint32_t epoch = 0;
+  std::uint64_t frame = 0;
+};
+
+// The per-stage timers every rank keeps (docs/protocol.md, stats.csv).
+enum Stage : int { kReceive, kReconstruct, kShade, kSample, kSend, kWait, kComposite, kStageCount };
+inline const char* stageName(int s) {
+  static const char* const names[kStageCount] = {"receive", "reconstruct", "shade", "sample",
+                                                 "send",    "wait",        "composite"};
+  return names[s];
+}
+struct StageTimes {
+  float ms[kStageCount] = {};
+};
+
+// kTagFrame. Payload: height * width * bytesPerPixel pixel bytes (none when
+// poseOnly), row-major.
+struct FrameMsg {
+  Header h;
+  std::uint64_t sourceIndex = 0;  // the frame's index in its source
+  double timeS = 0.0;             // the frame's timestamp, seconds
+  double imageToReference[16] = {};  // row-major, mm
+  std::int32_t width = 0, height = 0;
+  std::uint8_t pixelType = 0;   // core::PixelType
+  std::uint8_t poseOnly = 0;    // 1: no pixels (slab: the frame cannot reach this GP)
+  std::uint8_t pad[6] = {};
+};
+
+// kTagPrevious. Payload: the pixels of frame h.frame (sent earlier pose-only).
+struct PreviousMsg {
+  Header h;
+  std::int32_t width = 0, height = 0;
+  std::uint8_t pixelType = 0;
+  std::uint8_t pad[7] = {};
+};
+
+// What a control change carries: the whole view, shading, transfer function
+// and live composition mode, so a receiver needs no history.
+struct ControlState {
+  // View (render.*)
+  std::uint8_t projection = 0;  // 0 perspective, 1 orthographic
+  std::uint8_t liveMode = 0;    // pp::CompositeMode of the live image
+  std::uint8_t shadeMode = 0;   // gp::ShadeMode
+  std::uint8_t light = 0;       // gp::LightKind
+  std::uint8_t gradientOpacity = 0;
+  std::uint8_t orbitValid = 0;  // 1: eye given by orbit below instead of the settings' azimuth/elevation
+  std::uint8_t pad[2] = {};
+  double fovDeg = 30.0, azimuthDeg = 0.0, elevationDeg = 0.0, distance = 3.0;
+  // An orbit of the settings' camera (the rotating loop): axis and degrees.
+  double orbitAxis[3] = {0, 0, 1};
+  double orbitDeg = 0.0;
+  // Shading (render.shading.*)
+  double ambient = 0, diffuse = 0, specular = 0, shininess = 0;
+  double lightDirection[3] = {};
+  double flatGradient = 0, gradientOpacityLow = 0, gradientOpacityWidth = 0;
+  // Transfer function (render.tf.*): points as (value, alpha) and (value, r, g, b).
+  static constexpr int kMaxPoints = 32;
+  std::int32_t opacityPoints = 0, colourPoints = 0;
+  double opacity[kMaxPoints][2] = {};
+  double colour[kMaxPoints][4] = {};
+};
+
+// kTagControl.
+struct ControlMsg {
+  Header h;  // h.epoch: the new epoch; h.frame: the last frame sent before it
+  enum Change : std::uint32_t {
+    kView = 1,        // new lattice, new caches
+    kShading = 2,     // re-shade
+    kTransfer = 4,    // re-shade
+    kMode = 8,        // the PPs recomposite in the new live mode; GPs do nothing
+    kFinish = 16,     // end of input: the reconstruction's final passes, then re-shade
+  };
+  std::uint32_t changes = 0;
+  std::uint32_t pad = 0;
+  ControlState state;
+};
+
+// kTagCredit.
+struct CreditMsg {
+  Header h;
+  std::uint32_t gp = 0;
+  std::uint32_t isControl = 0;  // 1: for a control change, not a frame
+  StageTimes times;             // this frame's (or change's) time per stage
+  std::uint64_t samples = 0;    // samples sent for it
+  std::uint64_t bytesSent = 0;  // bytes sent for it
+  std::uint64_t dirtyVoxels = 0;
+};
+
+// kTagSamples. Payload: count RaySamples, all in tile `tile`.
+struct SamplesMsg {
+  Header h;
+  std::uint32_t gp = 0;
+  std::uint32_t tile = 0;
+  std::uint64_t count = 0;
+};
+
+// kTagGpDone.
+struct GpDoneMsg {
+  Header h;
+  std::uint32_t gp = 0;
+  std::uint32_t batches = 0;  // kTagSamples messages sent to this PP for it
+  std::uint64_t samples = 0;
+  std::uint32_t full = 0;     // 1: a full re-sample (the PP cleared its caches for it)
+  std::uint32_t pad = 0;
+};
+
+// kTagTile. Payload: width * height * 4 floats, premultiplied RGBA, row-major.
+struct TileMsg {
+  Header h;
+  std::int32_t x0 = 0, y0 = 0, width = 0, height = 0;  // in the whole image
+  std::uint8_t mode = 0;     // pp::CompositeMode of these pixels
+  std::uint8_t request = 0;  // 1: part of the answer to a kTagRequest, not the live image
+  std::uint8_t pad[6] = {};
+};
+
+// kTagPpDone.
+struct PpDoneMsg {
+  Header h;  // h.frame: every frame up to this one is in the tiles sent
+  std::uint32_t pp = 0;
+  std::uint32_t tiles = 0;   // kTagTile messages sent for this update
+  std::uint32_t request = 0;  // 1: the answer to a kTagRequest
+  std::uint32_t pad = 0;
+  StageTimes times;           // since the last PpDone
+  std::uint64_t rays = 0, blocks = 0, samplesPut = 0;
+};
+
+// kTagRequest.
+struct RequestMsg {
+  Header h;
+  std::uint8_t mode = 0;  // pp::CompositeMode
+  std::uint8_t pad[7] = {};
+};
+
+// kTagVolumeRequest, kTagQuit: a Header alone.
+struct EmptyMsg {
+  Header h;
+};
+
+// kTagVolume. Payload: the voxels of box [lo, hi) in the reconstruction's
+// voxel type, x fastest.
+struct VolumeMsg {
+  Header h;
+  std::int64_t lo[3] = {}, hi[3] = {};  // the voxel box of this piece
+  std::uint32_t gp = 0;
+  std::uint32_t last = 0;        // 1: the GP's last piece
+  std::uint32_t scalarType = 0;  // core ScalarType of the payload
+  std::uint32_t pad = 0;
+};
+
+// kTagReport.
+struct ReportMsg {
+  Header h;
+  std::uint32_t rank = 0;
+  std::uint32_t role = 0;  // comm::Role
+  StageTimes total;        // whole run, per stage
+  double cpuS = 0.0;       // process CPU time (user + system)
+  double wallS = 0.0;
+  std::uint64_t bytesSent = 0, bytesReceived = 0, messagesSent = 0, messagesReceived = 0;
+  std::uint64_t dropped = 0;  // messages of an older epoch dropped
+  std::uint64_t memoryBytes = 0;  // the main buffers (grid, shade buffer, caches)
+};
+
+template <typename T>
+inline constexpr bool kIsMessage = std::is_trivially_copyable_v<T> && std::is_standard_layout_v<T> &&
+                                   offsetof(T, h) == 0;
+static_assert(kIsMessage<FrameMsg> && kIsMessage<PreviousMsg> && kIsMessage<ControlMsg> && kIsMessage<CreditMsg> &&
+              kIsMessage<SamplesMsg> && kIsMessage<GpDoneMsg> && kIsMessage<TileMsg> && kIsMessage<PpDoneMsg> &&
+              kIsMessage<RequestMsg> && kIsMessage<EmptyMsg> && kIsMessage<VolumeMsg> && kIsMessage<ReportMsg>);
+static_assert(sizeof(RaySample) == 24);
+
+}  // namespace pp5::comm

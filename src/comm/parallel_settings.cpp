@@ -1,0 +1,133 @@
+#include "comm/parallel_settings.hpp"
+
+#include <cstring>
+
+#include <fmt/format.h>
+
+#include "core/config.hpp"
+#include "core/error.hpp"
+
+namespace pp5::comm {
+
+void registerOptions(ConfigSchema& schema, ParallelSettings& s) {
+  schema.section("parallel", "The distributed pipeline under mpirun: ranks, partitionings, tiles and compositing.");
+  schema.option("parallel.gps", &s.gps, 0, 0, 4096,
+                "Graphics processors (ranks 1..G); 0 = the world size less the host and the pixel processors.");
+  schema.option("parallel.pps", &s.pps, 0, 0, 4096, "Pixel processors (ranks G+1..G+P); 0 = max(1, world size / 4).");
+  schema.choice("parallel.gp_partition", &s.gpPartition, "slab", {"slab", "tile"},
+                "How GPs share the work: slab = each owns a box of the grid (object space); tile = each "
+                "reconstructs the whole grid and samples only its own screen tiles (screen space).");
+  schema.choice("parallel.slab_split", &s.slabSplit, "longest", {"longest", "3d"},
+                "slab: cut the grid along its longest axis, or into a 3D grid of boxes closest to cubes.");
+  schema.option("parallel.ghost_voxels", &s.ghostVoxels, 1, 1, 64,
+                "slab: voxels a GP keeps exact around its box (1 is what the shading gradient needs).");
+  schema.option("parallel.tile_size", &s.tileSize, 128, 8, 4096,
+                "Screen tile side in pixels (128: a Pixel-Planes 5 renderer); a multiple of 8.");
+  schema.choice("parallel.tile_owner", &s.tileOwner, "contiguous", {"contiguous", "interleaved"},
+                "Which PP (and, for gp_partition = tile, which GP) owns a tile: runs of tiles, or tile id mod count.");
+  schema.choice("parallel.composite_on", &s.compositeOn, "tick", {"tick", "lockstep"},
+                "tick: PPs composite on a fixed clock and send what changed; lockstep: after every frame, and "
+                "the host waits for each image (deterministic, for tests).");
+  schema.option("parallel.tick_hz", &s.tickHz, 30.0, 1.0, 1000.0, "Compositing ticks per second (composite_on = tick).");
+  schema.option("parallel.credits", &s.credits, 4, 1, 1024,
+                "Frames the host may have in flight to each GP before it waits (flow control).");
+  schema.option("parallel.timeout_s", &s.timeoutS, 30.0, 0.5, 86400.0,
+                "A rank that hears nothing for this long ends the job with a message naming what it waited for.");
+  schema.option("parallel.threads", &s.threads, 1, 0, 1024,
+                "Threads per rank for reconstruction, shading, sampling and compositing; 0 = every core.");
+}
+
+ControlState makeControlState(const RenderSettings& r, const gp::ShadeSettings& sh,
+                              const TransferFunctionSettings& tf) {
+  ControlState c;
+  c.projection = r.projectionEnum() == Projection::Orthographic ? 1 : 0;
+  c.liveMode = static_cast<std::uint8_t>(pp::compositeModeFromName(r.compositing.front()));
+  c.shadeMode = static_cast<std::uint8_t>(sh.modeEnum());
+  c.light = static_cast<std::uint8_t>(sh.lightEnum());
+  c.gradientOpacity = sh.gradientOpacity ? 1 : 0;
+  c.fovDeg = r.fovDeg;
+  c.azimuthDeg = r.azimuthDeg;
+  c.elevationDeg = r.elevationDeg;
+  c.distance = r.distance;
+  c.ambient = sh.ambient;
+  c.diffuse = sh.diffuse;
+  c.specular = sh.specular;
+  c.shininess = sh.shininess;
+  for (int i = 0; i < 3; ++i) c.lightDirection[i] = sh.lightDirection[i];
+  c.flatGradient = sh.flatGradient;
+  c.gradientOpacityLow = sh.gradientOpacityLow;
+  c.gradientOpacityWidth = sh.gradientOpacityWidth;
+  if (tf.opacity.size() > ControlState::kMaxPoints || tf.colour.size() > ControlState::kMaxPoints)
+    throw InputError(fmt::format("render.tf: at most {} opacity and {} colour points fit in a control message",
+                                 ControlState::kMaxPoints, ControlState::kMaxPoints));
+  c.opacityPoints = static_cast<std::int32_t>(tf.opacity.size());
+  c.colourPoints = static_cast<std::int32_t>(tf.colour.size());
+  for (std::size_t i = 0; i < tf.opacity.size(); ++i) {
+    c.opacity[i][0] = tf.opacity[i][0];
+    c.opacity[i][1] = tf.opacity[i][1];
+  }
+  for (std::size_t i = 0; i < tf.colour.size(); ++i)
+    for (int j = 0; j < 4; ++j) c.colour[i][j] = tf.colour[i][j];
+  return c;
+}
+
+void applyControlState(const ControlState& c, RenderSettings& r, gp::ShadeSettings& sh, TransferFunctionSettings& tf) {
+  r.projection = c.projection ? "orthographic" : "perspective";
+  r.fovDeg = c.fovDeg;
+  r.azimuthDeg = c.azimuthDeg;
+  r.elevationDeg = c.elevationDeg;
+  r.distance = c.distance;
+  const std::string live = pp::compositeModeName(liveMode(c));
+  std::erase(r.compositing, live);
+  r.compositing.insert(r.compositing.begin(), live);
+  sh.mode = static_cast<gp::ShadeMode>(c.shadeMode) == gp::ShadeMode::Value ? "value" : "phong";
+  sh.light = static_cast<gp::LightKind>(c.light) == gp::LightKind::Direction ? "direction" : "viewer";
+  sh.gradientOpacity = c.gradientOpacity != 0;
+  sh.ambient = c.ambient;
+  sh.diffuse = c.diffuse;
+  sh.specular = c.specular;
+  sh.shininess = c.shininess;
+  for (int i = 0; i < 3; ++i) sh.lightDirection[i] = c.lightDirection[i];
+  sh.flatGradient = c.flatGradient;
+  sh.gradientOpacityLow = c.gradientOpacityLow;
+  sh.gradientOpacityWidth = c.gradientOpacityWidth;
+  tf.opacity.assign(static_cast<std::size_t>(c.opacityPoints), glm::dvec4(0.0));
+  for (std::size_t i = 0; i < tf.opacity.size(); ++i) tf.opacity[i] = glm::dvec4(c.opacity[i][0], c.opacity[i][1], 0, 0);
+  tf.colour.assign(static_cast<std::size_t>(c.colourPoints), glm::dvec4(0.0));
+  for (std::size_t i = 0; i < tf.colour.size(); ++i)
+    tf.colour[i] = glm::dvec4(c.colour[i][0], c.colour[i][1], c.colour[i][2], c.colour[i][3]);
+}
+
+pp::CompositeMode liveMode(const ControlState& c) { return static_cast<pp::CompositeMode>(c.liveMode); }
+
+Camera controlCamera(const ControlState& c, const RenderSettings& base, const Grid& grid) {
+  RenderSettings r = base;
+  gp::ShadeSettings sh;
+  TransferFunctionSettings tf;
+  applyControlState(c, r, sh, tf);
+  Camera cam = makeCamera(r, grid);
+  if (c.orbitValid) cam = cam.orbited(Vec3(c.orbitAxis[0], c.orbitAxis[1], c.orbitAxis[2]), c.orbitDeg);
+  return cam;
+}
+
+std::uint32_t controlChanges(const ControlState& a, const ControlState& b) {
+  std::uint32_t ch = 0;
+  auto differs = [](const auto& x, const auto& y) { return std::memcmp(&x, &y, sizeof x) != 0; };
+  if (a.projection != b.projection || differs(a.fovDeg, b.fovDeg) || differs(a.azimuthDeg, b.azimuthDeg) ||
+      differs(a.elevationDeg, b.elevationDeg) || differs(a.distance, b.distance) || a.orbitValid != b.orbitValid ||
+      differs(a.orbitAxis, b.orbitAxis) || differs(a.orbitDeg, b.orbitDeg))
+    ch |= ControlMsg::kView;
+  if (a.shadeMode != b.shadeMode || a.light != b.light || a.gradientOpacity != b.gradientOpacity ||
+      differs(a.ambient, b.ambient) || differs(a.diffuse, b.diffuse) || differs(a.specular, b.specular) ||
+      differs(a.shininess, b.shininess) || differs(a.lightDirection, b.lightDirection) ||
+      differs(a.flatGradient, b.flatGradient) || differs(a.gradientOpacityLow, b.gradientOpacityLow) ||
+      differs(a.gradientOpacityWidth, b.gradientOpacityWidth))
+    ch |= ControlMsg::kShading;
+  if (a.opacityPoints != b.opacityPoints || a.colourPoints != b.colourPoints || differs(a.opacity, b.opacity) ||
+      differs(a.colour, b.colour))
+    ch |= ControlMsg::kTransfer;
+  if (a.liveMode != b.liveMode) ch |= ControlMsg::kMode;
+  return ch;
+}
+
+}  // namespace pp5::comm

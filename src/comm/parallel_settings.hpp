@@ -1,0 +1,55 @@
+#pragma once
+// [parallel]: how `pp5echo run` under mpirun lays the pipeline out on ranks,
+// and ControlState conversions (the view, shading, transfer function and live
+// composition mode a control change carries). No MPI here.
+#include <string>
+
+#include "comm/messages.hpp"
+#include "comm/schedule.hpp"
+#include "core/camera.hpp"
+#include "core/render_settings.hpp"
+#include "core/transfer_function.hpp"
+#include "gp/shading.hpp"
+#include "pp/ray_cache.hpp"
+
+namespace pp5 {
+class ConfigSchema;
+}
+
+namespace pp5::comm {
+
+struct ParallelSettings {
+  int gps = 0;                            // graphics processors; 0 = from the world size
+  int pps = 0;                            // pixel processors; 0 = max(1, size / 4)
+  std::string gpPartition = "slab";       // slab | tile
+  std::string slabSplit = "longest";      // longest | 3d
+  int ghostVoxels = 1;                    // slab: voxels kept exact around a GP's cells
+  int tileSize = 128;                     // screen tile side, pixels
+  std::string tileOwner = "contiguous";   // contiguous | interleaved
+  std::string compositeOn = "tick";       // tick | lockstep
+  double tickHz = 30.0;                   // compositing ticks per second (tick)
+  int credits = 4;                        // frames in flight per GP
+  double timeoutS = 30.0;                 // longest silence before a rank gives up
+  int threads = 1;                        // threads per rank (reconstruct, shade, sample, composite)
+
+  bool slab() const { return gpPartition == "slab"; }
+  bool lockstep() const { return compositeOn == "lockstep"; }
+  TileOwnership ownership() const { return tileOwnershipFromName(tileOwner); }
+  SlabSplit split() const { return slabSplitFromName(slabSplit); }
+};
+void registerOptions(ConfigSchema& schema, ParallelSettings& s);
+
+ControlState makeControlState(const RenderSettings& render, const gp::ShadeSettings& shading,
+                              const TransferFunctionSettings& tf);
+// Writes the state back into settings (the parts it carries); the live mode
+// becomes the first of render.compositing. InputError if the transfer
+// function has more points than a control message holds.
+void applyControlState(const ControlState& c, RenderSettings& render, gp::ShadeSettings& shading,
+                       TransferFunctionSettings& tf);
+pp::CompositeMode liveMode(const ControlState& c);
+// The camera of a state: makeCamera of its view, then its orbit (if any).
+Camera controlCamera(const ControlState& c, const RenderSettings& base, const Grid& grid);
+// Which ControlMsg::Change bits differ between two states.
+std::uint32_t controlChanges(const ControlState& before, const ControlState& after);
+
+}  // namespace pp5::comm

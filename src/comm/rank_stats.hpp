@@ -1,0 +1,73 @@
+#pragma once
+// Per-stage timers and the end-of-run report every non-host rank sends.
+#include <chrono>
+#include <ctime>
+
+#include "comm/messages.hpp"
+#include "comm/schedule.hpp"
+#include "comm/transport.hpp"
+
+namespace pp5::comm {
+
+inline double processCpuSeconds() {
+  timespec ts{};
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+  return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
+}
+
+// Times stages of one update, and adds them to the run's totals.
+class StageClock {
+public:
+  using Clock = std::chrono::steady_clock;
+  // Starts timing `stage` (ending the stage before, if any).
+  void start(Stage s) {
+    stop();
+    stage_ = s;
+    t0_ = Clock::now();
+  }
+  void stop() {
+    if (stage_ < 0) return;
+    const float ms = std::chrono::duration<float, std::milli>(Clock::now() - t0_).count();
+    current_.ms[stage_] += ms;
+    total_.ms[stage_] += ms;
+    stage_ = -1;
+  }
+  void add(Stage s, double ms) {
+    current_.ms[s] += static_cast<float>(ms);
+    total_.ms[s] += static_cast<float>(ms);
+  }
+  // The times since the last take(), which starts a new update.
+  StageTimes take() {
+    stop();
+    const StageTimes t = current_;
+    current_ = {};
+    return t;
+  }
+  const StageTimes& total() const { return total_; }
+
+private:
+  int stage_ = -1;
+  Clock::time_point t0_;
+  StageTimes current_, total_;
+};
+
+inline ReportMsg makeReport(const Transport& t, Role role, const StageTimes& total, double wallS,
+                            std::uint64_t dropped, std::uint64_t memoryBytes) {
+  ReportMsg r;
+  r.h.tag = kTagReport;
+  r.rank = static_cast<std::uint32_t>(t.rank());
+  r.role = static_cast<std::uint32_t>(role);
+  r.total = total;
+  r.cpuS = processCpuSeconds();
+  r.wallS = wallS;
+  const PeerCounters c = t.totals();
+  r.bytesSent = c.bytesSent;
+  r.bytesReceived = c.bytesReceived;
+  r.messagesSent = c.messagesSent;
+  r.messagesReceived = c.messagesReceived;
+  r.dropped = dropped;
+  r.memoryBytes = memoryBytes;
+  return r;
+}
+
+}  // namespace pp5::comm

@@ -1,0 +1,38 @@
+#pragma once
+// The graphics-processor rank: frames in from the host, ray samples out to the
+// pixel processors. It calls the same stages as the serial pipeline
+// (host/serial_pipeline.hpp), restricted to its share of the work:
+//  - slab: it reconstructs only its window of the grid (its cells plus ghost
+//    layers), shades the voxels its cells' samples read, and samples only the
+//    lattice points of its cells;
+//  - tile: it reconstructs the whole grid, shades only the bricks its own
+//    screen tiles can see, and samples only the rays of those tiles.
+// Either way every sample it sends has the bits the serial pipeline computes.
+#include <cstdint>
+
+#include "comm/parallel_settings.hpp"
+#include "comm/schedule.hpp"
+#include "comm/transport.hpp"
+#include "core/grid.hpp"
+#include "core/render_settings.hpp"
+#include "core/transfer_function.hpp"
+#include "gp/reconstruction.hpp"
+#include "gp/shading.hpp"
+
+namespace pp5::gp {
+
+struct GpRankConfig {
+  Grid grid;
+  ReconSettings recon;
+  RenderSettings render;
+  ShadeSettings shading;
+  TransferFunctionSettings tf;
+  comm::ParallelSettings parallel;
+  comm::RankLayout layout;
+  std::uint64_t memoryLimitBytes = 0;
+};
+
+// Runs until the host says quit; throws on any error (the caller ends the job).
+void runGpRank(comm::Transport& t, const GpRankConfig& c);
+
+}  // namespace pp5::gp

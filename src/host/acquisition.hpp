@@ -1,0 +1,98 @@
+#pragma once
+// Sources, frame preprocessing and the acquisition thread of the host rank.
+//
+// A source hands tracked frames to a sink in order. The host runs it in its
+// own thread, so that a live source is never blocked by MPI: frames go into
+// a bounded queue. A file source (or the simulator) waits when the queue is
+// full, so it runs as fast as the pipeline allows; a live source never waits:
+// when the queue is full it drops a frame by the stated policy and counts it.
+#include <atomic>
+#include <chrono>
+#include <condition_variable>
+#include <cstdint>
+#include <deque>
+#include <exception>
+#include <functional>
+#include <mutex>
+#include <string>
+#include <thread>
+
+#include <glm/glm.hpp>
+
+#include "core/frame.hpp"
+#include "core/grid.hpp"
+#include "core/transform.hpp"
+
+namespace pp5::host {
+
+using FrameSink = std::function<void(const Frame&, const Mat4&, double)>;
+
+struct Source {
+  std::string description;
+  std::uint64_t frames = 0;  // expected, for progress (0 = unknown)
+  Grid grid;                 // the reconstruction grid for this source
+  bool live = false;         // drops when behind rather than waiting
+  std::function<void(const FrameSink&)> run;
+};
+
+// Crop (x, y, width, height in pixels, as run.crop_origin and run.crop_size;
+// width 0 = none), then subsample by an
+// integer factor (the mean of each factor x factor block). The pose follows:
+// new pixel (i, j) sits where the old block's centre was.
+struct Preprocess {
+  glm::ivec4 crop{0, 0, 0, 0};
+  int subsample = 1;
+  bool identity() const { return crop.z == 0 && subsample == 1; }
+};
+// InputError naming the frame when the crop does not fit inside it.
+void preprocess(const Preprocess& p, Frame& f, Mat4& imageToReference);
+
+enum class DropPolicy { Oldest, Newest };
+DropPolicy dropPolicyFromName(const std::string& name);  // "oldest" | "newest"
+
+struct AcquiredFrame {
+  Frame frame;
+  Mat4 imageToReference{1.0};
+  double timeS = 0.0;
+  std::chrono::steady_clock::time_point arrival;
+};
+
+// Runs a source in its own thread into a bounded queue.
+class Acquisition {
+public:
+  // paceFps > 0: deliver frames at that rate, as a live scanner would (the
+  // source then counts as live).
+  Acquisition(Source source, Preprocess pre, std::size_t capacity, DropPolicy policy, double paceFps);
+  ~Acquisition();  // stops and joins the thread
+
+  // The next frame if one is queued.
+  bool tryPop(AcquiredFrame& out);
+  // True once the source has ended and the queue is empty. Rethrows the
+  // source's error, if it had one.
+  bool finished();
+  // Asks the source to stop (Ctrl-C); frames already queued are still served.
+  void stop();
+
+  std::uint64_t delivered() const { return delivered_; }
+  std::uint64_t dropped() const { return dropped_; }
+
+private:
+  Source source_;
+  Preprocess pre_;
+  std::size_t capacity_;
+  DropPolicy policy_;
+  double paceFps_;
+  bool live_;
+  std::mutex m_;
+  std::condition_variable cv_;
+  std::deque<AcquiredFrame> q_;
+  bool done_ = false;
+  std::exception_ptr error_;
+  std::atomic<bool> stop_{false};
+  std::atomic<std::uint64_t> delivered_{0}, dropped_{0};
+  std::thread thread_;
+
+  void push(AcquiredFrame&& f);
+};
+
+}  // namespace pp5::host

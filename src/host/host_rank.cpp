@@ -1,0 +1,593 @@
+#include "host/host_rank.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <memory>
+#include <thread>
+
+#include <fmt/format.h>
+#include <spdlog/spdlog.h>
+
+#include "comm/rank_stats.hpp"
+#include "comm/schedule.hpp"
+#include "core/error.hpp"
+#include "core/image_io.hpp"
+#include "core/io_util.hpp"
+#include "core/volume_io.hpp"
+#include "host/outputs.hpp"
+
+namespace pp5::host {
+
+namespace {
+
+using namespace pp5::comm;
+using Clock = std::chrono::steady_clock;
+namespace fs = std::filesystem;
+
+double msBetween(Clock::time_point a, Clock::time_point b) {
+  return std::chrono::duration<double, std::milli>(b - a).count();
+}
+
+double percentile(std::vector<double> v, double q) {
+  if (v.empty()) return 0.0;
+  std::sort(v.begin(), v.end());
+  const auto i = static_cast<std::size_t>(std::ceil(q * static_cast<double>(v.size()))) - (q > 0 ? 1 : 0);
+  return v[std::min(i, v.size() - 1)];
+}
+
+class HostRank {
+public:
+  HostRank(Transport& t, const HostJob& j)
+      : t_(t), j_(j), L_(j.layout), w_(j.pipeline.render.width), h_(j.pipeline.render.height),
+        credits_(static_cast<std::size_t>(L_.gps), j.parallel.credits), pp_(static_cast<std::size_t>(L_.pps)),
+        lastPixels_(static_cast<std::size_t>(L_.gps), -1) {
+    state_ = makeControlState(j_.pipeline.render, j_.pipeline.shading, j_.pipeline.tf);
+    fb_.assign(static_cast<std::size_t>(w_) * h_ * 4, 0.0f);
+    requestFb_ = fb_;
+    slab_ = j_.parallel.slab() && j_.pipeline.recon.methodEnum() == gp::Method::Tent;
+    if (slab_) {
+      slabs_ = SlabLayout(j_.grid, L_.gps, j_.parallel.split());
+      // What each GP's reconstruction depends on: its window, grown as the
+      // method needs (whole motion-vector cells).
+      for (int g = 0; g < L_.gps; ++g) {
+        const gp::Box3 w = slabs_.window(g, j_.parallel.ghostVoxels);
+        reach_.push_back(w.empty() ? w : gp::reconstructionReach(j_.grid, j_.pipeline.recon, w));
+      }
+    }
+    if (j_.verify) {
+      if (!j_.parallel.lockstep())
+        throw InputError("--verify compares every image with the serial pipeline's and needs parallel.composite_on = \"lockstep\"");
+      PipelineSettings ps = j_.pipeline;
+      ps.render.threads = j_.parallel.threads;
+      ps.recon.threads = j_.parallel.threads;
+      ref_ = std::make_unique<SerialPipeline>(j_.grid, ps, j_.memoryLimitBytes);
+    }
+  }
+
+  int run();
+
+private:
+  Transport& t_;
+  const HostJob& j_;
+  RankLayout L_;
+  int w_, h_;
+  std::uint32_t epoch_ = 0;
+  ControlState state_;
+  std::vector<int> credits_;
+  struct PpProgress {
+    std::uint32_t epoch = 0;
+    std::int64_t frame = -1;
+  };
+  std::vector<PpProgress> pp_;
+  int requestsDone_ = 0;
+  std::vector<float> fb_, requestFb_;
+  std::int64_t imageFrame_ = -1;  // every frame up to this one is in fb_ (this epoch)
+  std::uint64_t sent_ = 0;        // frames sent
+  std::uint64_t images_ = 0;      // image updates assembled
+  std::uint64_t verified_ = 0;
+  std::vector<Clock::time_point> arrival_;
+  std::vector<double> latencyMs_;
+  StageClock clock_;
+
+  bool slab_ = false;
+  SlabLayout slabs_;
+  std::vector<gp::Box3> reach_;            // per GP (slab): the voxels its reconstruction depends on
+  std::vector<std::int64_t> lastPixels_;  // per GP: the last frame whose pixels it got
+  AcquiredFrame prev_;
+  bool hasPrev_ = false;
+  std::uint64_t pixelMessages_ = 0, poseOnlyMessages_ = 0, previousMessages_ = 0;
+
+  std::unique_ptr<SerialPipeline> ref_;
+  std::unique_ptr<StatsCsv> stats_;
+  std::unique_ptr<AnimatedGif> buildup_;
+  std::int64_t lastBuildup_ = -1;
+  Volume volume_;
+  int volumesDone_ = 0;
+  std::vector<ReportMsg> reports_;
+
+  // ---- messages -------------------------------------------------------
+  void handle(const Message& m) {
+    switch (m.tag) {
+      case kTagCredit: {
+        const CreditMsg& c = m.as<CreditMsg>();
+        ++credits_[c.gp];
+        row(c.h, m.source, Role::Gp, c.times, c.samples, c.bytesSent, c.dirtyVoxels, -1.0);
+        break;
+      }
+      case kTagTile: onTile(m); break;
+      case kTagPpDone: {
+        const PpDoneMsg& d = m.as<PpDoneMsg>();
+        row(d.h, m.source, Role::Pp, d.times, d.samplesPut, 0, 0, -1.0);
+        if (d.request) {
+          ++requestsDone_;
+        } else if (d.h.epoch == epoch_) {
+          PpProgress& p = pp_[d.pp];
+          p.epoch = d.h.epoch;
+          p.frame = std::max(p.frame, static_cast<std::int64_t>(d.h.frame));
+          advanceImage();
+        }
+        break;
+      }
+      case kTagVolume: onVolume(m); break;
+      case kTagReport: reports_.push_back(m.as<ReportMsg>()); break;
+      default: throw CommError(fmt::format("unexpected message tag {} from rank {}", m.tag, m.source));
+    }
+  }
+
+  void onTile(const Message& m) {
+    const TileMsg& tm = m.as<TileMsg>();
+    if (!tm.request && tm.h.epoch < epoch_) return;  // an older view's tile, already replaced
+    const auto payload = m.payload<TileMsg>();
+    const std::size_t row = static_cast<std::size_t>(tm.width) * 4;
+    if (tm.x0 < 0 || tm.y0 < 0 || tm.width < 0 || tm.height < 0 || tm.x0 + tm.width > w_ || tm.y0 + tm.height > h_ ||
+        payload.size() != row * static_cast<std::size_t>(tm.height) * sizeof(float))
+      throw CommError(fmt::format("a malformed tile from rank {}", m.source));
+    clock_.start(kComposite);
+    std::vector<float>& dst = tm.request ? requestFb_ : fb_;
+    for (int y = 0; y < tm.height; ++y)
+      std::memcpy(dst.data() + (static_cast<std::size_t>(tm.y0 + y) * w_ + tm.x0) * 4,
+                  payload.data() + static_cast<std::size_t>(y) * row * sizeof(float), row * sizeof(float));
+    clock_.stop();
+  }
+
+  void advanceImage() {
+    std::int64_t f = INT64_MAX;
+    for (const PpProgress& p : pp_) f = p.epoch == epoch_ ? std::min(f, p.frame) : -1;
+    if (f <= imageFrame_) return;
+    const auto now = Clock::now();
+    for (std::int64_t i = std::max<std::int64_t>(imageFrame_ + 1, 0); i <= f && i < static_cast<std::int64_t>(sent_);
+         ++i) {
+      if (static_cast<std::size_t>(i) < latencyMs_.size() && latencyMs_[static_cast<std::size_t>(i)] < 0.0) {
+        const double ms = msBetween(arrival_[static_cast<std::size_t>(i)], now);
+        latencyMs_[static_cast<std::size_t>(i)] = ms;
+        const StageTimes none;
+        row(Header{0, epoch_, static_cast<std::uint64_t>(i)}, 0, Role::Host, none, 0, 0, 0, ms);
+      }
+    }
+    imageFrame_ = f;
+    ++images_;
+    if (buildup_ && !j_.parallel.lockstep() && f / j_.buildupEvery > lastBuildup_ / j_.buildupEvery) {
+      addBuildup();
+      lastBuildup_ = f;
+    }
+  }
+
+  void row(const Header& h, int rank, Role role, const StageTimes& st, std::uint64_t samples, std::uint64_t bytes,
+           std::uint64_t dirty, double latency) {
+    if (!stats_) return;
+    std::vector<double> v = {static_cast<double>(h.frame), static_cast<double>(h.epoch), static_cast<double>(rank),
+                             static_cast<double>(role)};
+    for (int s = 0; s < kStageCount; ++s) v.push_back(st.ms[s]);
+    v.push_back(static_cast<double>(samples));
+    v.push_back(static_cast<double>(bytes));
+    v.push_back(static_cast<double>(dirty));
+    v.push_back(latency);
+    stats_->row(v);
+  }
+
+  // Handles messages until `done()`, waiting for them; CommError names `what`
+  // when nothing arrives for parallel.timeout_s.
+  template <typename F>
+  void waitUntil(F done, const std::string& what) {
+    while (!done()) {
+      const double w0 = t_.waitSeconds();
+      Message m = t_.wait(what);
+      clock_.add(kWait, 1e3 * (t_.waitSeconds() - w0));
+      handle(m);
+    }
+  }
+  void pump() {
+    while (auto m = t_.poll()) handle(*m);
+  }
+  void waitCredits() {
+    waitUntil([&] { return std::all_of(credits_.begin(), credits_.end(), [](int c) { return c > 0; }); },
+              "a credit from every graphics processor");
+  }
+  void waitImage(std::int64_t frame) {
+    waitUntil([&] { return imageFrame_ >= frame; }, fmt::format("the image of frame {}", frame));
+  }
+
+  // Whether some voxel of `voxels` has its position inside the world box.
+  bool touches(const gp::WorldBox& box, const gp::Box3& voxels) const {
+    if (voxels.empty() || box.empty()) return false;
+    const Grid& g = j_.grid;
+    for (int a = 0; a < 3; ++a) {
+      const double lo = std::ceil((box.lo[a] - g.origin[a]) / g.spacing[a] - 1e-9);
+      const double hi = std::floor((box.hi[a] - g.origin[a]) / g.spacing[a] + 1e-9);
+      if (hi < static_cast<double>(voxels.lo[a]) || lo > static_cast<double>(voxels.hi[a] - 1)) return false;
+    }
+    return true;
+  }
+
+  // ---- frames and controls ---------------------------------------------
+  void sendFrame(AcquiredFrame& a) {
+    waitCredits();
+    clock_.start(kSend);
+    const std::uint64_t k = sent_;
+    const Frame& f = a.frame;
+    std::vector<char> pixels(static_cast<std::size_t>(L_.gps), 1);
+    if (slab_) {
+      const bool fill = hasPrev_ && prev_.frame.width == f.width && prev_.frame.height == f.height;
+      const gp::WorldBox reach = fill ? fillInReach(prev_.imageToReference, a.imageToReference, f.width, f.height,
+                                                    j_.pipeline.recon)
+                                      : frameReach(a.imageToReference, f.width, f.height, j_.pipeline.recon);
+      for (int g = 0; g < L_.gps; ++g) pixels[static_cast<std::size_t>(g)] = touches(reach, reach_[static_cast<std::size_t>(g)]);
+    }
+    FrameMsg fm;
+    fm.h = {kTagFrame, epoch_, k};
+    fm.sourceIndex = f.index;
+    fm.timeS = a.timeS;
+    const auto rm = toRowMajor(a.imageToReference);
+    std::copy(rm.begin(), rm.end(), fm.imageToReference);
+    fm.width = f.width;
+    fm.height = f.height;
+    fm.pixelType = static_cast<std::uint8_t>(f.pixelType);
+    for (int g = 0; g < L_.gps; ++g) {
+      if (pixels[static_cast<std::size_t>(g)]) {
+        if (hasPrev_ && lastPixels_[static_cast<std::size_t>(g)] != static_cast<std::int64_t>(k) - 1) {
+          // It got the previous frame pose-only, but the fill-in from it reaches this GP.
+          PreviousMsg pm;
+          pm.h = {kTagPrevious, epoch_, k - 1};
+          pm.width = prev_.frame.width;
+          pm.height = prev_.frame.height;
+          pm.pixelType = static_cast<std::uint8_t>(prev_.frame.pixelType);
+          t_.send(L_.gpRank(g), pm, prev_.frame.pixels.data(), prev_.frame.pixels.size());
+          ++previousMessages_;
+        }
+        fm.poseOnly = 0;
+        t_.send(L_.gpRank(g), fm, f.pixels.data(), f.pixels.size());
+        lastPixels_[static_cast<std::size_t>(g)] = static_cast<std::int64_t>(k);
+        ++pixelMessages_;
+      } else {
+        fm.poseOnly = 1;
+        t_.send(L_.gpRank(g), fm);
+        ++poseOnlyMessages_;
+      }
+      --credits_[static_cast<std::size_t>(g)];
+    }
+    clock_.stop();
+    arrival_.push_back(a.arrival);
+    latencyMs_.push_back(-1.0);
+    ++sent_;
+    if (ref_) ref_->insert(f, a.imageToReference, a.timeS);
+    prev_ = std::move(a);
+    hasPrev_ = true;
+  }
+
+  void sendControl(std::uint32_t changes, const ControlState& next) {
+    waitCredits();
+    ++epoch_;
+    state_ = next;
+    ControlMsg cm;
+    cm.h = {kTagControl, epoch_, sent_ ? sent_ - 1 : 0};
+    cm.changes = changes;
+    cm.state = next;
+    for (int r = 1; r < L_.worldSize(); ++r) t_.send(r, cm);
+    for (auto& c : credits_) --c;
+    for (PpProgress& p : pp_) p = {epoch_, -1};
+    imageFrame_ = -1;
+    if (ref_) {
+      RenderSettings render = j_.pipeline.render;
+      gp::ShadeSettings shading = j_.pipeline.shading;
+      TransferFunctionSettings tf;
+      applyControlState(next, render, shading, tf);
+      if (changes & ControlMsg::kFinish) ref_->finish();
+      if (changes & (ControlMsg::kShading | ControlMsg::kTransfer)) ref_->setStyle(shading, tf);
+      if (changes & ControlMsg::kView) ref_->setCamera(controlCamera(next, j_.pipeline.render, j_.grid));
+      if (changes & ControlMsg::kMode) ref_->setLiveMode(liveMode(next));
+    }
+  }
+
+  // The image after the last update, compared with the serial pipeline's.
+  void verify(const std::vector<float>& got, const pp::TileImage& want, const std::string& what) {
+    if (!ref_) return;
+    PP5_CHECK_EQ(want.rgba.size(), got.size());
+    if (std::memcmp(got.data(), want.rgba.data(), got.size() * sizeof(float)) != 0) {
+      for (std::size_t i = 0; i < got.size(); ++i)
+        if (std::memcmp(&got[i], &want.rgba[i], sizeof(float)) != 0) {
+          const std::size_t px = i / 4;
+          throw InvariantError(fmt::format("{}: the distributed image differs from the serial pipeline's at pixel "
+                                           "({}, {}) channel {}: {} against {}",
+                                           what, px % static_cast<std::size_t>(w_), px / static_cast<std::size_t>(w_),
+                                           i % 4, got[i], want.rgba[i]));
+        }
+    }
+    ++verified_;
+  }
+
+  std::vector<std::uint8_t> rgb8(const std::vector<float>& im) const {
+    pp::TileImage ti{w_, h_, im};
+    std::vector<std::uint8_t> px(static_cast<std::size_t>(w_) * h_ * 3);
+    const float black[3] = {0.0f, 0.0f, 0.0f};
+    pp::toRgb8(ti, black, px.data());
+    return px;
+  }
+  void addBuildup() {
+    if (buildup_) buildup_->add(rgb8(fb_).data());
+  }
+
+  void onVolume(const Message& m) {
+    const VolumeMsg& vm = m.as<VolumeMsg>();
+    const auto type = static_cast<ScalarType>(vm.scalarType);
+    if (volume_.bytes.empty()) volume_.allocate(j_.grid, type);
+    if (volume_.type != type) throw CommError("graphics processors sent volume pieces of different voxel types");
+    const Index3 lo(vm.lo[0], vm.lo[1], vm.lo[2]), hi(vm.hi[0], vm.hi[1], vm.hi[2]);
+    const auto bpv = static_cast<std::size_t>(scalarBytes(type));
+    const auto payload = m.payload<VolumeMsg>();
+    const gp::Box3 box{lo, hi};
+    if (!box.empty()) {
+      if (glm::any(glm::lessThan(lo, Index3(0))) || glm::any(glm::greaterThan(hi, j_.grid.dims)) ||
+          payload.size() != box.voxelCount() * bpv)
+        throw CommError(fmt::format("a malformed volume piece from rank {}", m.source));
+      const std::size_t rowBytes = static_cast<std::size_t>(hi.x - lo.x) * bpv;
+      std::size_t off = 0;
+      for (std::int64_t k = lo.z; k < hi.z; ++k)
+        for (std::int64_t jj = lo.y; jj < hi.y; ++jj) {
+          std::memcpy(volume_.bytes.data() + j_.grid.linear(lo.x, jj, k) * bpv, payload.data() + off, rowBytes);
+          off += rowBytes;
+        }
+    }
+    if (vm.last) ++volumesDone_;
+  }
+
+  std::vector<float> request(pp::CompositeMode mode) {
+    RequestMsg rq;
+    rq.h = {kTagRequest, epoch_, sent_ ? sent_ - 1 : 0};
+    rq.mode = static_cast<std::uint8_t>(mode);
+    requestsDone_ = 0;
+    std::fill(requestFb_.begin(), requestFb_.end(), 0.0f);
+    for (int p = 0; p < L_.pps; ++p) t_.send(L_.ppRank(p), rq);
+    waitUntil([&] { return requestsDone_ == L_.pps; }, fmt::format("the {} image", pp::compositeModeName(mode)));
+    return requestFb_;
+  }
+
+  void writeSummary(double streamS, double totalS, const std::vector<std::string>& wrote);
+};
+
+int HostRank::run() {
+  const fs::path dir(j_.outDir);
+  const auto start = Clock::now();
+  {
+    std::vector<std::string> cols = {"frame", "epoch", "rank", "role"};
+    for (int s = 0; s < kStageCount; ++s) cols.push_back(std::string(stageName(s)) + "_ms");
+    for (const char* c : {"samples", "bytes_sent", "dirty_voxels", "latency_ms"}) cols.push_back(c);
+    stats_ = std::make_unique<StatsCsv>((dir / "stats.csv").string(), cols);
+  }
+  buildup_ = std::make_unique<AnimatedGif>((dir / "buildup.gif").string(), w_, h_, j_.buildupFps);
+  const bool lockstep = j_.parallel.lockstep();
+
+  // Scripted changes by frame, in order.
+  std::vector<ScriptedControl> script = j_.script;
+  std::stable_sort(script.begin(), script.end(),
+                   [](const ScriptedControl& a, const ScriptedControl& b) { return a.afterFrame < b.afterFrame; });
+  std::size_t nextScript = 0;
+
+  Acquisition acq(j_.source, j_.preprocess, j_.queueFrames, j_.drop, j_.paceFps);
+  Clock::time_point firstSent{}, lastLog = start;
+  bool stopping = false;
+  for (;;) {
+    pump();
+    if (!stopping && j_.interrupt && j_.interrupt->load()) {
+      spdlog::warn("run: interrupted; finishing the {} frames acquired", sent_);
+      acq.stop();
+      stopping = true;
+    }
+    AcquiredFrame a;
+    if (acq.tryPop(a)) {
+      if (sent_ == 0) firstSent = Clock::now();
+      sendFrame(a);
+      const std::int64_t k = static_cast<std::int64_t>(sent_) - 1;
+      if (lockstep) {
+        waitImage(k);
+        if (ref_) verify(fb_, ref_->image(), fmt::format("frame {}", k));
+        if (k % j_.buildupEvery == 0) addBuildup();
+      }
+      while (nextScript < script.size() && script[nextScript].afterFrame <= static_cast<std::uint64_t>(k)) {
+        const ScriptedControl& sc = script[nextScript++];
+        const std::uint32_t ch = controlChanges(state_, sc.state);
+        if (!ch) continue;
+        spdlog::info("run: after frame {}: {}", k, sc.text);
+        sendControl(ch, sc.state);
+        if (lockstep) {
+          waitImage(k);
+          if (ref_) verify(fb_, ref_->image(), fmt::format("after frame {} ({})", k, sc.text));
+        }
+      }
+      const auto now = Clock::now();
+      if (now - lastLog > std::chrono::seconds(2)) {
+        const double el = std::chrono::duration<double>(now - firstSent).count();
+        if (j_.source.frames)
+          spdlog::info("run: frame {}/{}, {:.1f} frames/s, {:.0f} s left", sent_, j_.source.frames, sent_ / el,
+                       static_cast<double>(j_.source.frames - std::min(sent_, j_.source.frames)) * el / sent_);
+        else
+          spdlog::info("run: frame {}, {:.1f} frames/s", sent_, sent_ / el);
+        lastLog = now;
+      }
+    } else if (acq.finished()) {
+      break;
+    } else {
+      std::this_thread::sleep_for(std::chrono::microseconds(100));
+    }
+  }
+  if (sent_ == 0) throw InputError("run: the source gave no frame that can be placed");
+  waitImage(static_cast<std::int64_t>(sent_) - 1);
+  const double streamS = std::chrono::duration<double>(Clock::now() - firstSent).count();
+
+  // The end of the sweep: final passes, then what is shown of the final volume.
+  sendControl(ControlMsg::kFinish, state_);
+  waitImage(static_cast<std::int64_t>(sent_) - 1);
+  if (ref_) verify(fb_, ref_->image(), "after the final passes");
+  addBuildup();
+  buildup_->close();
+  std::vector<std::string> wrote = {"buildup.gif"};
+  for (const std::string& mode : j_.pipeline.render.compositing) {
+    const pp::CompositeMode m = pp::compositeModeFromName(mode);
+    const std::vector<float> im = request(m);
+    if (ref_) verify(im, m == ref_->liveMode() ? ref_->image() : ref_->compositeFull(m), "final " + mode + " image");
+    const std::string name = "final_" + mode + ".png";
+    writeRgbPng((dir / name).string(), w_, h_, rgb8(im).data());
+    wrote.push_back(name);
+  }
+  if (j_.mpr || j_.volume || ref_) {
+    EmptyMsg rq;
+    rq.h = {kTagVolumeRequest, epoch_, sent_ - 1};
+    volumesDone_ = 0;
+    for (int g = 0; g < L_.gps; ++g) t_.send(L_.gpRank(g), rq);
+    waitUntil([&] { return volumesDone_ == L_.gps; }, "the reconstructed volume");
+    if (ref_ && volume_.bytes != ref_->reconstructor().output().bytes)
+      throw InvariantError("the distributed reconstruction differs from the serial pipeline's");
+    if (j_.mpr) {
+      const Index3 c = j_.grid.dims / Index3(2);
+      for (const auto& p : writeMpr(volume_, c, (dir / "mpr").string())) wrote.push_back(fs::path(p).filename().string());
+    }
+    if (j_.volume) {
+      writeVolume((dir / "volume.mha").string(), volume_.as(ScalarType::U8), true);
+      wrote.push_back("volume.mha");
+    }
+  }
+  std::vector<double> orbitMs;
+  if (j_.orbitFrames > 0) {
+    AnimatedGif orbit((dir / "orbit.gif").string(), w_, h_, j_.orbitFps);
+    const ControlState base = state_;
+    for (int i = 0; i < j_.orbitFrames; ++i) {
+      ControlState s = base;
+      s.orbitValid = 1;
+      s.orbitDeg = 360.0 * i / j_.orbitFrames;
+      const auto t0 = Clock::now();
+      sendControl(ControlMsg::kView, s);
+      waitImage(static_cast<std::int64_t>(sent_) - 1);
+      orbitMs.push_back(msBetween(t0, Clock::now()));
+      if (ref_) verify(fb_, ref_->image(), fmt::format("orbit view {}", i));
+      orbit.add(rgb8(fb_).data());
+    }
+    orbit.close();
+    wrote.push_back("orbit.gif");
+  }
+
+  // Quit: every rank reports and leaves.
+  EmptyMsg quit;
+  quit.h = {kTagQuit, epoch_, sent_ - 1};
+  for (int r = 1; r < L_.worldSize(); ++r) t_.send(r, quit);
+  waitUntil([&] { return static_cast<int>(reports_.size()) == L_.worldSize() - 1; }, "every rank's report");
+  t_.flush();
+  stats_.reset();
+  wrote.push_back("stats.csv");
+  wrote.push_back("summary.json");
+  wrote.push_back("settings.toml");
+  const double totalS = std::chrono::duration<double>(Clock::now() - start).count();
+  if (!orbitMs.empty()) {
+    std::sort(orbitMs.begin(), orbitMs.end());
+    spdlog::info("run: full re-render after a view change (median of {}): {:.0f} ms", orbitMs.size(),
+                 orbitMs[orbitMs.size() / 2]);
+  }
+  std::printf("run: %llu frames through %d ranks (1 host, %d GP, %d PP; %s partition, %s tiles of %d px, %s) in %.1f s\n",
+              static_cast<unsigned long long>(sent_), L_.worldSize(), L_.gps, L_.pps, j_.parallel.gpPartition.c_str(),
+              j_.parallel.tileOwner.c_str(), j_.parallel.tileSize, j_.parallel.compositeOn.c_str(), totalS);
+  if (acq.dropped())
+    std::printf("  dropped %llu frames (live source behind; run.drop = %s)\n",
+                static_cast<unsigned long long>(acq.dropped()), j_.drop == DropPolicy::Oldest ? "oldest" : "newest");
+  if (ref_) std::printf("  verified: %llu images bitwise equal to the serial pipeline's\n", static_cast<unsigned long long>(verified_));
+  writeSummary(streamS, totalS, wrote);
+  std::printf("wrote to %s\n", fs::absolute(dir).string().c_str());
+  for (const auto& n : wrote) std::printf("  %s\n", n.c_str());
+  return 0;
+}
+
+void HostRank::writeSummary(double streamS, double totalS, const std::vector<std::string>&) {
+  std::vector<double> lat;
+  for (double v : latencyMs_)
+    if (v >= 0.0) lat.push_back(v);
+  // Per stage: the critical path (max over ranks) and the imbalance (max / mean over the ranks that do it).
+  ReportMsg host = makeReport(t_, Role::Host, clock_.total(), totalS, 0, 0);
+  std::vector<ReportMsg> all = reports_;
+  all.push_back(host);
+  std::sort(all.begin(), all.end(), [](const ReportMsg& a, const ReportMsg& b) { return a.rank < b.rank; });
+  std::uint64_t bytes = 0;
+  for (const auto& r : all) bytes += r.bytesSent;
+  std::string json = "{\n";
+  json += fmt::format("  \"ranks\": {}, \"gps\": {}, \"pps\": {},\n", L_.worldSize(), L_.gps, L_.pps);
+  json += fmt::format("  \"gp_partition\": \"{}\", \"slab_split\": \"{}\", \"tile_owner\": \"{}\", \"tile_size\": {}, "
+                      "\"composite_on\": \"{}\",\n",
+                      j_.parallel.gpPartition, j_.parallel.slabSplit, j_.parallel.tileOwner, j_.parallel.tileSize,
+                      j_.parallel.compositeOn);
+  json += fmt::format("  \"frames\": {}, \"stream_s\": {:.4f}, \"total_s\": {:.4f},\n", sent_, streamS, totalS);
+  json += fmt::format("  \"frames_per_s_in\": {:.3f}, \"images_per_s_out\": {:.3f},\n", sent_ / streamS,
+                      images_ / totalS);
+  json += fmt::format("  \"latency_ms_median\": {:.3f}, \"latency_ms_p95\": {:.3f},\n", percentile(lat, 0.5),
+                      percentile(lat, 0.95));
+  json += fmt::format("  \"bytes_per_frame\": {:.1f}, \"pixel_messages\": {}, \"pose_only_messages\": {}, "
+                      "\"previous_messages\": {},\n",
+                      static_cast<double>(bytes) / static_cast<double>(sent_), pixelMessages_, poseOnlyMessages_,
+                      previousMessages_);
+  json += "  \"stages\": {";
+  std::printf("  frames/s in %.1f, images/s out %.1f, latency median %.1f ms, p95 %.1f ms, %.0f kB per frame\n",
+              sent_ / streamS, images_ / totalS, percentile(lat, 0.5), percentile(lat, 0.95),
+              static_cast<double>(bytes) / static_cast<double>(sent_) / 1e3);
+  std::printf("  %-12s %12s %12s %10s\n", "stage", "critical ms", "mean ms", "imbalance");
+  for (int s = 0; s < kStageCount; ++s) {
+    double mx = 0.0, sum = 0.0;
+    int n = 0;
+    for (const auto& r : all)
+      if (r.total.ms[s] > 0.0f) {
+        mx = std::max(mx, static_cast<double>(r.total.ms[s]));
+        sum += r.total.ms[s];
+        ++n;
+      }
+    const double mean = n ? sum / n : 0.0;
+    json += fmt::format("{}\n    \"{}\": {{\"critical_ms\": {:.3f}, \"mean_ms\": {:.3f}, \"imbalance\": {:.3f}}}",
+                        s ? "," : "", stageName(s), mx, mean, mean > 0 ? mx / mean : 0.0);
+    std::printf("  %-12s %12.1f %12.1f %10.2f\n", stageName(s), mx, mean, mean > 0 ? mx / mean : 0.0);
+  }
+  json += "\n  },\n  \"per_rank\": [";
+  std::printf("  %-5s %-5s %9s %9s %12s %12s\n", "rank", "role", "cpu s", "wall s", "MB sent", "MB received");
+  for (std::size_t i = 0; i < all.size(); ++i) {
+    const ReportMsg& r = all[i];
+    json += fmt::format("{}\n    {{\"rank\": {}, \"role\": \"{}\", \"cpu_s\": {:.4f}, \"wall_s\": {:.4f}, "
+                        "\"bytes_sent\": {}, \"bytes_received\": {}, \"messages_sent\": {}, \"messages_received\": {}, "
+                        "\"dropped_messages\": {}, \"memory_bytes\": {}",
+                        i ? "," : "", r.rank, roleName(static_cast<Role>(r.role)), r.cpuS, r.wallS, r.bytesSent,
+                        r.bytesReceived, r.messagesSent, r.messagesReceived, r.dropped, r.memoryBytes);
+    json += ", \"stage_ms\": {";
+    for (int s = 0; s < kStageCount; ++s) json += fmt::format("{}\"{}\": {:.3f}", s ? ", " : "", stageName(s), r.total.ms[s]);
+    json += "}}";
+    std::printf("  %-5u %-5s %9.2f %9.2f %12.1f %12.1f\n", r.rank, roleName(static_cast<Role>(r.role)), r.cpuS, r.wallS,
+                static_cast<double>(r.bytesSent) / 1e6, static_cast<double>(r.bytesReceived) / 1e6);
+  }
+  json += "\n  ]\n}\n";
+  io::AtomicFile f((fs::path(j_.outDir) / "summary.json").string());
+  f.write(json);
+  f.commit();
+}
+
+}  // namespace
+
+int runHostRank(comm::Transport& t, const HostJob& job) {
+  HostRank h(t, job);
+  return h.run();
+}
+
+}  // namespace pp5::host

@@ -1,0 +1,331 @@
+#include "pp/pp_rank.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cstring>
+#include <deque>
+#include <memory>
+#include <thread>
+
+#include <fmt/format.h>
+
+#include "comm/rank_stats.hpp"
+#include "core/error.hpp"
+#include "gp/sample_lattice.hpp"
+
+namespace pp5::pp {
+
+namespace {
+
+using namespace pp5::comm;
+using Clock = std::chrono::steady_clock;
+
+class PpRank {
+public:
+  PpRank(Transport& t, const PpRankConfig& c)
+      : t_(t), c_(c), p_(c.layout.ppIndex(t.rank())), start_(Clock::now()), queues_(static_cast<std::size_t>(c.layout.gps)),
+        lastDone_(static_cast<std::size_t>(c.layout.gps), -1) {
+    render_ = c_.render;
+    render_.threads = c_.parallel.threads;
+    state_ = makeControlState(render_, c_.shading, c_.tf);
+    tiles_ = TileGrid(render_.width, render_.height, c_.parallel.tileSize);
+    mine_ = tilesOwnedBy(p_, tiles_.count(), c_.layout.pps, c_.parallel.ownership());
+    slot_.assign(static_cast<std::size_t>(tiles_.count()), -1);
+    for (std::size_t i = 0; i < mine_.size(); ++i) slot_[static_cast<std::size_t>(mine_[i])] = static_cast<int>(i);
+    buildCaches();
+  }
+
+  void run() {
+    const bool lockstep = c_.parallel.lockstep();
+    const auto tick = std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(1.0 / c_.parallel.tickHz));
+    auto nextTick = Clock::now() + tick;
+    auto lastHeard = Clock::now();
+    for (;;) {
+      std::optional<Message> m;
+      if (lockstep) {
+        const double w0 = t_.waitSeconds();
+        m = t_.wait(fmt::format("samples or a command (PP {})", p_ + 1));
+        clock_.add(kWait, 1e3 * (t_.waitSeconds() - w0));
+      } else {
+        m = t_.poll();
+        if (!m) {
+          const auto now = Clock::now();
+          if (now >= nextTick) {
+            onTick();
+            nextTick = std::max(nextTick + tick, now);
+          } else {
+            const auto idle0 = Clock::now();
+            std::this_thread::sleep_for(std::min<Clock::duration>(nextTick - now, std::chrono::microseconds(200)));
+            clock_.add(kWait, std::chrono::duration<double, std::milli>(Clock::now() - idle0).count());
+          }
+          if (std::chrono::duration<double>(now - lastHeard).count() > t_.timeoutS())
+            throw CommError(fmt::format("no message in {:.0f} s while waiting for samples or a command (PP {}); a "
+                                        "rank may have died or hung (parallel.timeout_s)",
+                                        t_.timeoutS(), p_ + 1));
+          continue;
+        }
+        lastHeard = Clock::now();
+      }
+      if (m->source == 0) {
+        switch (m->tag) {
+          case kTagControl: onControl(m->as<ControlMsg>()); break;
+          case kTagRequest: onRequest(m->as<RequestMsg>()); break;
+          case kTagQuit: {
+            const double wall = std::chrono::duration<double>(Clock::now() - start_).count();
+            std::uint64_t mem = 0;
+            for (const auto& cache : caches_) mem += cache->memoryBytes();
+            t_.send(0, makeReport(t_, Role::Pp, clock_.total(), wall, dropped_, mem));
+            t_.flush();
+            return;
+          }
+          default: throw CommError(fmt::format("unexpected message tag {} from the host", m->tag));
+        }
+      } else {
+        const Role r = c_.layout.role(m->source);
+        if (r != Role::Gp || (m->tag != kTagSamples && m->tag != kTagGpDone))
+          throw CommError(fmt::format("unexpected message (tag {}) from rank {}", m->tag, m->source));
+        queues_[static_cast<std::size_t>(c_.layout.gpIndex(m->source))].push_back(std::move(*m));
+      }
+      if (lockstep) applyComplete();
+      else applyArrived();
+    }
+  }
+
+private:
+  Transport& t_;
+  PpRankConfig c_;
+  int p_;
+  Clock::time_point start_;
+  StageClock clock_;
+  RenderSettings render_;
+  ControlState state_;
+  std::uint32_t epoch_ = 0;
+  TileGrid tiles_;
+  std::vector<int> mine_;   // tiles owned, ascending
+  std::vector<int> slot_;   // tile -> index in caches_, -1 when not owned
+  std::vector<std::unique_ptr<RayCache>> caches_;
+  std::vector<std::deque<Message>> queues_;  // per GP, in arrival order
+  std::vector<std::int64_t> lastDone_;       // per GP: last frame complete in this epoch (-1: none)
+  std::int64_t lastSent_ = -1;               // frame of the last PpDone (tick)
+  bool awaitingFull_ = false;                // a full re-sample is being received (tick)
+  bool sendAll_ = false;                     // the next image sends every tile (the caches were cleared)
+  int fullDone_ = 0;
+  std::uint64_t dropped_ = 0;
+  std::uint64_t samplesPut_ = 0, rays_ = 0, blocks_ = 0;
+
+  CompositeMode live() const { return liveMode(state_); }
+
+  void buildCaches() {
+    const Camera cam = controlCamera(state_, c_.render, c_.grid);
+    const gp::SampleLattice lattice(cam, c_.grid, render_.step(c_.grid), render_.maxSamples, render_.threads);
+    const bool reuse = caches_.size() == mine_.size();
+    for (std::size_t i = 0; i < mine_.size(); ++i) {
+      const TileRect r = tiles_.rect(mine_[i]);
+      std::vector<std::uint16_t> counts(static_cast<std::size_t>(r.width) * static_cast<std::size_t>(r.height));
+      for (int y = 0; y < r.height; ++y)
+        std::copy_n(lattice.counts().data() + static_cast<std::size_t>(r.y0 + y) * render_.width + r.x0, r.width,
+                    counts.data() + static_cast<std::size_t>(y) * r.width);
+      // A new view of the same tiles reuses the caches' storage.
+      if (reuse) {
+        caches_[i]->setLiveMode(live());
+        caches_[i]->reset(counts);
+      } else {
+        caches_.push_back(std::make_unique<RayCache>(r, render_.width, counts, c_.cache, live(), render_.threads));
+      }
+    }
+  }
+
+  void put(const Message& m) {
+    const SamplesMsg& sm = m.as<SamplesMsg>();
+    const auto payload = m.payload<SamplesMsg>();
+    if (payload.size() != sm.count * sizeof(RaySample))
+      throw CommError(fmt::format("a sample batch from rank {} holds {} bytes for {} samples", m.source,
+                                  payload.size(), sm.count));
+    if (sm.tile >= slot_.size() || slot_[sm.tile] < 0)
+      throw CommError(fmt::format("rank {} sent samples of tile {}, which PP {} does not own", m.source, sm.tile, p_ + 1));
+    clock_.start(kReceive);
+    // The payload is not aligned for RaySample in general; copy it out.
+    std::vector<RaySample> s(sm.count);
+    if (sm.count) std::memcpy(s.data(), payload.data(), payload.size());
+    clock_.start(kComposite);
+    caches_[static_cast<std::size_t>(slot_[sm.tile])]->put(s.data(), s.size());
+    clock_.stop();
+    samplesPut_ += sm.count;
+  }
+
+  // lockstep: applies whole updates, in order, once every GP's part is here.
+  void applyComplete() {
+    for (;;) {
+      // Drop what an older epoch left behind (none in lockstep, where the
+      // host waits for every image, but harmless).
+      for (auto& q : queues_)
+        while (!q.empty() && q.front().header().epoch < epoch_) {
+          q.pop_front();
+          ++dropped_;
+        }
+      const Header* key = nullptr;
+      for (auto& q : queues_) {
+        auto it = std::find_if(q.begin(), q.end(), [](const Message& m) { return m.tag == kTagGpDone; });
+        if (it == q.end()) return;
+        const Header& h = it->header();
+        if (h.epoch > epoch_) return;  // its control has not arrived yet
+        if (key && (key->epoch != h.epoch || key->frame != h.frame))
+          throw CommError(fmt::format("GPs disagree on the update order: frame {} epoch {} against frame {} epoch {}",
+                                      key->frame, key->epoch, h.frame, h.epoch));
+        key = &h;
+      }
+      const Header done = *key;
+      for (auto& q : queues_) {
+        for (;;) {
+          Message m = std::move(q.front());
+          q.pop_front();
+          if (m.tag == kTagGpDone) break;
+          put(m);
+        }
+      }
+      compositeAndSend(done.frame, false);
+    }
+  }
+
+  // tick: puts everything of the current epoch as it arrives.
+  void applyArrived() {
+    for (std::size_t g = 0; g < queues_.size(); ++g) {
+      auto& q = queues_[g];
+      while (!q.empty()) {
+        const Header h = q.front().header();
+        if (h.epoch < epoch_) {
+          q.pop_front();
+          ++dropped_;
+          continue;
+        }
+        if (h.epoch > epoch_) break;
+        Message m = std::move(q.front());
+        q.pop_front();
+        if (m.tag == kTagSamples) {
+          put(m);
+        } else {
+          lastDone_[g] = static_cast<std::int64_t>(h.frame);
+          if (m.as<GpDoneMsg>().full && awaitingFull_ && ++fullDone_ == c_.layout.gps) awaitingFull_ = false;
+        }
+      }
+    }
+  }
+
+  void onTick() {
+    if (awaitingFull_) return;  // half a view is worse than the old one
+    const std::int64_t complete = *std::min_element(lastDone_.begin(), lastDone_.end());
+    bool dirty = complete > lastSent_;
+    if (!dirty)
+      for (const auto& c : caches_)
+        if (c->counters().samplesPut) dirty = true;
+    if (!dirty) return;
+    compositeAndSend(static_cast<std::uint64_t>(std::max<std::int64_t>(complete, 0)), false);
+    lastSent_ = complete;
+  }
+
+  void compositeAndSend(std::uint64_t frame, bool all) {
+    all = all || sendAll_;
+    sendAll_ = false;
+    clock_.start(kComposite);
+    std::vector<std::pair<int, CompositeStats>> changed;
+    for (std::size_t i = 0; i < caches_.size(); ++i) {
+      RayCache& cache = *caches_[i];
+      const CompositeStats cs = cache.composite();
+      rays_ += cs.rays;
+      blocks_ += cs.blocks;
+      cache.resetCounters();
+      if (all || !cs.changed.empty()) changed.emplace_back(static_cast<int>(i), cs);
+    }
+    clock_.start(kSend);
+    std::uint32_t sent = 0;
+    for (const auto& [i, cs] : changed) {
+      const RayCache& cache = *caches_[static_cast<std::size_t>(i)];
+      const TileRect tr = cache.tile();
+      const TileRect r = all ? TileRect{0, 0, tr.width, tr.height} : cs.changed;
+      sendTile(cache.image(), tr, r, live());
+      ++sent;
+    }
+    done(frame, sent, false);
+  }
+
+  void sendTile(const TileImage& im, const TileRect& tile, const TileRect& r, CompositeMode mode, bool request = false) {
+    TileMsg tm;
+    tm.request = request ? 1 : 0;
+    tm.h = {kTagTile, epoch_, 0};
+    tm.x0 = tile.x0 + r.x0;
+    tm.y0 = tile.y0 + r.y0;
+    tm.width = r.width;
+    tm.height = r.height;
+    tm.mode = static_cast<std::uint8_t>(mode);
+    const std::size_t rowBytes = static_cast<std::size_t>(r.width) * 4 * sizeof(float);
+    std::vector<std::byte> buf(sizeof tm + rowBytes * static_cast<std::size_t>(r.height));
+    std::memcpy(buf.data(), &tm, sizeof tm);
+    for (int y = 0; y < r.height; ++y)
+      std::memcpy(buf.data() + sizeof tm + rowBytes * static_cast<std::size_t>(y), im.pixel(r.x0, r.y0 + y), rowBytes);
+    t_.sendBuffer(0, kTagTile, std::move(buf));
+  }
+
+  void done(std::uint64_t frame, std::uint32_t tiles, bool request) {
+    PpDoneMsg d;
+    d.h = {kTagPpDone, epoch_, frame};
+    d.pp = static_cast<std::uint32_t>(p_);
+    d.tiles = tiles;
+    d.request = request ? 1 : 0;
+    d.times = clock_.take();
+    d.rays = rays_;
+    d.blocks = blocks_;
+    d.samplesPut = samplesPut_;
+    rays_ = blocks_ = samplesPut_ = 0;
+    t_.send(0, d);
+  }
+
+  void onControl(const ControlMsg& cm) {
+    if (cm.h.epoch <= epoch_) throw CommError(fmt::format("a control change for epoch {} after epoch {}", cm.h.epoch, epoch_));
+    epoch_ = cm.h.epoch;
+    const std::uint32_t ch = cm.changes;
+    state_ = cm.state;
+    clock_.start(kComposite);
+    if (ch & ControlMsg::kView) {
+      buildCaches();
+    } else if (ch & ControlMsg::kMode) {
+      for (auto& c : caches_) c->setLiveMode(live());
+    }
+    std::fill(lastDone_.begin(), lastDone_.end(), -1);
+    lastSent_ = -1;
+    if (ch & (ControlMsg::kView | ControlMsg::kShading | ControlMsg::kTransfer | ControlMsg::kFinish)) {
+      if (!(ch & ControlMsg::kView))  // a new view's caches are empty already
+        for (auto& c : caches_) c->clear();
+      sendAll_ = true;
+      awaitingFull_ = true;
+      fullDone_ = 0;
+    } else {
+      // A new live mode only: the same samples, composited again.
+      std::fill(lastDone_.begin(), lastDone_.end(), static_cast<std::int64_t>(cm.h.frame));
+      compositeAndSend(cm.h.frame, true);
+      lastSent_ = static_cast<std::int64_t>(cm.h.frame);
+    }
+    clock_.stop();
+  }
+
+  void onRequest(const RequestMsg& rm) {
+    const auto mode = static_cast<CompositeMode>(rm.mode);
+    clock_.start(kComposite);
+    std::vector<TileImage> ims;
+    for (const auto& c : caches_) ims.push_back(c->compositeFull(mode));
+    clock_.start(kSend);
+    for (std::size_t i = 0; i < caches_.size(); ++i) {
+      const TileRect tr = caches_[i]->tile();
+      sendTile(ims[i], tr, TileRect{0, 0, tr.width, tr.height}, mode, true);
+    }
+    done(rm.h.frame, static_cast<std::uint32_t>(caches_.size()), true);
+  }
+};
+
+}  // namespace
+
+void runPpRank(comm::Transport& t, const PpRankConfig& c) {
+  PpRank pp(t, c);
+  pp.run();
+}
+
+}  // namespace pp5::pp

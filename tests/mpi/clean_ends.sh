@@ -1,0 +1,98 @@
+#!/usr/bin/env bash
+# Clean ends of the distributed pipeline. Every case runs under a timeout and
+# asserts the exit status and the message, so a hang fails the test.
+#  1. a rank killed mid-sweep ends the job within seconds;
+#  2. a corrupt frame in the input ends the job with a message naming it;
+#  3. a rank that stops answering (SIGSTOP) ends the job after parallel.timeout_s;
+#  4. Ctrl-C through scripts/mpirun.sh finishes the frames acquired and writes every output (tick mode);
+#  5. a layout that does not match the job's size is refused with a clear message.
+# Usage: clean_ends.sh PP5ECHO OUTDIR DATADIR
+set -uo pipefail
+bin="$1" out="$2" data="$3"
+root="$(cd "$(dirname "$0")/../.." && pwd)"
+export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 OMPI_MCA_rmaps_base_oversubscribe=1
+rm -rf "$out" && mkdir -p "$out"
+fail=0
+check() {  # check NAME CONDITION-STATUS MESSAGE
+  if [[ "$2" == 0 ]]; then echo "ok:   $1"; else echo "FAIL: $1: $3"; fail=1; fi
+}
+small=("$root/tests/configs/mpi_small.toml" --set 'parallel.composite_on="tick"' --set 'run.orbit_frames=0')
+# A longer sweep (a frame every 2 mm) so there is time to interfere.
+long=("${small[@]}" --set 'sim.sweep.capture_interval_mm=1.0' --set 'run.script=[]')
+
+# The ranks of a running mpirun, in rank order (Open MPI exports the rank).
+rank_pid() {  # rank_pid MPIRUN_PID RANK
+  local p
+  for p in $(pgrep -P "$1"); do
+    if tr '\0' '\n' < "/proc/$p/environ" 2>/dev/null | grep -qx "OMPI_COMM_WORLD_RANK=$2"; then echo "$p"; return; fi
+  done
+}
+wait_for() {  # wait_for FILE PATTERN SECONDS
+  for ((i = 0; i < $3 * 10; i++)); do grep -q "$2" "$1" 2>/dev/null && return 0; sleep 0.1; done
+  return 1
+}
+
+# 1. kill -9 a graphics processor mid-sweep.
+log="$out/kill.log"
+mpirun -n 4 "$bin" run "${long[@]}" -o "$out/kill" > "$log" 2>&1 &
+mp=$!
+wait_for "$log" "run: frame" 60
+t0=$(date +%s)
+gp=$(rank_pid "$mp" 1)
+[[ -n "$gp" ]] && kill -9 "$gp"
+timeout 30 tail --pid="$mp" -f /dev/null; wait "$mp"; st=$?
+t1=$(date +%s)
+check "killed rank: job ends non-zero" "$([[ -n "$gp" && $st -ne 0 ]]; echo $?)" "status $st, rank pid '$gp'"
+check "killed rank: within 20 s" "$([[ $((t1 - t0)) -le 20 ]]; echo $?)" "took $((t1 - t0)) s"
+check "killed rank: mpirun names it" "$(grep -q 'rank 1 with PID' "$log"; echo $?)" "$(tail -5 "$log")"
+
+# 2. a corrupt frame: 200 kB of garbage in the middle of a compressed PLUS sequence.
+seq="$out/corrupt.igs.mha"
+cp "$data/SpinePhantomFreehand.igs.mha" "$seq" && chmod u+w "$seq"
+head -c 200000 /dev/zero | tr '\0' '\253' | dd of="$seq" bs=1 seek=1500000 conv=notrunc 2>/dev/null
+log="$out/corrupt.log"
+timeout 120 mpirun -n 4 "$bin" run -o "$out/corrupt" --set 'run.source="sequence"' --set "run.sequence=\"$seq\"" \
+  --set "run.plus_config=\"$data/PlusDeviceSet_SpinePhantomFreehandReconstructionOnly.xml\"" --set 'run.orbit_frames=0' \
+  > "$log" 2>&1
+st=$?
+check "corrupt frame: job ends non-zero (not by the timeout)" "$([[ $st -ne 0 && $st -ne 124 ]]; echo $?)" "status $st"
+check "corrupt frame: the host names the file and frame" \
+  "$(grep -q 'rank 0 (host): .*corrupt.igs.mha: frame [0-9]*: corrupt compressed data' "$log"; echo $?)" "$(tail -5 "$log")"
+
+# 3. a pixel processor that stops answering: the others give up after parallel.timeout_s.
+log="$out/stop.log"
+mpirun -n 4 "$bin" run "${long[@]}" --set 'parallel.timeout_s=3.0' -o "$out/stop" > "$log" 2>&1 &
+mp=$!
+wait_for "$log" "run: frame" 60
+pp=$(rank_pid "$mp" 3)
+[[ -n "$pp" ]] && kill -STOP "$pp"
+timeout 40 tail --pid="$mp" -f /dev/null; wait "$mp"; st=$?
+[[ -n "$pp" ]] && kill -9 "$pp" 2>/dev/null
+check "stopped rank: job ends non-zero" "$([[ -n "$pp" && $st -ne 0 ]]; echo $?)" "status $st"
+check "stopped rank: a rank says what it waited for" "$(grep -q 'no message in 3 s while waiting for' "$log"; echo $?)" \
+  "$(tail -5 "$log")"
+
+# 4. Ctrl-C through scripts/mpirun.sh, in tick mode: a clean end with every output.
+log="$out/interrupt.log"
+# (A background job starts with SIGINT ignored, and bash cannot trap a signal
+# ignored on entry; python restores the default first, as a terminal has it.)
+python3 -c 'import os, signal, sys; signal.signal(signal.SIGINT, signal.SIG_DFL); os.execvp("bash", ["bash"] + sys.argv[1:])' \
+  "$root/scripts/mpirun.sh" 4 "$bin" run "${long[@]}" -o "$out/interrupt" > "$log" 2>&1 &
+sh=$!
+wait_for "$log" "run: frame" 60
+kill -INT "$sh"
+timeout 120 tail --pid="$sh" -f /dev/null; wait "$sh"; st=$?
+check "Ctrl-C: exit 0" "$([[ $st -eq 0 ]]; echo $?)" "status $st: $(tail -5 "$log")"
+check "Ctrl-C: the host says so" "$(grep -q 'interrupted; finishing the' "$log"; echo $?)" "$(tail -5 "$log")"
+for f in buildup.gif final_over.png final_mip.png mpr_axial.png volume.mha stats.csv summary.json settings.toml; do
+  check "Ctrl-C: wrote $f" "$([[ -s "$out/interrupt/$f" ]]; echo $?)" "missing"
+done
+
+# 5. a layout that does not fit the job.
+log="$out/layout.log"
+timeout 60 mpirun -n 3 "$bin" run "${small[@]}" --gps 2 --pps 2 -o "$out/layout" > "$log" 2>&1
+st=$?
+check "layout mismatch: refused" "$([[ $st -ne 0 && $st -ne 124 ]]; echo $?)" "status $st"
+check "layout mismatch: says why" "$(grep -q 'need 5 ranks, but the job has 3' "$log"; echo $?)" "$(tail -3 "$log")"
+
+exit $fail
