@@ -65,7 +65,7 @@ def bars(ax, rows, series, ylabel, title, log=False, hline=None, hlabel=None):
         ax.axhline(hline, color="red", linestyle="--", linewidth=1)
         if hlabel:
             handles.append(Line2D([], [], color="red", linestyle="--", label=hlabel))
-    ax.legend(handles=handles, fontsize=8, loc="upper left")
+    ax.legend(handles=handles, fontsize=8, loc="upper left", bbox_to_anchor=(1.005, 1.0))
     ax.grid(axis="y", alpha=0.3)
 
 
@@ -89,7 +89,7 @@ def main():
         return 1
     wrote = []
 
-    fig, ax = plt.subplots(figsize=(12, 5.5))
+    fig, ax = plt.subplots(figsize=(14, 5.5))
     bars(ax, ok, [("frames_per_s_in", "measured frames/s in (every rank on 2 shared cores)", ""),
                   ("model_fps_10gbe", "model, one rank per node, 10 Gb/s: whole run's CPU", "//"),
                   ("steady_fps_10gbe", "model, the same less start-up", ".."),
@@ -98,13 +98,13 @@ def main():
          hlabel="30 frames/s target")
     save(fig, out, "bench_throughput.png", wrote)
 
-    fig, ax = plt.subplots(figsize=(12, 5.5))
+    fig, ax = plt.subplots(figsize=(14, 5.5))
     bars(ax, ok, [("latency_ms_median", "latency median", ""), ("latency_ms_p95", "latency p95", "//")],
          "ms (log scale)", "Frame-to-image latency (unpaced: the source queue is always full; @30: paced)",
          log=True, hline=100, hlabel="100 ms target (p95, paced)")
     save(fig, out, "bench_latency.png", wrote)
 
-    fig, ax = plt.subplots(figsize=(12, 5.5))
+    fig, ax = plt.subplots(figsize=(14, 5.5))
     bars(ax, ok, [("reconstruct_imbalance", "reconstruct (wall)", ""), ("shade_imbalance", "shade (wall)", "//"),
                   ("sample_imbalance", "sample (wall)", ".."), ("gp_cpu_imbalance", "GP CPU less start-up", "xx")],
          "busiest GP / mean GP", "Imbalance between the GPs per layout", hline=1.0)
@@ -128,13 +128,15 @@ def main():
                              label=f"{part}: {st}")
                 axes[1].plot(g, [r[f"gp_{st}_cpu_ms_max"] for r in rs], marker=m, color=c, linestyle=ls,
                              label=f"{part}: {st}")
-            axes[2].plot(g, [r["steady_cpu_ms_per_frame"] for r in rs], marker="o", color=c, linestyle=ls,
-                         label=f"{part}: busiest rank")
-            axes[2].plot(g, [1e3 * r["cpu_s_sum"] / r["frames"] for r in rs], marker="s", color=c, linestyle=":",
-                         label=f"{part}: every rank summed (with start-up)")
-        axes[0].set_title("Work: CPU ms per frame summed over the GPs")
-        axes[1].set_title("Critical path: the busiest GP's CPU ms per frame")
-        axes[2].set_title("CPU ms per frame (start-up taken off)")
+            axes[2].plot(g, [r.get("gp_steady_cpu_ms_max", math.nan) for r in rs], marker="o", color=c, linestyle="-",
+                         label=f"{part}: busiest GP")
+            axes[2].plot(g, [r.get("gp_steady_cpu_ms_sum", math.nan) for r in rs], marker="s", color=c,
+                         linestyle="--", label=f"{part}: all GPs")
+            axes[2].plot(g, [r.get("steady_cpu_ms_sum_all", math.nan) for r in rs], marker="^", color=c,
+                         linestyle=":", label=f"{part}: all ranks")
+        axes[0].set_title("Work by stage: summed over the GPs (estimate)")
+        axes[1].set_title("Critical path by stage: the busiest GP (estimate)")
+        axes[2].set_title("Each rank's CPU ms per frame, start-up taken off")
         axes[2].axhline(1000 / 30, color="red", linestyle="--", linewidth=1, label="33 ms (30 frames/s)")
         for a in axes:
             a.set_xlabel("graphics processors (1 PP)")
@@ -178,7 +180,7 @@ def main():
         ax.set_ylabel("latency, ms (log scale)")
         ax.set_title("Paced at 30 frames/s: frame-to-image latency of every frame")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, ncol=2)
+        ax.legend(fontsize=7, ncol=2, loc="lower right")
         save(fig, out, "bench_latency_frames.png", wrote)
 
     for p in wrote:

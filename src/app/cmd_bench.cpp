@@ -24,9 +24,9 @@
 #include <fstream>
 #include <functional>
 #include <map>
-#include <set>
 #include <memory>
 #include <optional>
+#include <set>
 #include <sstream>
 #include <string>
 #include <thread>
@@ -308,7 +308,7 @@ Sequence simulateSequence(const Settings& s, const std::string& dir) {
   struct Expected {
     std::uint64_t index;
     double time;
-    std::size_t hash;
+    std::vector<std::uint8_t> pixels;
     Mat4 pose;
   };
   std::vector<Expected> want;
@@ -318,8 +318,7 @@ Sequence simulateSequence(const Settings& s, const std::string& dir) {
   auto writer = SequenceWriter::create(out.sequencePath, wo);
   auto first = SequenceWriter::create(out.firstPath, wo);
   sim.run(s.sim.threads, [&](Frame&& f) {
-    const std::string_view bytes(reinterpret_cast<const char*>(f.pixels.data()), f.pixels.size());
-    want.push_back({f.index, f.timestamp, std::hash<std::string_view>{}(bytes), sim.imageToReference(f.index)});
+    want.push_back({f.index, f.timestamp, f.pixels, sim.imageToReference(f.index)});
     if (want.size() == 1) first->write(f);
     writer->write(f);
   });
@@ -335,9 +334,8 @@ Sequence simulateSequence(const Settings& s, const std::string& dir) {
   Frame f;
   for (std::size_t i = 0; i < n; ++i) {
     if (!seq.reader->next(f)) throw InvariantError(fmt::format("{}: frame {} missing", out.sequencePath, i));
-    const std::string_view bytes(reinterpret_cast<const char*>(f.pixels.data()), f.pixels.size());
     if (!seq.poses[i]) throw InvariantError(fmt::format("{}: frame {} cannot be placed", out.sequencePath, i));
-    if (std::hash<std::string_view>{}(bytes) != want[i].hash || f.index != want[i].index || f.timestamp != want[i].time)
+    if (f.pixels != want[i].pixels || f.index != want[i].index || f.timestamp != want[i].time)
       throw InvariantError(fmt::format("{}: frame {} read back differs from the simulator's (pixels, index or time)",
                                        out.sequencePath, i));
     for (int c = 0; c < 4; ++c)
@@ -447,6 +445,8 @@ struct Row {
   // without start-up (MPI, allocation, the empty grid's shading).
   double steadyCpuMs = 0.0, steadyShmMs = 0.0, steadyEthMs = 0.0, baseCpuMax = 0.0;
   double gpCpuImbalance = 0.0;
+  // Per frame, less start-up: the busiest GP, every GP, every rank (ms).
+  double gpSteadyMaxMs = 0.0, gpSteadySumMs = 0.0, allSteadySumMs = 0.0;
   std::vector<double> roleImbalance;  // per stage, over the ranks of the role that does it
   // CPU ms per frame by stage, estimated: a rank's wall ms in the stage times
   // its CPU over its busy wall time (every stage but wait), start-up taken
@@ -603,6 +603,14 @@ void derive(Row& r, std::size_t sourceFrames, const Bandwidth& bw) {
       r.incrementalEthMs = r.incrementalCpuMs + 1e3 * r.maxRankBytesPerFrame / kEthernetBytesPerS;
     }
   }
+  if (r.baseOk) {
+    double all = 0.0;
+    for (std::size_t i = 0; i < r.baseCpu.size() && i < s.at("per_rank").size(); ++i)
+      all += s.at("per_rank")[i].at("cpu_s").get<double>() - r.baseCpu[i];
+    r.gpSteadyMaxMs = 1e3 * gpSteadyMax / f;
+    r.gpSteadySumMs = 1e3 * gpSteadySum / f;
+    r.allSteadySumMs = 1e3 * all / f;
+  }
   // Over the GPs' CPU time less start-up where the baseline ran.
   r.gpCpuImbalance = gpN ? (r.baseOk ? (gpSteadySum > 0 ? gpSteadyMax / (gpSteadySum / gpN) : 0.0)
                                      : r.gpCpuMax / (gpSum / gpN))
@@ -714,7 +722,8 @@ std::vector<std::string> csvHeader() {
   }
   h.emplace_back("pp_composite_cpu_ms_max");
   for (const char* c : {"cpu_s_sum", "cpu_s_max", "cpu_max_rank", "host_cpu_s", "gp_cpu_s_max", "pp_cpu_s_max",
-                        "gp_cpu_imbalance", "baseline_cpu_s_max", "stream_s", "total_s", "wall_s", "job_cpu_s",
+                        "gp_cpu_imbalance", "baseline_cpu_s_max", "gp_steady_cpu_ms_max", "gp_steady_cpu_ms_sum",
+                        "steady_cpu_ms_sum_all", "stream_s", "total_s", "wall_s", "job_cpu_s",
                         "load_avg_before", "load_avg_after", "model_cpu_ms_per_frame", "model_fps_shm",
                         "model_fps_10gbe", "steady_cpu_ms_per_frame", "steady_fps_shm", "steady_fps_10gbe",
                         "gp_frame_cpu_ms_max", "gp_control_cpu_ms_max", "incremental_cpu_ms_per_frame",
@@ -770,6 +779,9 @@ std::vector<std::string> csvRow(const Row& r) {
   v.push_back(d(r.ppCpuMax));
   v.push_back(d(r.gpCpuImbalance));
   v.push_back(r.baseOk ? d(r.baseCpuMax) : "");
+  v.push_back(r.baseOk ? d(r.gpSteadyMaxMs) : "");
+  v.push_back(r.baseOk ? d(r.gpSteadySumMs) : "");
+  v.push_back(r.baseOk ? d(r.allSteadySumMs) : "");
   v.push_back(d(num(s, "stream_s")));
   v.push_back(d(num(s, "total_s")));
   v.push_back(d(r.child.wallS));
@@ -847,18 +859,20 @@ void writeMarkdown(const std::string& path, const std::vector<Row>& rows, const 
     if (runs) m += fmt::format("\n{}: the target was met in {} of {} runs.", part, met, runs);
   }
   m += "\n\n## Every layout\n\n";
-  m += "CPU: every rank's CPU seconds over the run, summed and the largest. Model: frames/s with one rank per node "
+  m += "CPU: every rank's CPU seconds over the run, summed and the largest; per frame, less each rank's start-up "
+       "(its CPU on the first frame alone): the busiest GP, all GPs, all ranks. Model: frames/s with one rank per node "
        "over 10 Gb/s Ethernet, 1000 / (the busiest rank's CPU ms per frame + the busiest rank's MB per frame / "
        "1.25 GB/s), from the CPU of the whole run (*run*), less each rank's start-up (*steady*: its CPU on the first "
        "frame alone), and counting the GPs' frame updates only (*incr.*: no view change or final pass). Paced runs "
        "have none.\n\n";
   m += "| layout | ranks | frames (drops) | frames/s in | images/s out | latency median / p95 ms | MB/frame | "
-       "CPU s sum / max | wall s | model fps run / steady / incr. |\n";
-  m += "|---|---|---|---|---|---|---|---|---|---|\n";
+       "CPU s sum / max | GP CPU ms/frame max / sum | all ranks CPU ms/frame | wall s | model fps run / steady / "
+       "incr. |\n";
+  m += "|---|---|---|---|---|---|---|---|---|---|---|---|\n";
   for (const Row& r : rows) {
     const Layout& l = r.layout;
     if (!r.ok) {
-      m += fmt::format("| `{}` | {} | failed: {} | | | | | | {:.1f} | |\n", l.name(), l.ranks(),
+      m += fmt::format("| `{}` | {} | failed: {} | | | | | | | | {:.1f} | |\n", l.name(), l.ranks(),
                        r.child.timedOut ? "timed out" : fmt::format("exit {}", r.child.status), r.child.wallS);
       continue;
     }
@@ -868,11 +882,13 @@ void writeMarkdown(const std::string& path, const std::vector<Row>& rows, const 
       model = fmt::format("{:.0f} / {} / {}", 1e3 / r.modelEthMs,
                           r.baseOk ? fmt::format("{:.0f}", 1e3 / r.steadyEthMs) : "-",
                           r.split ? fmt::format("{:.0f}", 1e3 / r.incrementalEthMs) : "-");
-    m += fmt::format("| `{}`{} | {} | {} ({}) | {:.1f} | {:.1f} | {:.0f} / {:.0f} | {:.2f} | {:.1f} / {:.1f} | {:.1f} | "
-                     "{} |\n",
+    m += fmt::format("| `{}`{} | {} | {} ({}) | {:.1f} | {:.1f} | {:.0f} / {:.0f} | {:.2f} | {:.1f} / {:.1f} | {} | {} | "
+                     "{:.1f} | {} |\n",
                      l.name(), l.target ? " *" : "", l.ranks(), r.frames, r.drops, num(s, "frames_per_s_in"),
                      num(s, "images_per_s_out"), num(s, "latency_ms_median"), num(s, "latency_ms_p95"),
-                     num(s, "bytes_per_frame") / 1e6, r.cpuSum, r.cpuMax, r.child.wallS, model);
+                     num(s, "bytes_per_frame") / 1e6, r.cpuSum, r.cpuMax,
+                     r.baseOk ? fmt::format("{:.1f} / {:.1f}", r.gpSteadyMaxMs, r.gpSteadySumMs) : "-",
+                     r.baseOk ? fmt::format("{:.1f}", r.allSteadySumMs) : "-", r.child.wallS, model);
   }
   m += "\n## Per stage\n\n";
   m += "Wall: the busiest rank's wall-clock ms per frame in the stage (summary.json's critical path), and the "
@@ -1107,7 +1123,8 @@ int runBench(BenchOptions o) {
   }
   writeCsv(csv, rows);
   writeMarkdown(md, rows, o, seq, bw, serial, elapsed());
-  makePlots(o, csv);
+  if (gStop) std::printf("bench: interrupted; no plots (run scripts/bench_plots.py on bench.csv)\n");
+  else makePlots(o, csv);
   int failed = 0;
   for (const Row& r : rows) failed += r.ok ? 0 : 1;
   std::printf("bench: %zu layouts (%d failed) in %s\n", rows.size(), failed, clockText(elapsed()).c_str());

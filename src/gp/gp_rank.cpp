@@ -204,8 +204,16 @@ private:
         const Box3 c = b.intersect(shadeRegion_);
         if (!c.empty()) out.push_back(c);
       } else {
+        // A frame's shading boxes span the whole slice; cut them into bricks
+        // so that what this GP's tiles do not see is really skipped.
+        constexpr std::int64_t B = 16;
         const Box3 c = b.intersect(wholeGrid(c_.grid));
-        if (!c.empty() && visible(c)) out.push_back(c);
+        for (std::int64_t k = c.lo.z; k < c.hi.z; k += B)
+          for (std::int64_t j = c.lo.y; j < c.hi.y; j += B)
+            for (std::int64_t i = c.lo.x; i < c.hi.x; i += B) {
+              const Box3 brick{Index3(i, j, k), glm::min(Index3(i, j, k) + Index3(B), c.hi)};
+              if (visible(brick)) out.push_back(brick);
+            }
       }
     }
     return out;
@@ -266,10 +274,11 @@ private:
     clock_.stop();
 
     std::uint64_t samples = 0, dirtyVoxels = 0;
-    std::vector<Box3> mine;
+    std::vector<Box3> all, mine;
     if (!r.dirty.empty()) {
       clock_.start(kShade);
-      mine = myShare(shadingBoxes(r.dirty));
+      all = shadingBoxes(r.dirty);
+      mine = myShare(all);
       for (const Box3& b : mine) shade(recon_->output(), tf_, shading_, camera_, b, shade_);
       spaceBefore_ = space_;
       space_.update(shade_, mine);
@@ -277,7 +286,10 @@ private:
     }
     if (!mine.empty()) {
       clock_.start(kSample);
-      dbuf_.build(camera_, stencilBoxes(c_.grid, mine));
+      // slab: only this GP's cells' samples can change; tile: the serial
+      // pipeline's few merged boxes (the work-tile mask keeps the rays to this
+      // GP's tiles, whose samples read only voxels of visible bricks).
+      dbuf_.build(camera_, stencilBoxes(c_.grid, slab_ ? mine : all));
       sampleRegion(shade_, lattice_, dbuf_, render_, *buckets_, &space_, options_, &spaceBefore_);
     }
     const std::uint64_t bytes0 = t_.totals().bytesSent;
@@ -425,6 +437,7 @@ private:
 
 void runGpRank(comm::Transport& t, const GpRankConfig& c) {
   GpRank gp(t, c);
+  MPI_Barrier(MPI_COMM_WORLD);  // ready: the host starts acquiring once every rank is
   gp.run();
 }
 

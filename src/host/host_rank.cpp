@@ -365,7 +365,8 @@ private:
     return requestFb_;
   }
 
-  void writeSummary(double streamS, double totalS, const std::vector<std::string>& wrote);
+  void writeSummary(double streamS, double totalS, std::uint64_t drops, const std::vector<std::string>& wrote);
+  std::uint64_t streamImages_ = 0;  // image updates while frames were streaming
 };
 
 int HostRank::run() {
@@ -386,6 +387,9 @@ int HostRank::run() {
                    [](const ScriptedControl& a, const ScriptedControl& b) { return a.afterFrame < b.afterFrame; });
   std::size_t nextScript = 0;
 
+  // Every rank has allocated its grids and caches before the first frame is
+  // acquired, so a live source does not queue behind the start-up.
+  MPI_Barrier(MPI_COMM_WORLD);
   Acquisition acq(j_.source, j_.preprocess, j_.queueFrames, j_.drop, j_.paceFps);
   Clock::time_point firstSent{}, lastLog = start;
   bool stopping = false;
@@ -399,6 +403,7 @@ int HostRank::run() {
     AcquiredFrame a;
     if (acq.tryPop(a)) {
       if (sent_ == 0) firstSent = Clock::now();
+      const std::uint64_t sourceIndex = a.frame.index;
       sendFrame(a);
       const std::int64_t k = static_cast<std::int64_t>(sent_) - 1;
       if (lockstep) {
@@ -406,7 +411,8 @@ int HostRank::run() {
         if (ref_) verify(fb_, ref_->image(), fmt::format("frame {}", k));
         if (k % j_.buildupEvery == 0) addBuildup();
       }
-      while (nextScript < script.size() && script[nextScript].afterFrame <= static_cast<std::uint64_t>(k)) {
+      // By the source's frame index, so that dropped frames do not move the change.
+      while (nextScript < script.size() && script[nextScript].afterFrame <= sourceIndex) {
         const ScriptedControl& sc = script[nextScript++];
         const std::uint32_t ch = controlChanges(state_, sc.state);
         if (!ch) continue;
@@ -434,8 +440,12 @@ int HostRank::run() {
     }
   }
   if (sent_ == 0) throw InputError("run: the source gave no frame that can be placed");
+  for (; nextScript < script.size(); ++nextScript)
+    spdlog::warn("run: the source ended before frame {}; run.script entry \"{}\" was not applied",
+                 script[nextScript].afterFrame, script[nextScript].text);
   waitImage(static_cast<std::int64_t>(sent_) - 1);
   const double streamS = std::chrono::duration<double>(Clock::now() - firstSent).count();
+  streamImages_ = images_;
 
   // The end of the sweep: final passes, then what is shown of the final volume.
   sendControl(ControlMsg::kFinish, state_);
@@ -511,17 +521,16 @@ int HostRank::run() {
     std::printf("  dropped %llu frames (live source behind; run.drop = %s)\n",
                 static_cast<unsigned long long>(acq.dropped()), j_.drop == DropPolicy::Oldest ? "oldest" : "newest");
   if (ref_) std::printf("  verified: %llu images bitwise equal to the serial pipeline's\n", static_cast<unsigned long long>(verified_));
-  writeSummary(streamS, totalS, wrote);
+  writeSummary(streamS, totalS, acq.dropped(), wrote);
   std::printf("wrote to %s\n", fs::absolute(dir).string().c_str());
   for (const auto& n : wrote) std::printf("  %s\n", n.c_str());
   return 0;
 }
 
-void HostRank::writeSummary(double streamS, double totalS, const std::vector<std::string>&) {
+void HostRank::writeSummary(double streamS, double totalS, std::uint64_t drops, const std::vector<std::string>&) {
   std::vector<double> lat;
   for (double v : latencyMs_)
     if (v >= 0.0) lat.push_back(v);
-  // Per stage: the critical path (max over ranks) and the imbalance (max / mean over the ranks that do it).
   ReportMsg host = makeReport(t_, Role::Host, clock_.total(), totalS, 0, 0);
   std::vector<ReportMsg> all = reports_;
   all.push_back(host);
@@ -535,8 +544,8 @@ void HostRank::writeSummary(double streamS, double totalS, const std::vector<std
                       j_.parallel.gpPartition, j_.parallel.slabSplit, j_.parallel.tileOwner, j_.parallel.tileSize,
                       j_.parallel.compositeOn);
   json += fmt::format("  \"frames\": {}, \"stream_s\": {:.4f}, \"total_s\": {:.4f},\n", sent_, streamS, totalS);
-  json += fmt::format("  \"frames_per_s_in\": {:.3f}, \"images_per_s_out\": {:.3f},\n", sent_ / streamS,
-                      images_ / totalS);
+  json += fmt::format("  \"frames_per_s_in\": {:.3f}, \"images_per_s_out\": {:.3f}, \"dropped_frames\": {},\n",
+                      sent_ / streamS, streamImages_ / streamS, drops);
   json += fmt::format("  \"latency_ms_median\": {:.3f}, \"latency_ms_p95\": {:.3f},\n", percentile(lat, 0.5),
                       percentile(lat, 0.95));
   json += fmt::format("  \"bytes_per_frame\": {:.1f}, \"pixel_messages\": {}, \"pose_only_messages\": {}, "
@@ -545,22 +554,31 @@ void HostRank::writeSummary(double streamS, double totalS, const std::vector<std
                       previousMessages_);
   json += "  \"stages\": {";
   std::printf("  frames/s in %.1f, images/s out %.1f, latency median %.1f ms, p95 %.1f ms, %.0f kB per frame\n",
-              sent_ / streamS, images_ / totalS, percentile(lat, 0.5), percentile(lat, 0.95),
+              sent_ / streamS, streamImages_ / streamS, percentile(lat, 0.5), percentile(lat, 0.95),
               static_cast<double>(bytes) / static_cast<double>(sent_) / 1e3);
   std::printf("  %-12s %12s %12s %10s\n", "stage", "critical ms", "mean ms", "imbalance");
   for (int s = 0; s < kStageCount; ++s) {
-    double mx = 0.0, sum = 0.0;
+    // The critical path over every rank; the imbalance over the ranks of the
+    // role that does the stage (GPs reconstruct, shade and sample; PPs
+    // composite; GPs and PPs receive, send and wait), so the host does not
+    // skew it.
+    const bool gpStage = s == kReconstruct || s == kShade || s == kSample;
+    double mx = 0.0, roleMax = 0.0, sum = 0.0;
     int n = 0;
-    for (const auto& r : all)
-      if (r.total.ms[s] > 0.0f) {
-        mx = std::max(mx, static_cast<double>(r.total.ms[s]));
-        sum += r.total.ms[s];
-        ++n;
-      }
+    for (const auto& r : all) {
+      mx = std::max(mx, static_cast<double>(r.total.ms[s]));
+      const auto role = static_cast<Role>(r.role);
+      const bool counts = gpStage ? role == Role::Gp : s == kComposite ? role == Role::Pp : role != Role::Host;
+      if (!counts) continue;
+      roleMax = std::max(roleMax, static_cast<double>(r.total.ms[s]));
+      sum += r.total.ms[s];
+      ++n;
+    }
     const double mean = n ? sum / n : 0.0;
+    const double imbalance = mean > 0 ? roleMax / mean : 0.0;
     json += fmt::format("{}\n    \"{}\": {{\"critical_ms\": {:.3f}, \"mean_ms\": {:.3f}, \"imbalance\": {:.3f}}}",
-                        s ? "," : "", stageName(s), mx, mean, mean > 0 ? mx / mean : 0.0);
-    std::printf("  %-12s %12.1f %12.1f %10.2f\n", stageName(s), mx, mean, mean > 0 ? mx / mean : 0.0);
+                        s ? "," : "", stageName(s), mx, mean, imbalance);
+    std::printf("  %-12s %12.1f %12.1f %10.2f\n", stageName(s), mx, mean, imbalance);
   }
   json += "\n  },\n  \"per_rank\": [";
   std::printf("  %-5s %-5s %9s %9s %12s %12s\n", "rank", "role", "cpu s", "wall s", "MB sent", "MB received");

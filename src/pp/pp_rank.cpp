@@ -325,6 +325,7 @@ private:
 
 void runPpRank(comm::Transport& t, const PpRankConfig& c) {
   PpRank pp(t, c);
+  MPI_Barrier(MPI_COMM_WORLD);  // ready: the host starts acquiring once every rank is
   pp.run();
 }
 
