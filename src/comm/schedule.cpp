@@ -368,19 +368,26 @@ gp::WorldBox padded(gp::WorldBox b) {
   return b;
 }
 
-// The exact reach, unpadded.
-gp::WorldBox reachOf(const Axes& p, const PixelRect& r, const gp::ReconSettings& s) {
+// The box around the clipped rectangle's corners (`at` maps a pixel corner to
+// world), grown per world axis by the tent kernel along the slice axes u, v, n.
+template <typename At>
+gp::WorldBox kernelBox(const PixelRect& r, const gp::ReconSettings& s, const Vec3& u, const Vec3& v, const Vec3& n,
+                       At at) {
   gp::WorldBox b{Vec3(std::numeric_limits<double>::infinity()), Vec3(-std::numeric_limits<double>::infinity())};
   for (const auto& [c, y] : corners(r)) {
-    const Vec3 w = p.origin + c * p.ex + y * p.ey;
+    const Vec3 w = at(c, y);
     b.lo = glm::min(b.lo, w);
     b.hi = glm::max(b.hi, w);
   }
-  const Vec3 k = s.kernelLateralMm * glm::abs(p.u) + s.kernelAxialMm * glm::abs(p.v) +
-                 s.kernelElevationMm * glm::abs(p.n);
+  const Vec3 k = s.kernelLateralMm * glm::abs(u) + s.kernelAxialMm * glm::abs(v) + s.kernelElevationMm * glm::abs(n);
   b.lo -= k;
   b.hi += k;
   return b;
+}
+
+// The exact reach, unpadded.
+gp::WorldBox reachOf(const Axes& p, const PixelRect& r, const gp::ReconSettings& s) {
+  return kernelBox(r, s, p.u, p.v, p.n, [&](double c, double y) { return p.origin + c * p.ex + y * p.ey; });
 }
 
 }  // namespace
@@ -426,17 +433,8 @@ struct SliceAxes {
 };
 
 gp::WorldBox sliceReach(const SliceAxes& p, const PixelRect& r, const gp::ReconSettings& s) {
-  gp::WorldBox b{Vec3(std::numeric_limits<double>::infinity()), Vec3(-std::numeric_limits<double>::infinity())};
-  for (const auto& [c, y] : corners(r)) {
-    const Vec3 w = p.origin + (c * p.sx + y * p.eyu) * p.u + (y * p.syv) * p.v;
-    b.lo = glm::min(b.lo, w);
-    b.hi = glm::max(b.hi, w);
-  }
-  const Vec3 k = s.kernelLateralMm * glm::abs(p.u) + s.kernelAxialMm * glm::abs(p.v) +
-                 s.kernelElevationMm * glm::abs(p.n);
-  b.lo -= k;
-  b.hi += k;
-  return b;
+  return kernelBox(r, s, p.u, p.v, p.n,
+                   [&](double c, double y) { return p.origin + (c * p.sx + y * p.eyu) * p.u + (y * p.syv) * p.v; });
 }
 
 }  // namespace
