@@ -23,6 +23,8 @@
 #include "gp/sample_lattice.hpp"
 #include "gp/shade_buffer.hpp"
 
+#include "geometry_test_util.hpp"
+
 namespace {
 
 using pp5::Camera;
@@ -49,15 +51,8 @@ Grid smallGrid() {
   return g;
 }
 
-Vec3 gridCentre(const Grid& g) { return 0.5 * (g.minCorner() + g.maxCorner()); }
-
-Vec3 randomUnit(std::mt19937& rng) {
-  std::normal_distribution<double> n;
-  Vec3 v;
-  do v = Vec3(n(rng), n(rng), n(rng));
-  while (glm::length(v) < 1e-3);
-  return glm::normalize(v);
-}
+using pp5::test::gridCentre;
+using pp5::test::randomUnit;
 
 // A random view of the grid; eyeInside: the eye in the grid's box.
 Camera randomCamera(std::mt19937& rng, const Grid& g, Projection proj, bool eyeInside, int w, int h) {

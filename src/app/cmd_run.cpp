@@ -94,13 +94,6 @@ host::Preprocess preprocessOf(const Settings& s) {
   return p;
 }
 
-std::vector<std::uint8_t> rgb8(const pp::TileImage& im) {
-  std::vector<std::uint8_t> px(static_cast<std::size_t>(im.width) * static_cast<std::size_t>(im.height) * 3);
-  const float black[3] = {0.0f, 0.0f, 0.0f};
-  pp::toRgb8(im, black, px.data());
-  return px;
-}
-
 double median(std::vector<double> v) {
   if (v.empty()) return 0.0;
   std::sort(v.begin(), v.end());
@@ -163,7 +156,7 @@ int runSerial(const RunOptions& o) {
     shades.push_back(st.shadeMs);
     samplings.push_back(st.sampleMs);
     composites.push_back(st.compositeMs);
-    if (done % static_cast<std::uint64_t>(s.run.buildupEvery) == 0) buildup.add(rgb8(pipe.image()).data());
+    if (done % static_cast<std::uint64_t>(s.run.buildupEvery) == 0) buildup.add(pp::toRgb8(pipe.image()).data());
     ++done;
     const auto now = Clock::now();
     if (now - lastLog > std::chrono::seconds(2)) {
@@ -177,14 +170,14 @@ int runSerial(const RunOptions& o) {
 
   // The end of the sweep: final passes, then what is shown of the final volume.
   pipe.finish();
-  buildup.add(rgb8(pipe.image()).data());
+  buildup.add(pp::toRgb8(pipe.image()).data());
   buildup.close();
   std::vector<std::string> wrote = {"buildup.gif"};
   for (const std::string& mode : s.render.compositing) {
     const pp::CompositeMode m = pp::compositeModeFromName(mode);
     const pp::TileImage im = m == pipe.liveMode() ? pipe.image() : pipe.compositeFull(m);
     const std::string name = "final_" + mode + ".png";
-    writeRgbPng((fs::path(dir) / name).string(), w, h, rgb8(im).data());
+    writeRgbPng((fs::path(dir) / name).string(), w, h, pp::toRgb8(im).data());
     wrote.push_back(name);
   }
   if (s.run.mpr) {
@@ -205,7 +198,7 @@ int runSerial(const RunOptions& o) {
       const auto t = Clock::now();
       pipe.setCamera(base.orbited(Vec3(0, 0, 1), 360.0 * i / s.run.orbitFrames));
       ms.push_back(std::chrono::duration<double, std::milli>(Clock::now() - t).count());
-      orbit.add(rgb8(pipe.image()).data());
+      orbit.add(pp::toRgb8(pipe.image()).data());
     }
     orbit.close();
     orbitMs = median(ms);

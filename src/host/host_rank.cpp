@@ -319,13 +319,7 @@ private:
     ++verified_;
   }
 
-  std::vector<std::uint8_t> rgb8(const std::vector<float>& im) const {
-    pp::TileImage ti{w_, h_, im};
-    std::vector<std::uint8_t> px(static_cast<std::size_t>(w_) * h_ * 3);
-    const float black[3] = {0.0f, 0.0f, 0.0f};
-    pp::toRgb8(ti, black, px.data());
-    return px;
-  }
+  std::vector<std::uint8_t> rgb8(const std::vector<float>& im) const { return pp::toRgb8(pp::TileImage{w_, h_, im}); }
   void addBuildup() {
     if (buildup_) buildup_->add(rgb8(fb_).data());
   }

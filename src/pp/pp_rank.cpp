@@ -112,6 +112,7 @@ private:
   int fullDone_ = 0;
   std::uint64_t dropped_ = 0;
   std::uint64_t samplesPut_ = 0, rays_ = 0, blocks_ = 0;
+  std::vector<RaySample> scratch_;  // one batch's samples, aligned
 
   CompositeMode live() const { return liveMode(state_); }
 
@@ -144,11 +145,12 @@ private:
     if (sm.tile >= slot_.size() || slot_[sm.tile] < 0)
       throw CommError(fmt::format("rank {} sent samples of tile {}, which PP {} does not own", m.source, sm.tile, p_ + 1));
     clock_.start(kReceive);
-    // The payload is not aligned for RaySample in general; copy it out.
-    std::vector<RaySample> s(sm.count);
-    if (sm.count) std::memcpy(s.data(), payload.data(), payload.size());
+    // The payload is not aligned for RaySample in general; copy it out (into
+    // storage kept from batch to batch).
+    scratch_.resize(sm.count);
+    if (sm.count) std::memcpy(scratch_.data(), payload.data(), payload.size());
     clock_.start(kComposite);
-    caches_[static_cast<std::size_t>(slot_[sm.tile])]->put(s.data(), s.size());
+    caches_[static_cast<std::size_t>(slot_[sm.tile])]->put(scratch_.data(), scratch_.size());
     clock_.stop();
     samplesPut_ += sm.count;
   }

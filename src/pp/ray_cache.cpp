@@ -724,6 +724,13 @@ std::size_t RayCache::memoryBytes() const {
 
 // ---------------------------------------------------------------------------
 
+std::vector<std::uint8_t> toRgb8(const TileImage& im) {
+  std::vector<std::uint8_t> px(static_cast<std::size_t>(im.width) * static_cast<std::size_t>(im.height) * 3);
+  const float black[3] = {0.0f, 0.0f, 0.0f};
+  toRgb8(im, black, px.data());
+  return px;
+}
+
 void toRgb8(const TileImage& im, const float background[3], std::uint8_t* rgb) {
   const std::size_t n = static_cast<std::size_t>(im.width) * im.height;
   for (std::size_t i = 0; i < n; ++i) {

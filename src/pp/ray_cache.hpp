@@ -221,6 +221,8 @@ private:
 // 8-bit output. Rounded to nearest, clamped to [0, 255].
 // RGB: the premultiplied image over an opaque background colour (0..1).
 void toRgb8(const TileImage& im, const float background[3], std::uint8_t* rgb);
+// The same over black, as a new width * height * 3 buffer (what the outputs show).
+std::vector<std::uint8_t> toRgb8(const TileImage& im);
 // RGBA with straight (unpremultiplied) alpha, as PNG expects; colour 0 where
 // alpha is 0.
 void toRgba8(const TileImage& im, std::uint8_t* rgba);
