@@ -11,6 +11,9 @@ pkgs=(
   libglm-dev
   libopenimageio-dev openimageio-tools
   libusb-1.0-0-dev
+  umockdev libumockdev-dev
+  clang libclang-rt-14-dev
+  libopenigtlink-dev
   libcli11-dev
   libtomlplusplus-dev
   libpugixml-dev

@@ -15,6 +15,7 @@
 #include "app/commands.hpp"
 #include "app/recon_run.hpp"
 #include "app/settings.hpp"
+#include "app/sources.hpp"
 #include "core/error.hpp"
 #include "core/image_io.hpp"
 #include "core/io_util.hpp"
@@ -41,7 +42,7 @@ namespace {
 namespace fs = std::filesystem;
 
 struct RunOptions {
-  std::string file, outDir;
+  std::string file, outDir, source;
   std::vector<std::string> overrides;
   bool serial = false;
   bool verify = false;
@@ -51,39 +52,6 @@ struct RunOptions {
 
 using host::FrameSink;
 using host::Source;
-
-Source simulatorSource(const Settings& s) {
-  auto sim = std::make_shared<sim::SweepSimulator>(s.sim);
-  Source src;
-  src.frames = sim->frameCount();
-  if (src.frames == 0)
-    throw InputError("sim.sweep: the sweep captured no frames; lengthen it or lower sim.sweep.capture_interval_mm");
-  src.description = fmt::format("simulated {} sweep over the {} phantom, {} probe, {} frames", s.sim.sweep.kind,
-                                s.sim.phantom, sim->probe().name, src.frames);
-  src.grid = sweepGrid(s, *sim);
-  const int threads = s.sim.threads;
-  src.run = [sim, threads](const FrameSink& sink) {
-    sim->run(threads, [&](Frame&& f) { sink(f, sim->imageToReference(f.index), f.timestamp); });
-  };
-  return src;
-}
-
-Source sequenceSource(const Settings& s) {
-  if (s.run.sequence.empty() || s.run.plusConfig.empty())
-    throw InputError("run.source = \"sequence\" needs run.sequence and run.plus_config");
-  auto seq = std::make_shared<PosedSequence>(openPosedSequence(s.run.sequence, s.run.plusConfig));
-  Source src;
-  src.frames = seq->reader->info().frameCount;
-  src.description = fmt::format("{} ({} frames of {}x{})", s.run.sequence, src.frames, seq->reader->info().width,
-                                seq->reader->info().height);
-  src.grid = s.grid.autoExtent ? chooseGrid(*seq, s.recon, s.grid.spacing, s.grid.marginMm, false) : s.grid.fixedGrid();
-  src.run = [seq](const FrameSink& sink) {
-    Frame f;
-    for (std::uint64_t i = 0; seq->reader->next(f); ++i)
-      if (seq->poses[i]) sink(f, *seq->poses[i], f.timestamp);
-  };
-  return src;
-}
 
 host::Preprocess preprocessOf(const Settings& s) {
   host::Preprocess p;
@@ -108,7 +76,7 @@ int runSerial(const RunOptions& o) {
   const std::string dir = o.outDir.empty() ? s.output.dir : o.outDir;
   makeOutputDir(dir);
 
-  Source src = s.run.source == "sequence" ? sequenceSource(s) : simulatorSource(s);
+  Source src = makeSource(s);
   host::PipelineSettings ps{s.recon, s.render, s.shading, s.tf, s.cache};
   spdlog::info("run: {}; grid {}x{}x{} of {} mm; {}x{} image, {} composition", src.description, src.grid.dims.x,
                src.grid.dims.y, src.grid.dims.z, src.grid.spacing.x, s.render.width, s.render.height,
@@ -319,7 +287,7 @@ int runDistributed(const RunOptions& o) {
     GridPod gp{};
     if (rank == 0) {
       makeOutputDir(dir);
-      src = s.run.source == "sequence" ? sequenceSource(s) : simulatorSource(s);
+      src = makeSource(s);
       for (int a = 0; a < 3; ++a) {
         gp.dims[a] = src.grid.dims[a];
         gp.origin[a] = src.grid.origin[a];
@@ -399,12 +367,13 @@ int runCommand(const RunOptions& o) {
 
 }  // namespace
 
-void addRunCommand(CLI::App& app, int& exitCode) {
-  auto o = std::make_shared<RunOptions>();
-  auto* cmd = app.add_subcommand("run", "Stream the simulator or a sequence through every stage and write the images");
+namespace {
+void addRunOptions(CLI::App* cmd, const std::shared_ptr<RunOptions>& o) {
   cmd->add_option("CONFIG", o->file, "TOML configuration (optional)");
   cmd->add_option("-o,--output", o->outDir, "Output folder (default: output.dir)");
   cmd->add_option("--set", o->overrides, "Override an option: key=value (repeatable)");
+  cmd->add_option("--source", o->source,
+                  "board | igtl://HOST:PORT | sequence | simulator (overrides run.source and run.igtl_url)");
   cmd->add_flag("--serial", o->serial, "Run the single-process pipeline (what runs without mpirun)");
   cmd->add_option("--gps", o->gps, "Graphics processors (overrides parallel.gps)");
   cmd->add_option("--pps", o->pps, "Pixel processors (overrides parallel.pps)");
@@ -412,7 +381,43 @@ void addRunCommand(CLI::App& app, int& exitCode) {
                 "Under mpirun: also run the serial pipeline on the host and require every image to be bitwise equal "
                 "(needs parallel.composite_on = \"lockstep\")");
   cmd->add_option("--expect-ranks", o->expectRanks, "Refuse to run unless the job has exactly this many ranks");
-  cmd->callback([o, &exitCode] { exitCode = runCommand(*o); });
+}
+
+// --source becomes overrides placed before the user's own --set ones.
+int runWithSource(RunOptions o, const std::string& record) {
+  std::vector<std::string> extra;
+  if (!o.source.empty()) extra = sourceOverrides(o.source);
+  if (!record.empty()) extra.push_back(fmt::format("run.record=\"{}\"", record));
+  o.overrides.insert(o.overrides.begin(), extra.begin(), extra.end());
+  return runCommand(o);
+}
+}  // namespace
+
+void addRunCommand(CLI::App& app, int& exitCode) {
+  auto o = std::make_shared<RunOptions>();
+  auto* cmd = app.add_subcommand("run", "Stream a source (simulator, sequence, board, OpenIGTLink) through every stage "
+                                        "and write the images");
+  addRunOptions(cmd, o);
+  cmd->callback([o, &exitCode] { exitCode = runWithSource(*o, ""); });
+
+  auto r = std::make_shared<RunOptions>();
+  auto rec = std::make_shared<std::string>();
+  auto* rcmd = app.add_subcommand("record", "Like run, and write every acquired frame to a PLUS sequence file as it "
+                                            "arrives (OUT/recording.mha), so that nothing acquired is lost");
+  addRunOptions(rcmd, r);
+  rcmd->add_option("--file", *rec, "The sequence file to write (default: OUTPUT/recording.mha)");
+  rcmd->callback([r, rec, &exitCode] {
+    std::string path = *rec;
+    if (path.empty()) {
+      // The output folder as run resolves it: -o, else output.dir from the configuration.
+      Settings s;
+      ConfigSchema schema;
+      registerAll(schema, s);
+      loadSettings(schema, r->file, r->overrides);
+      path = (fs::path(r->outDir.empty() ? s.output.dir : r->outDir) / "recording.mha").string();
+    }
+    exitCode = runWithSource(*r, path);
+  });
 }
 
 }  // namespace pp5::app

@@ -132,7 +132,10 @@ int runSimulate(const SimulateOptions& opts) {
   const std::string description =
       fmt::format("pp5echo simulate: {} phantom, {} probe, {} sweep, seed {}", stem, sim.probe().name,
                   s.sim.sweep.kind, s.sim.seed);
-  writePlusConfig(cfgPath, {{"Image", "Probe", sim.imageToProbe()}}, reconstructionElement(grid), description);
+  // ReferenceToTracker is fixed, so the configuration holds it too: a live
+  // source (the board, OpenIGTLink) that sends only ProbeToTracker is then
+  // placed by this file alone.
+  writePlusConfig(cfgPath, {{"Image", "Probe", sim.imageToProbe()}, {"Reference", "Tracker", sim.referenceToTracker()}}, reconstructionElement(grid), description);
 
   log->info("simulate: truth volume {}x{}x{} voxels", grid.dims.x, grid.dims.y, grid.dims.z);
   const Volume truth = sim::truthVolume(sim.phantom(), sim.bmode(), grid, truthType, s.sim.threads,

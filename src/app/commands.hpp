@@ -2,6 +2,9 @@
 // Each subcommand of `pp5echo` lives in its own cmd_*.cpp and registers itself
 // on the CLI11 app. The callback stores the process exit code in `exitCode`.
 // Input errors are thrown as pp5::InputError and printed by main() as one line.
+#include <string>
+#include <vector>
+
 #include <CLI/CLI.hpp>
 
 namespace pp5::app {
@@ -14,5 +17,8 @@ void addReconstructCommand(CLI::App& app, int& exitCode);
 void addEvaluateCommand(CLI::App& app, int& exitCode);
 void addRunCommand(CLI::App& app, int& exitCode);
 void addBenchCommand(CLI::App& app, int& exitCode);
+void addBoardCommands(CLI::App& app, int& exitCode);
+// `pp5echo board-emulator ... -- COMMAND ARGS`: what follows the first `--`.
+std::vector<std::string>& trailingCommand();
 
 }  // namespace pp5::app

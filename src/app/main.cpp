@@ -1,5 +1,8 @@
 // pp5echo: incremental 3D ultrasound imaging on an emulated Pixel-Planes 5.
+#include <algorithm>
 #include <cstdio>
+#include <string>
+#include <vector>
 #include <exception>
 
 #include <spdlog/spdlog.h>
@@ -24,14 +27,29 @@ int main(int argc, char** argv) {
   pp5::app::addEvaluateCommand(app, exitCode);
   pp5::app::addRunCommand(app, exitCode);
   pp5::app::addBenchCommand(app, exitCode);
+  pp5::app::addBoardCommands(app, exitCode);
+
+  // board-emulator runs a command given after `--`; keep it away from CLI11.
+  std::vector<std::string> args(argv + 1, argv + argc);
+  if (std::find(args.begin(), args.end(), "board-emulator") != args.end()) {
+    const auto dash = std::find(args.begin(), args.end(), "--");
+    if (dash != args.end()) {
+      pp5::app::trailingCommand().assign(dash + 1, args.end());
+      args.erase(dash, args.end());
+    }
+  }
+  std::reverse(args.begin(), args.end());  // CLI11 takes a reversed vector
 
   try {
-    app.parse(argc, argv);
+    app.parse(args);
   } catch (const CLI::ParseError& e) {
     return app.exit(e);
   } catch (const pp5::InputError& e) {
     std::fprintf(stderr, "pp5echo: error: %s\n", e.what());
     return 1;
+  } catch (const pp5::DeviceError& e) {
+    std::fprintf(stderr, "pp5echo: device error: %s\n", e.what());
+    return 2;
   } catch (const pp5::InvariantError& e) {
     std::fprintf(stderr, "pp5echo: internal error: %s\n", e.what());
     return 3;

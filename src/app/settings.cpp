@@ -31,10 +31,58 @@ void registerAll(ConfigSchema& schema, Settings& s) {
   registerOptions(schema, s.tf);
   pp::registerOptions(schema, s.cache);
 
+  schema.section("board", "The USB interface board (`run.source = \"board\"`); see docs/protocol.md.");
+  schema.option("board.vendor_id", &s.board.vendorId, 0x1209, 0, 0xffff, "The board's USB vendor id.");
+  schema.option("board.product_id", &s.board.productId, 0x0001, 0, 0xffff, "The board's USB product id.");
+  schema.option("board.transfer_kib", &s.board.transferKiB, 256, 1, 65536, "Size of each bulk IN transfer, KiB.");
+  schema.option("board.transfers", &s.board.transfers, 8, 1, 256, "Bulk transfers kept in flight (the ring).");
+  schema.option("board.queue_frames", &s.board.queueFrames, 32, 1, 100000,
+                "Decoded frames the driver holds for the acquisition thread; beyond that it drops (`board.drop`).");
+  schema.choice("board.drop", &s.board.drop, "oldest", {"oldest", "newest"},
+                "The driver's queue is full: drop its oldest frame, or the new one. Drops are counted.");
+  schema.option("board.frame_rate", &s.board.frameRate, 0.0, 0.0, 655.0,
+                "Ask the board for this frame rate (SetFrameRate); 0 = leave the board's own rate.");
+  schema.option("board.window_origin", &s.board.windowOrigin, {0, 0}, 0, 65535,
+                "Capture window's corner in pixels (SetWindow), with `board.window_size`.");
+  schema.option("board.window_size", &s.board.windowSize, {0, 0}, 0, 65535,
+                "Capture window's width and height; 0 0 = the whole frame (no SetWindow).");
+  schema.option("board.open_timeout_s", &s.board.openTimeoutS, 5.0, 0.0, 3600.0,
+                "Wait this long for the board to appear when the run starts.");
+  schema.option("board.transfer_timeout_s", &s.board.transferTimeoutS, 2.0, 0.05, 3600.0,
+                "A bulk transfer with no data for this long counts as a timeout (and is resubmitted).");
+  schema.choice("board.on_unplug", &s.board.onUnplug, "end", {"end", "wait"},
+                "The board is unplugged: end the stream cleanly, or wait `board.reconnect_timeout_s` for it to come "
+                "back (at any address) and go on.");
+  schema.option("board.reconnect_timeout_s", &s.board.reconnectTimeoutS, 10.0, 0.0, 86400.0,
+                "How long `board.on_unplug = \"wait\"` waits for the board.");
+  schema.option("board.transform", &s.board.transform, "ProbeToTracker",
+                "The per-frame transform the board's pose becomes (a 6-DOF matrix as is, arm counts through the "
+                "calibration); `run.plus_config` places it.");
+  schema.option("board.arm_x_table", &s.board.armXTable, {},
+                "Arm calibration, x channel: rows \"COUNT MM\", counts strictly increasing, linear between rows "
+                "and beyond the ends. Empty: the simulator's linear converter ([sim.arm]).");
+  schema.option("board.arm_y_table", &s.board.armYTable, {}, "Arm calibration, y channel: rows \"COUNT MM\".");
+  schema.option("board.arm_theta_table", &s.board.armThetaTable, {},
+                "Arm calibration, theta channel: rows \"COUNT DEGREES\".");
+  schema.option("board.arm_probe_z_mm", &s.board.armProbeZMm, 0.0, -1e6, 1e6,
+                "Height of the probe mount in the arm's (Tracker) frame, mm.");
+  schema.option("board.max_frame_bytes", &s.board.maxFrameBytes, std::uint64_t{16u << 20}, std::uint64_t{1024},
+                std::uint64_t{1u << 30}, "Largest frame payload believed; a header claiming more is rejected.");
+
   schema.section("run", "`pp5echo run`: the source it streams and the outputs it writes.");
-  schema.choice("run.source", &s.run.source, "simulator", {"simulator", "sequence"},
+  schema.choice("run.source", &s.run.source, "simulator", {"simulator", "sequence", "board", "igtl"},
                 "`simulator`: the [sim] sweep, frame by frame as it is simulated; `sequence`: a PLUS sequence file "
-                "(`run.sequence`, with `run.plus_config` for the calibration).");
+                "(`run.sequence`, with `run.plus_config` for the calibration); `board`: the USB interface board "
+                "([board]); `igtl`: an OpenIGTLink server (`run.igtl_url`). The live sources need "
+                "`run.plus_config` for the calibration chain and a fixed grid (`grid.auto_extent = false`).");
+  schema.option("run.igtl_url", &s.run.igtlUrl, "igtl://127.0.0.1:18944",
+                "OpenIGTLink server for `run.source = \"igtl\"`, as igtl://HOST:PORT.");
+  schema.option("run.igtl_reconnect_s", &s.run.igtlReconnectS, 10.0, 0.0, 86400.0,
+                "The OpenIGTLink server went away: try to reconnect for this long, then end the stream (keeping "
+                "what arrived); 0 ends it at once.");
+  schema.option("run.record", &s.run.record, "",
+                "Write every acquired frame, as it arrives and before any drop, to this PLUS sequence file "
+                "(`pp5echo record` sets it to OUT/recording.mha).");
   schema.option("run.sequence", &s.run.sequence, "", "PLUS sequence file for `run.source = \"sequence\"`.");
   schema.option("run.plus_config", &s.run.plusConfig, "",
                 "PLUS device-set XML giving the sequence's ImageToReference chain.");

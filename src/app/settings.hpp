@@ -42,9 +42,33 @@ struct OutputSettings {
   int previewFrames = 4;         // frames written as PNG by `simulate`
 };
 
+// [board]: the USB interface board (run.source = "board").
+struct BoardSettings {
+  int vendorId = 0x1209, productId = 0x0001;
+  int transferKiB = 256;
+  int transfers = 8;
+  int queueFrames = 32;
+  std::string drop = "oldest";
+  double frameRate = 0.0;           // > 0: ask the board for this rate
+  glm::ivec2 windowOrigin{0, 0};    // capture window; size 0 0 = the whole frame
+  glm::ivec2 windowSize{0, 0};
+  double openTimeoutS = 5.0;
+  double transferTimeoutS = 2.0;
+  std::string onUnplug = "end";     // end | wait
+  double reconnectTimeoutS = 10.0;
+  std::string transform = "ProbeToTracker";  // the per-frame transform the pose becomes
+  // The arm's calibration: rows "COUNT VALUE"; empty = the simulator's linear converters ([sim.arm]).
+  std::vector<std::string> armXTable, armYTable, armThetaTable;
+  double armProbeZMm = 0.0;
+  std::uint64_t maxFrameBytes = 16u << 20;  // larger headers are rejected
+};
+
 // [run]: what `pp5echo run` streams and which outputs it writes.
 struct RunSettings {
-  std::string source = "simulator";  // simulator | sequence
+  std::string source = "simulator";  // simulator | sequence | board | igtl
+  std::string igtlUrl = "igtl://127.0.0.1:18944";  // run.source = "igtl"
+  double igtlReconnectS = 10.0;      // the server went away: wait this long for it (0 = end at once)
+  std::string record;                // write every acquired frame to this PLUS sequence
   std::string sequence;              // run.source = "sequence": the PLUS sequence ...
   std::string plusConfig;            // ... and its PLUS device-set XML (calibration)
   int buildupEvery = 1;              // every n-th frame goes into the build-up animation
@@ -68,6 +92,7 @@ struct RunSettings {
 
 struct Settings {
   sim::SimSettings sim;
+  BoardSettings board;
   GridSettings grid;
   gp::ReconSettings recon;
   RenderSettings render;

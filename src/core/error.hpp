@@ -1,7 +1,10 @@
 #pragma once
-// Two error channels (see docs/architecture.md):
+// Error channels (see docs/architecture.md):
 //  - InputError: bad input or configuration. One clear sentence naming the file
 //    (and line or frame where known). The app prints it and exits non-zero.
+//  - DeviceError: a live device or connection failed at run time (the board
+//    unplugged for good, a server that cannot be reached). One sentence naming
+//    the device; the app prints it and exits non-zero.
 //  - PP5_CHECK*: internal invariants. On failure they print both values and the
 //    source location, then throw InvariantError (never a silent abort).
 #include <sstream>
@@ -13,6 +16,11 @@
 namespace pp5 {
 
 class InputError : public std::runtime_error {
+public:
+  using std::runtime_error::runtime_error;
+};
+
+class DeviceError : public std::runtime_error {
 public:
   using std::runtime_error::runtime_error;
 };

@@ -103,7 +103,7 @@ Acquisition::~Acquisition() {
 }
 
 void Acquisition::stop() {
-  stop_ = true;
+  if (!stop_.exchange(true) && source_.interrupt) source_.interrupt();
   cv_.notify_all();
 }
 

@@ -33,6 +33,10 @@ struct Source {
   Grid grid;                 // the reconstruction grid for this source
   bool live = false;         // drops when behind rather than waiting
   std::function<void(const FrameSink&)> run;
+  // Live sources: makes run() return soon (Ctrl-C), even while no frame comes.
+  std::function<void()> interrupt;
+  // Live sources: the device's counters as a JSON object, for summary.json.
+  std::function<std::string()> statsJson;
 };
 
 // Crop (x, y, width, height in pixels, as run.crop_origin and run.crop_size;

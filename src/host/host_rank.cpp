@@ -540,6 +540,7 @@ void HostRank::writeSummary(double streamS, double totalS, std::uint64_t drops, 
   json += fmt::format("  \"frames\": {}, \"stream_s\": {:.4f}, \"total_s\": {:.4f},\n", sent_, streamS, totalS);
   json += fmt::format("  \"frames_per_s_in\": {:.3f}, \"images_per_s_out\": {:.3f}, \"dropped_frames\": {},\n",
                       sent_ / streamS, streamImages_ / streamS, drops);
+  if (j_.source.statsJson) json += fmt::format("  \"source\": {},\n", j_.source.statsJson());
   json += fmt::format("  \"latency_ms_median\": {:.3f}, \"latency_ms_p95\": {:.3f},\n", percentile(lat, 0.5),
                       percentile(lat, 0.95));
   json += fmt::format("  \"bytes_per_frame\": {:.1f}, \"pixel_messages\": {}, \"pose_only_messages\": {}, "

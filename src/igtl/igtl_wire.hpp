@@ -1,0 +1,54 @@
+#pragma once
+// Conversions between OpenIGTLink messages and pp5 Frames. The client uses them
+// to decode, and the test server decodes its own packed messages with them, so
+// that what the server records as sent is what any client receives, bit for bit.
+// Internal to src/igtl: it pulls in the OpenIGTLink headers.
+#include <cstdint>
+#include <string>
+
+#include <igtlImageMessage.h>
+#include <igtlTransformMessage.h>
+#include <igtl_image.h>
+#include <igtl_transform.h>
+
+#include "core/frame.hpp"
+#include "core/transform.hpp"
+
+namespace pp5::igtl::wire {
+
+// The header's timestamp: whole seconds and a 32-bit binary fraction. Encoding
+// rounds to the nearest 2^-32 s; negative or too-large times are an InputError.
+struct WireTime {
+  std::uint32_t sec = 0;
+  std::uint32_t frac = 0;
+};
+WireTime encodeTime(double seconds);
+double decodeTime(WireTime t);
+double messageTime(::igtl::MessageBase& m);
+
+// OpenIGTLink matrices are float32, row-major (m[row][col]); GLM is column-major
+// double. float -> double is exact; double -> float rounds to nearest.
+Mat4 toMat4(const ::igtl::Matrix4x4& m);
+void toIgtl(const Mat4& m, ::igtl::Matrix4x4& out);
+// What a matrix becomes after a trip through a TRANSFORM message.
+Mat4 roundToFloat(const Mat4& m);
+
+// "ProbeToTrackerTransform" -> "ProbeToTracker"; other names unchanged.
+std::string transformName(const std::string& device);
+// PLUS names an image by the frame it is given in: "Image_Reference" ->
+// "Reference". Empty for any other name (its matrix is then not a pose).
+std::string imageFrameName(const std::string& device);
+// Names are at most this long on the wire (longer ones are cut).
+constexpr std::size_t kMaxDeviceName = 20;
+
+// Size, pixel type, pixels (u16 little-endian) and timestamp of an unpacked
+// IMAGE into f. InputError naming the device when a Frame cannot hold it.
+void imageToFrame(::igtl::ImageMessage& img, Frame& f);
+// The IMAGE's matrix (rotation and origin) times diag(spacing, 1): pixel
+// indices -> mm in the image's frame.
+Mat4 imagePixelToFrame(::igtl::ImageMessage& img);
+// The inverse split for a sender: spacing = the column lengths of m's 3x3 part,
+// rotation = the columns divided by them. InputError for a zero column.
+void setImageGeometry(::igtl::ImageMessage& img, const Mat4& pixelToFrame);
+
+}  // namespace pp5::igtl::wire
