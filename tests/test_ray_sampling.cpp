@@ -49,28 +49,9 @@ Grid testGrid() {
 using pp5::test::gridCentre;
 using pp5::test::randomUnit;
 
-// A random view of the grid. eyeInside: the eye in the grid's box.
+// A random view of the grid (the shared draw's defaults). eyeInside: the eye in the grid's box.
 Camera randomCamera(std::mt19937& rng, const Grid& g, Projection proj, bool eyeInside, int w = 72, int h = 60) {
-  std::uniform_real_distribution<double> u(0.0, 1.0);
-  Camera c;
-  c.projection = proj;
-  c.width = w;
-  c.height = h;
-  const Vec3 centre = gridCentre(g), ext = g.maxCorner() - g.minCorner();
-  const double radius = 0.5 * glm::length(ext);
-  c.target = centre + (Vec3(u(rng), u(rng), u(rng)) - 0.5) * ext * 0.5;
-  if (eyeInside) {
-    c.eye = g.minCorner() + Vec3(0.1 + 0.8 * u(rng), 0.1 + 0.8 * u(rng), 0.1 + 0.8 * u(rng)) * ext;
-    if (glm::length(c.target - c.eye) < 1.0) c.target = c.eye + randomUnit(rng) * 10.0;
-  } else {
-    c.eye = centre + randomUnit(rng) * radius * (1.3 + 2.0 * u(rng));
-  }
-  c.up = randomUnit(rng);
-  if (glm::length(glm::cross(glm::normalize(c.target - c.eye), c.up)) < 0.2) c.up = Vec3(0, 0, 1);
-  if (glm::length(glm::cross(glm::normalize(c.target - c.eye), c.up)) < 0.2) c.up = Vec3(0, 1, 0);
-  c.fovYDeg = 20.0 + 70.0 * u(rng);
-  c.orthoHeightMm = radius * (1.0 + 1.5 * u(rng));
-  return c;
+  return pp5::test::randomCamera(rng, g, proj, eyeInside, w, h);
 }
 
 // Brute force: the sorted, merged union of [max(enter, 0), exit] over boxes.

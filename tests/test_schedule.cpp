@@ -735,6 +735,23 @@ Mat4 nextPose(std::mt19937& rng, const Mat4& m, double maxDeg, int kind) {
   return imageMatrix(pivot + r * (Vec3(m[3]) - pivot) + shift, ex, ey);
 }
 
+// Calls inReach(i, j, k) for every voxel whose weight differs between the
+// two volumes; the first voxel for which it returns false fails the test
+// (naming the voxel) and ends the scan.
+template <typename F>
+void forEachChangedVoxel(const Grid& g, const pp5::Volume& before, const pp5::Volume& after, F inReach) {
+  for (std::int64_t k = 0; k < g.dims.z; ++k)
+    for (std::int64_t j = 0; j < g.dims.y; ++j)
+      for (std::int64_t i = 0; i < g.dims.x; ++i) {
+        const std::size_t l = g.linear(i, j, k);
+        if (after.value(l) == before.value(l)) continue;
+        if (!inReach(i, j, k)) {
+          ADD_FAILURE() << "voxel " << i << "," << j << "," << k << " changed outside the reach";
+          return;
+        }
+      }
+}
+
 TEST(FillInReach, HoldsEverySlerpedSliceAndStaysNearTheHull) {
   std::mt19937 rng(1991);
   std::uniform_int_distribution<int> size(1, 240);
@@ -905,16 +922,13 @@ TEST(FillInReach, ContainsEveryVoxelTheFillInWrites) {
   const WorldBox box = pp5::comm::fillInReach(m0, m1, w, h, s);
   const WorldBox a = pp5::comm::frameReach(m0, w, h, s), b = pp5::comm::frameReach(m1, w, h, s);
   std::size_t changed = 0, outsideUnion = 0;
-  for (std::int64_t k = 0; k < g.dims.z; ++k)
-    for (std::int64_t j = 0; j < g.dims.y; ++j)
-      for (std::int64_t i = 0; i < g.dims.x; ++i) {
-        const std::size_t l = g.linear(i, j, k);
-        if (after.value(l) == before.value(l)) continue;
-        ++changed;
-        const Vec3 x = g.voxelToWorld(Vec3(i, j, k));
-        ASSERT_TRUE(inside(box, x)) << "voxel " << i << "," << j << "," << k;
-        if (!inside(a, x) && !inside(b, x)) ++outsideUnion;
-      }
+  forEachChangedVoxel(g, before, after, [&](std::int64_t i, std::int64_t j, std::int64_t k) {
+    ++changed;
+    const Vec3 x = g.voxelToWorld(Vec3(i, j, k));
+    if (!inside(a, x) && !inside(b, x)) ++outsideUnion;
+    return inside(box, x);
+  });
+  ASSERT_FALSE(HasFailure());
   EXPECT_GT(changed, 10000u);
   EXPECT_GT(outsideUnion, 0u);
 }
@@ -953,14 +967,11 @@ TEST(FrameReach, ContainsEveryVoxelTheTentSplatWrites) {
       ++frames;
       const pp5::Volume after = rec->weights();
       const WorldBox box = step == 0 ? pp5::comm::frameReach(m, w, h, s) : pp5::comm::fillInReach(prev, m, w, h, s);
-      for (std::int64_t k = 0; k < g.dims.z; ++k)
-        for (std::int64_t j = 0; j < g.dims.y; ++j)
-          for (std::int64_t i = 0; i < g.dims.x; ++i) {
-            const std::size_t l = g.linear(i, j, k);
-            if (after.value(l) == before.value(l)) continue;
-            ++changed;
-            ASSERT_TRUE(inside(box, g.voxelToWorld(Vec3(i, j, k)))) << "voxel " << i << "," << j << "," << k;
-          }
+      forEachChangedVoxel(g, before, after, [&](std::int64_t i, std::int64_t j, std::int64_t k) {
+        ++changed;
+        return inside(box, g.voxelToWorld(Vec3(i, j, k)));
+      });
+      ASSERT_FALSE(HasFailure());
       prev = m;
     }
   }

@@ -49,10 +49,7 @@ std::vector<board::WireFrame> emulatorFrames(const EmulatorArgs& a) {
     while (r->next(f) && take(f)) {
     }
   } else {
-    Settings s;
-    ConfigSchema schema;
-    registerAll(schema, s);
-    loadSettings(schema, a.config, a.overrides);
+    const Settings s = readSettings(a.config, a.overrides);
     sim::SweepSimulator sim(s.sim);
     spdlog::info("board emulator: simulating {} frames", sim.frameCount());
     bool more = true;
@@ -101,10 +98,7 @@ struct StatsArgs {
 // `seconds`; with `expect`, checks each frame's pixels and pose against the
 // file's frame of the same sequence number.
 int runStats(const StatsArgs& a) {
-  Settings s;
-  ConfigSchema schema;
-  registerAll(schema, s);
-  loadSettings(schema, a.config, a.overrides);
+  const Settings s = readSettings(a.config, a.overrides);
   std::vector<Frame> expected;
   if (!a.expect.empty()) expected = readAllFrames(a.expect);
   const board::ArmCalibration arm = armCalibration(s);
@@ -156,18 +150,11 @@ int runStats(const StatsArgs& a) {
   std::vector<std::uint32_t> missing;
   for (std::size_t i = 0; i < seen.size(); ++i)
     if (!seen[i]) missing.push_back(static_cast<std::uint32_t>(i));
-  const auto& c = st.decoder;
   const std::string json = fmt::format(
-      "{{\"received\": {}, \"end\": \"{}\", \"bytes\": {}, \"seconds\": {:.4f}, \"frames_per_s\": {:.3f}, "
-      "\"mb_per_s\": {:.3f}, \"dropped\": {}, \"timeouts\": {}, \"stalls\": {}, \"unplugs\": {}, \"reconnects\": {}, "
-      "\"transfer_errors\": {}, \"header_crc_errors\": {}, \"payload_crc_errors\": {}, \"bad_headers\": {}, "
-      "\"resyncs\": {}, \"skipped_bytes\": {}, \"sequence_gaps\": {}, \"latency_ms_median\": {:.3f}, "
-      "\"latency_ms_p95\": {:.3f}, \"expected\": {}, \"pixel_mismatches\": {}, \"pose_mismatches\": {}, "
-      "\"unknown_frames\": {}, \"arm_pose_worst_mm\": {:.4f}, \"missing\": [{}]}}\n",
-      received, end, st.bytes, st.seconds, st.framesPerS(), st.megabytesPerS(), st.dropped, st.timeouts, st.stalls,
-      st.unplugs, st.reconnects, st.transferErrors, c.headerCrcErrors, c.payloadCrcErrors, c.badHeaders, c.resyncs,
-      c.skippedBytes, c.sequenceGaps, st.latencyMedianMs, st.latencyP95Ms, expected.size(), pixelMismatches,
-      poseMismatches, unknown, worstArmPoseMm, fmt::join(missing, ", "));
+      "{{\"received\": {}, \"end\": \"{}\", {}, \"expected\": {}, \"pixel_mismatches\": {}, "
+      "\"pose_mismatches\": {}, \"unknown_frames\": {}, \"arm_pose_worst_mm\": {:.4f}, \"missing\": [{}]}}\n",
+      received, end, board::jsonFields(st), expected.size(), pixelMismatches, poseMismatches, unknown, worstArmPoseMm,
+      fmt::join(missing, ", "));
   std::printf("%s", json.c_str());
   if (!a.json.empty()) {
     io::AtomicFile f(a.json);

@@ -410,10 +410,7 @@ void addRunCommand(CLI::App& app, int& exitCode) {
     std::string path = *rec;
     if (path.empty()) {
       // The output folder as run resolves it: -o, else output.dir from the configuration.
-      Settings s;
-      ConfigSchema schema;
-      registerAll(schema, s);
-      loadSettings(schema, r->file, r->overrides);
+      const Settings s = readSettings(r->file, r->overrides);
       path = (fs::path(r->outDir.empty() ? s.output.dir : r->outDir) / "recording.mha").string();
     }
     exitCode = runWithSource(*r, path);

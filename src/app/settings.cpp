@@ -151,4 +151,12 @@ void loadSettings(ConfigSchema& schema, const std::string& file, const std::vect
   for (const auto& o : overrides) schema.set(o);
 }
 
+Settings readSettings(const std::string& file, const std::vector<std::string>& overrides) {
+  Settings s;
+  ConfigSchema schema;
+  registerAll(schema, s);
+  loadSettings(schema, file, overrides);
+  return s;  // the schema points into `s`, so it goes now; the values stay
+}
+
 }  // namespace pp5::app

@@ -116,5 +116,7 @@ void makeOutputDir(const std::string& dir);
 
 // Defaults, then the file (if any), then `key=value` overrides, in that order.
 void loadSettings(ConfigSchema& schema, const std::string& file, const std::vector<std::string>& overrides);
+// The settings alone, for commands that do not write them back out.
+Settings readSettings(const std::string& file, const std::vector<std::string>& overrides);
 
 }  // namespace pp5::app

@@ -108,8 +108,9 @@ struct Placer {
     auto pose = f.imageValid ? imageToReference(cfg, f) : std::nullopt;
     if (pose && !isFinite(*pose)) pose.reset();
     if (!pose && unplaced++ == 0)
-      spdlog::warn("live frame {} cannot be placed (invalid status or no {} chain); such frames are skipped and counted",
-                   f.index, "ImageToReference");
+      spdlog::warn("live frame {} cannot be placed (invalid status or no ImageToReference chain); such frames are "
+                   "skipped and counted",
+                   f.index);
     return pose;
   }
 };
@@ -160,16 +161,8 @@ Source boardSource(const Settings& s) {
   src.statsJson = [st] {
     std::lock_guard lk(st->m);
     const board::DriverStats d = st->driver ? st->driver->stats() : st->last;
-    const auto& c = d.decoder;
-    return fmt::format(
-        "{{\"kind\": \"board\", \"end\": \"{}\", \"frames\": {}, \"bytes\": {}, \"frames_per_s\": {:.3f}, "
-        "\"mb_per_s\": {:.3f}, \"dropped\": {}, \"timeouts\": {}, \"stalls\": {}, \"unplugs\": {}, "
-        "\"reconnects\": {}, \"transfer_errors\": {}, \"header_crc_errors\": {}, \"payload_crc_errors\": {}, "
-        "\"bad_headers\": {}, \"resyncs\": {}, \"skipped_bytes\": {}, \"sequence_gaps\": {}, "
-        "\"latency_ms_median\": {:.3f}, \"latency_ms_p95\": {:.3f}, \"unplaced\": {}}}",
-        st->endReason, d.frames, d.bytes, d.framesPerS(), d.megabytesPerS(), d.dropped, d.timeouts, d.stalls,
-        d.unplugs, d.reconnects, d.transferErrors, c.headerCrcErrors, c.payloadCrcErrors, c.badHeaders, c.resyncs,
-        c.skippedBytes, c.sequenceGaps, d.latencyMedianMs, d.latencyP95Ms, st->placer.unplaced.load());
+    return fmt::format("{{\"kind\": \"board\", \"end\": \"{}\", {}, \"unplaced\": {}}}", st->endReason,
+                       board::jsonFields(d), st->placer.unplaced.load());
   };
   return src;
 }

@@ -337,12 +337,8 @@ BoardDriver::~BoardDriver() {
   d.stopRequested = true;
   if (d.events.joinable()) d.events.join();
   d.quit = true;
-  if (d.handle) {
-    for (auto* t : d.ring) libusb_cancel_transfer(t);
-    timeval tv{0, 100000};
-    for (int i = 0; i < 50 && d.inFlight > 0; ++i) libusb_handle_events_timeout_completed(d.ctx, &tv, nullptr);
-    d.closeHandle();
-  }
+  // The event thread has cancelled every transfer and closed the board on its
+  // way out (stop, end of stream, or unplugged), so only the memory is left.
   for (auto* t : d.ring) libusb_free_transfer(t);
   if (d.ctx) libusb_exit(d.ctx);
 }
@@ -381,6 +377,19 @@ DriverStats BoardDriver::stats() const {
     s.latencyP95Ms = (v[std::min(v.size() - 1, v.size() * 95 / 100)] - base) / 1000.0;
   }
   return s;
+}
+
+std::string jsonFields(const DriverStats& d) {
+  const DecoderCounters& c = d.decoder;
+  return fmt::format(
+      "\"frames\": {}, \"bytes\": {}, \"seconds\": {:.4f}, \"frames_per_s\": {:.3f}, \"mb_per_s\": {:.3f}, "
+      "\"dropped\": {}, \"timeouts\": {}, \"stalls\": {}, \"unplugs\": {}, \"reconnects\": {}, "
+      "\"transfer_errors\": {}, \"header_crc_errors\": {}, \"payload_crc_errors\": {}, \"bad_headers\": {}, "
+      "\"resyncs\": {}, \"skipped_bytes\": {}, \"sequence_gaps\": {}, \"latency_ms_median\": {:.3f}, "
+      "\"latency_ms_p95\": {:.3f}",
+      d.frames, d.bytes, d.seconds, d.framesPerS(), d.megabytesPerS(), d.dropped, d.timeouts, d.stalls, d.unplugs,
+      d.reconnects, d.transferErrors, c.headerCrcErrors, c.payloadCrcErrors, c.badHeaders, c.resyncs, c.skippedBytes,
+      c.sequenceGaps, d.latencyMedianMs, d.latencyP95Ms);
 }
 
 std::string BoardDriver::describe() const {

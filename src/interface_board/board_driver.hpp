@@ -49,6 +49,10 @@ struct DriverStats {
   double latencyMedianMs = 0.0, latencyP95Ms = 0.0;
 };
 
+// The counters as JSON object members (no braces), for summary.json and
+// `pp5echo board-stats`: "frames": N, "bytes": N, ... "latency_ms_p95": X.
+std::string jsonFields(const DriverStats& s);
+
 class BoardDriver {
 public:
   // Opens the board (waiting up to openTimeoutS) and starts streaming.

@@ -104,7 +104,6 @@ struct BoardEmulator::Impl {
   EmulatorOptions opt;
   UMockdevTestbed* testbed = nullptr;
   UMockdevIoctlBase* handler = nullptr;
-  GMainLoop* loop = nullptr;
 
   mutable std::mutex m;
   EmulatorStats stats;
@@ -119,7 +118,14 @@ struct BoardEmulator::Impl {
   Clock::time_point start;
   std::size_t framesStarted = 0;  // since the last Start (for timing)
   std::size_t next = 0;           // next frame to queue
-  std::deque<std::uint8_t> bytes; // encoded bytes not yet sent
+  // Encoded bytes; those before `sent` are gone to the host.
+  std::vector<std::uint8_t> bytes;
+  std::size_t sent = 0;
+  std::size_t pending() const { return bytes.size() - sent; }
+  void clearBytes() {
+    bytes.clear();
+    sent = 0;
+  }
   bool halted = false;
   Clock::time_point poweredOn = Clock::now();
   std::vector<bool> faultDone;
@@ -150,7 +156,7 @@ struct BoardEmulator::Impl {
     unplugged = false;
     streaming = false;
     halted = false;
-    if (opt.verbose) spdlog::info("board emulator: plugged in as {}", devnode);
+    spdlog::debug("board emulator: plugged in as {}", devnode);
   }
 
   void unplug() {
@@ -162,7 +168,7 @@ struct BoardEmulator::Impl {
     streaming = false;
     ++stats.unplugs;
     ++devnum;  // a reconnected board enumerates at a new address
-    if (opt.verbose) spdlog::info("board emulator: unplugged");
+    spdlog::debug("board emulator: unplugged");
   }
 
   void finish(PendingUrb& u, int status, int actual) {
@@ -183,15 +189,15 @@ struct BoardEmulator::Impl {
     ++stats.faultsInjected;
   }
 
-  // Queues the frames that are due. Returns false when an unplug fault fires.
-  bool produce() {
-    if (!streaming) return true;
+  // Queues the frames that are due (an unplug fault unplugs the board here).
+  void produce() {
+    if (!streaming) return;
     const double elapsed = std::chrono::duration<double>(Clock::now() - start).count();
     while (next < frames.size()) {
       if (fps > 0.0 && static_cast<double>(framesStarted) > elapsed * fps) break;
-      if (fps <= 0.0 && bytes.size() > (4u << 20)) break;  // as fast as read: keep a few MB ahead
+      if (fps <= 0.0 && pending() > (4u << 20)) break;  // as fast as read: keep a few MB ahead
       if (const Fault* f = faultFor(next, FaultKind::Unplug)) {
-        if (!bytes.empty()) break;  // the frames before the unplug get out first
+        if (pending() > 0) break;  // the frames before the unplug get out first
         markDone(f);
         const double after = f->reconnectAfterS;
         unplug();
@@ -200,12 +206,12 @@ struct BoardEmulator::Impl {
         } else {
           gone = true;
         }
-        return false;
+        return;
       }
       if (const Fault* f = faultFor(next, FaultKind::Stall)) {
         markDone(f);
         halted = true;
-        return true;  // the frame goes out once the host clears the halt
+        return;  // the frame goes out once the host clears the halt
       }
       std::vector<std::uint8_t> enc;
       if (!opt.keepTimestamps)  // the board's own clock: microseconds since it was plugged in
@@ -226,12 +232,15 @@ struct BoardEmulator::Impl {
         markDone(f);
         enc.resize(kHeaderBytes + payload / 2);
       }
+      if (sent > 0 && sent >= bytes.size() / 2) {  // drop what was sent, at most once per frame
+        bytes.erase(bytes.begin(), bytes.begin() + static_cast<std::ptrdiff_t>(sent));
+        sent = 0;
+      }
       bytes.insert(bytes.end(), enc.begin(), enc.end());
       ++next;
       ++framesStarted;
       ++stats.framesSent;
     }
-    return true;
   }
 
   // Fills and completes bulk URBs from the queued bytes (or fails them while
@@ -244,10 +253,10 @@ struct BoardEmulator::Impl {
         finish(u, -EPIPE, 0);
         continue;
       }
-      if (bytes.empty()) break;
-      const std::size_t n = std::min<std::size_t>(bytes.size(), static_cast<std::size_t>(u.buf->data_len));
-      std::copy_n(bytes.begin(), n, u.buf->data);
-      bytes.erase(bytes.begin(), bytes.begin() + static_cast<std::ptrdiff_t>(n));
+      if (pending() == 0) break;
+      const std::size_t n = std::min<std::size_t>(pending(), static_cast<std::size_t>(u.buf->data_len));
+      std::memcpy(u.buf->data, bytes.data() + sent, n);
+      sent += n;
       stats.bytesSent += n;
       bulkPending.pop_front();
       finish(u, 0, static_cast<int>(n));
@@ -271,7 +280,7 @@ struct BoardEmulator::Impl {
       case Request::SetFrameRate: fps = value / 100.0; return 0;
       case Request::SetWindow: return 0;  // the emulated scanner always sends whole frames
       case Request::Reset:
-        bytes.clear();
+        clearBytes();
         return 0;
       case Request::GetStatus: {
         if (dataLen < kStatusBytes) return -EOVERFLOW;
@@ -328,7 +337,7 @@ struct BoardEmulator::Impl {
         umockdev_ioctl_client_complete(client, 0, 0);
         return true;
       case USBDEVFS_RESET:
-        bytes.clear();
+        clearBytes();
         streaming = false;
         halted = false;
         umockdev_ioctl_client_complete(client, 0, 0);
@@ -384,10 +393,8 @@ struct BoardEmulator::Impl {
       case USBDEVFS_REAPURB:
       case USBDEVFS_REAPURBNDELAY: {
         if (completed.empty() && !unplugged) {
-          if (!produce()) {
-            // Unplugged just now: the in-flight requests were given back.
-          }
-          if (!unplugged) serveBulk();
+          produce();
+          if (!unplugged) serveBulk();  // (an unplug just now gave the requests back)
         }
         if (completed.empty()) {
           umockdev_ioctl_client_complete(client, -1, unplugged ? ENODEV : EAGAIN);
@@ -470,11 +477,9 @@ int BoardEmulator::runChild(const std::vector<std::string>& argv) {
     _exit(127);
   }
   ChildWait w{g_main_loop_new(nullptr, FALSE)};
-  impl_->loop = w.loop;
   g_child_watch_add(pid, &onChildExit, &w);
   g_main_loop_run(w.loop);
   g_main_loop_unref(w.loop);
-  impl_->loop = nullptr;
   return w.status;
 }
 

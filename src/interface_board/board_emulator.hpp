@@ -45,7 +45,6 @@ struct EmulatorOptions {
   // Frames carry the time the board sends them (its clock, microseconds since
   // it started), as a real board stamps capture time; true keeps the source's.
   bool keepTimestamps = false;
-  bool verbose = false;
 };
 
 struct EmulatorStats {
