@@ -267,8 +267,10 @@ int serve(const Options& o) {
     event("frame {} sent (t = {:.6f} s)", k, f.timestamp);
     ++k;
   }
-  if (client >= 0) ::close(client);
+  // The listener first, as on --vanish-after: closed second, it could still
+  // take the client's immediate reconnection attempt and then reset it.
   listener.close();
+  if (client >= 0) ::close(client);
   if (sentWriter) sentWriter->close();
   event("done: {} frames sent", k);
   return 0;

@@ -53,20 +53,23 @@ faults)
   # Every fault the emulator injects is detected, counted and survived; only
   # the frames the faults hit are lost.
   "$bin" board-emulator --sequence "$seq" --fps 100 --stats-json "$work/emu.json" \
-    --fault bad_crc@30 --fault drop@60 --fault short@90 --fault stall@120 -- \
+    --fault bad_crc@30 --fault drop@60 --fault short@90 --fault stall@120 --fault unplug@150:1 -- \
     "$bin" board-stats "$cfg" --expect "$seq" --frames 297 --seconds 60 --json "$work/stats.json" \
-    > "$work/stats.log" 2>&1 || fail "board-stats: $(tail -5 "$work/stats.log")"
+    --set 'board.on_unplug="wait"' > "$work/stats.log" 2>&1 || fail "board-stats: $(tail -5 "$work/stats.log")"
   expect "$work/stats.json" received 297
   expect "$work/stats.json" payload_crc_errors 3   # bad CRC, lost packet, short frame
   expect "$work/stats.json" resyncs 3
   expect "$work/stats.json" sequence_gaps 3
   expect "$work/stats.json" stalls 1
+  expect "$work/stats.json" unplugs 1
+  expect "$work/stats.json" reconnects 1
   expect "$work/stats.json" pixel_mismatches 0
   expect "$work/stats.json" pose_mismatches 0
   grep -q '"missing": \[30, 60, 90\]' "$work/stats.json" || fail "missing frames: $(cat "$work/stats.json")"
-  expect "$work/emu.json" faults_injected 4
+  expect "$work/emu.json" faults_injected 5
+  expect "$work/emu.json" reconnects 1
   expect "$work/emu.json" stalls_cleared 1
-  echo "board faults: bad CRC, lost packet, short frame, and stall counted; frames after each intact"
+  echo "board faults: bad CRC, lost packet, short frame, stall and unplug+reconnect counted; frames after each intact"
   ;;
 unplug_end)
   # Unplugged for good with board.on_unplug = "end": the MPI run ends cleanly
