@@ -3,7 +3,7 @@
 # emulator (`pp5echo board-emulator`), end to end and with every fault.
 # Also the OpenIGTLink source against pp5echo-igtl-server.
 # Usage: board.sh PP5ECHO SOURCE_DIR WORK_DIR CASE [IGTL_SERVER]
-#   CASE: e2e | faults | unplug_end | igtl | igtl_vanish
+#   CASE: e2e | faults | unplug_end | arm | igtl | igtl_vanish
 set -euo pipefail
 bin=$1 src=$2 work=$3 case=$4
 export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 OMPI_MCA_rmaps_base_oversubscribe=1
@@ -82,6 +82,22 @@ unplug_end)
   grep -q "unplugged; the stream ends here" "$work/board.log" || fail "no clear report of the unplug"
   [ -f "$work/board/final_over.png" ] && [ -f "$work/board/volume.mha" ] || fail "outputs missing after the unplug"
   echo "board unplug: the run ended cleanly after 100 frames and wrote its outputs"
+  ;;
+arm)
+  # The 1990 arm: the emulator simulates the [sim] sweep itself and sends the
+  # arm's raw 12-bit A/D counts; the driver gets every count exactly, and the
+  # calibration (the simulator's converters, probe mount at z = 180 mm) turns
+  # them into poses within half a millimetre of the simulator's (which were
+  # interpolated between A/D readings, not taken from one).
+  "$bin" board-emulator --config "$cfg" --pose arm --fps 200 -- \
+    "$bin" board-stats "$cfg" --expect "$seq" --set board.arm_probe_z_mm=180 --json "$work/stats.json" \
+    > "$work/stats.log" 2>&1 || fail "board-stats: $(tail -5 "$work/stats.log")"
+  expect "$work/stats.json" received 300
+  expect "$work/stats.json" pixel_mismatches 0
+  expect "$work/stats.json" pose_mismatches 0
+  worst=$(field "$work/stats.json" arm_pose_worst_mm)
+  awk -v w="$worst" 'BEGIN { exit !(w > 0 && w < 0.5) }' || fail "arm poses off by up to $worst mm"
+  echo "board arm: 300 simulated frames with raw A/D counts, counts exact, poses within $worst mm"
   ;;
 igtl|igtl_vanish)
   # 100 images with their poses from an OpenIGTLink server into the MPI
