@@ -70,6 +70,7 @@ void BM_PipelineIncremental(benchmark::State& state) {
   // The first third of the sweep, so that later frames land next to data.
   for (; i < w.frames.size() / 3; ++i) pipe.insert(w.frames[i], w.poses[i], w.frames[i].timestamp);
   std::uint64_t samples = 0, n = 0;
+  double shadeMs = 0.0, sampleMs = 0.0, compositeMs = 0.0;
   for (auto _ : state) {
     if (i == w.frames.size()) {
       state.SkipWithError("ran out of frames; lower the iterations");
@@ -79,9 +80,18 @@ void BM_PipelineIncremental(benchmark::State& state) {
     ++i;
     state.SetIterationTime((st.shadeMs + st.sampleMs + st.compositeMs) / 1000.0);
     samples += st.samples;
+    shadeMs += st.shadeMs;
+    sampleMs += st.sampleMs;
+    compositeMs += st.compositeMs;
     ++n;
   }
-  state.counters["samples_per_frame"] = static_cast<double>(samples) / static_cast<double>(std::max<std::uint64_t>(1, n));
+  const double frames = static_cast<double>(std::max<std::uint64_t>(1, n));
+  state.counters["samples_per_frame"] = static_cast<double>(samples) / frames;
+  // Where the time goes: shading (and the empty-space map), D-buffer and
+  // sampling, putting and compositing; ms per frame.
+  state.counters["shade_ms"] = shadeMs / frames;
+  state.counters["sample_ms"] = sampleMs / frames;
+  state.counters["composite_ms"] = compositeMs / frames;
 }
 BENCHMARK(BM_PipelineIncremental)->UseManualTime()->Unit(benchmark::kMillisecond)->Iterations(20);
 

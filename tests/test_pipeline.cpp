@@ -55,9 +55,7 @@ TEST_P(IncrementalEqualsFull, AfterEveryFrame) {
   const pp::CompositeMode mode = pp::compositeModeFromName(c.mode);
 
   std::size_t nonBlank = 0;
-  for (std::size_t i = 0; i < sim.frameCount(); ++i) {
-    const Frame f = sim.frame(i);
-    pipe.insert(f, poses[i], f.timestamp);
+  auto expectFull = [&](const std::string& when) {
     const pp::TileImage full = pipe.renderFromScratch(mode);
     const pp::TileImage& inc = pipe.image();
     ASSERT_EQ(inc.rgba.size(), full.rgba.size());
@@ -68,13 +66,38 @@ TEST_P(IncrementalEqualsFull, AfterEveryFrame) {
         ++differ;
         worst = std::max(worst, std::abs(inc.rgba[k] - full.rgba[k]));
       }
-    ASSERT_EQ(differ, 0u) << "frame " << i << ": " << differ << " channels differ, by up to " << worst;
+    ASSERT_EQ(differ, 0u) << when << ": " << differ << " channels differ, by up to " << worst;
     nonBlank = 0;
     for (std::size_t k = 0; k + 3 < inc.rgba.size(); k += 4)
       nonBlank += inc.rgba[k] + inc.rgba[k + 1] + inc.rgba[k + 2] > 0.0f ? 1 : 0;
+  };
+  for (std::size_t i = 0; i < sim.frameCount(); ++i) {
+    const Frame f = sim.frame(i);
+    pipe.insert(f, poses[i], f.timestamp);
+    expectFull("frame " + std::to_string(i));
+    if (HasFatalFailure()) return;
   }
   // Something was drawn: the doll's shell is in view.
   EXPECT_GT(nonBlank, 200u);
+
+  // View changes re-light only the voxels that were visible: the shade
+  // buffer equals a full re-shade for the new view, and the image a render
+  // from scratch. Twice, so that the second starts from a view change's
+  // shading; then one more frame.
+  const TransferFunction tf(ps.tf);
+  for (const double degrees : {35.0, -80.0}) {
+    pipe.setCamera(pipe.camera().orbited(Vec3(0, 0, 1), degrees));
+    gp::ShadeBuffer shade(g);
+    gp::shade(pipe.reconstructor().output(), tf, pipe.settings().shading, pipe.camera(), gp::Box3{Index3(0), g.dims},
+              shade);
+    ASSERT_EQ(std::memcmp(shade.data(), pipe.shadeBuffer().data(), g.voxelCount() * sizeof(gp::ShadeVoxel)), 0)
+        << "after turning by " << degrees << " degrees";
+    expectFull("after turning by " + std::to_string(degrees) + " degrees");
+    EXPECT_GT(nonBlank, 200u);
+  }
+  const Frame f = sim.frame(0);
+  pipe.insert(f, poses[0], f.timestamp + 100.0);
+  expectFull("a frame after the view changes");
 }
 
 INSTANTIATE_TEST_SUITE_P(Pipeline, IncrementalEqualsFull,

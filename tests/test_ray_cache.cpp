@@ -442,6 +442,58 @@ TEST(Incremental, SameBitsForAnyThreadCount) {
   }
 }
 
+// A new view reuses the storage and zeroes only the pages the last view
+// wrote: after reset() (to other counts, smaller and larger) or clear(), the
+// cache gives the bits of a new cache given the same samples.
+TEST(Reset, ReusedStorageEqualsANewCache) {
+  const TileRect tile{0, 0, 40, 30};
+  const std::size_t n = static_cast<std::size_t>(tile.width) * tile.height;
+  std::mt19937 rng(11);
+  auto randomCounts = [&](unsigned most) {
+    std::vector<std::uint16_t> counts(n);
+    for (auto& c : counts) c = static_cast<std::uint16_t>(rng() % most);
+    return counts;
+  };
+  // About a third of the rays get a run of visible samples.
+  auto someSamples = [&](const std::vector<std::uint16_t>& counts) {
+    std::vector<RaySample> out;
+    std::uniform_real_distribution<float> a(0.001f, 0.2f);
+    for (std::size_t i = 0; i < n; ++i) {
+      if (counts[i] == 0 || rng() % 3 != 0) continue;
+      const std::uint32_t k0 = rng() % counts[i], len = 1 + rng() % 40;
+      for (std::uint32_t k = k0; k < std::min<std::uint32_t>(counts[i], k0 + len); ++k)
+        out.push_back(sample(static_cast<std::uint32_t>(i), k, a(rng)));
+    }
+    return out;
+  };
+  for (auto f : kFormats)
+    for (auto m : kModes) {
+      std::vector<std::uint16_t> counts = randomCounts(300);
+      RayCache reused(tile, tile.width, counts, settingsFor(f), m);
+      for (const unsigned most : {300u, 100u, 500u, 0u}) {
+        const std::vector<RaySample> before = someSamples(counts);
+        reused.put(before);
+        reused.composite();
+        if (most == 0) {
+          reused.clear();  // same counts, every sample transparent again
+        } else {
+          counts = randomCounts(most);
+          reused.reset(counts);
+        }
+        const std::vector<RaySample> after = someSamples(counts);
+        RayCache fresh(tile, tile.width, counts, settingsFor(f), m);
+        fresh.put(after);
+        reused.put(after);
+        fresh.composite();
+        reused.composite();
+        EXPECT_TRUE(sameBits(reused.image(), fresh.image())) << pp5::pp::sampleFormatName(f) << " " << most;
+        for (auto other : kModes)
+          EXPECT_TRUE(sameBits(reused.compositeFull(other), fresh.compositeFull(other)))
+              << pp5::pp::sampleFormatName(f) << " " << most;
+      }
+    }
+}
+
 // ---------------------------------------------------------------------------
 // Dirty tracking.
 
@@ -702,7 +754,8 @@ TEST(Memory, CountsSamplesPartialsAndFlags) {
     RayCache c(TileRect{0, 0, 10, 10}, 10, counts, settingsFor(f, 16));
     EXPECT_EQ(c.sampleCount(), 6400u);
     EXPECT_EQ(c.blockCount(), 400u);
-    const std::size_t floor = 6400 * pp5::pp::sampleFormatBytes(f) + 400 * (16 + 1) + 100 * 16;
+    // Samples, partials and dirty flags, the image, and a touched flag per 64 samples.
+    const std::size_t floor = 6400 * pp5::pp::sampleFormatBytes(f) + 400 * (16 + 1) + 100 * 16 + 6400 / 64;
     EXPECT_GE(c.memoryBytes(), floor);
     EXPECT_LE(c.memoryBytes(), floor + 100 * 32);
   }

@@ -642,6 +642,62 @@ TEST(EmptySpaceMap, DistancesAreExactAndUpdatesEqualRebuilds) {
   check(m, shade);
 }
 
+// A larger map with a few scattered visible voxels (and none at all): the
+// distances are the exact chessboard distances to the nearest occupied brick
+// (255 where there is none), the box of occupied bricks is right, and the
+// visible-voxel boxes hold every visible voxel and are disjoint.
+TEST(EmptySpaceMap, DistancesExactOnAScatteredMapAndVisibleBoxesCoverEveryVisibleVoxel) {
+  Grid g;
+  g.spacing = Vec3(1.0);
+  g.dims = Index3(8 * 13 + 1, 8 * 11 + 3, 8 * 9);  // 13 x 12 x 9 bricks of cells, some partial
+  std::mt19937 rng(5);
+  for (const int points : {0, 1, 7}) {
+    ShadeBuffer s(g);
+    for (int n = 0; n < points; ++n) {
+      const std::int64_t i = rng() % g.dims.x, j = rng() % g.dims.y, k = rng() % g.dims.z;
+      s.at(g.linear(i, j, k)) = ShadeVoxel{10, 20, 30, 40};
+    }
+    const pp5::gp::EmptySpaceMap m(s, 1);
+    const Index3 bd = m.brickDims();
+    ASSERT_EQ(bd, Index3(13, 12, 9));
+    std::vector<Index3> occ;
+    for (std::int64_t bk = 0; bk < bd.z; ++bk)
+      for (std::int64_t bj = 0; bj < bd.y; ++bj)
+        for (std::int64_t bi = 0; bi < bd.x; ++bi) {
+          bool any = false;
+          for (std::int64_t k = bk * 8; k <= std::min(bk * 8 + 8, g.dims.z - 1); ++k)
+            for (std::int64_t j = bj * 8; j <= std::min(bj * 8 + 8, g.dims.y - 1); ++j)
+              for (std::int64_t i = bi * 8; i <= std::min(bi * 8 + 8, g.dims.x - 1); ++i)
+                any = any || s.at(g.linear(i, j, k)).a != 0;
+          if (any) occ.push_back(Index3(bi, bj, bk));
+        }
+    for (std::int64_t bk = 0; bk < bd.z; ++bk)
+      for (std::int64_t bj = 0; bj < bd.y; ++bj)
+        for (std::int64_t bi = 0; bi < bd.x; ++bi) {
+          int best = 255;
+          for (const Index3& o : occ)
+            best = std::min<int>(best, static_cast<int>(std::max({std::abs(o.x - bi), std::abs(o.y - bj), std::abs(o.z - bk)})));
+          ASSERT_EQ(m.distance(bi, bj, bk), best) << points << " points, brick " << bi << " " << bj << " " << bk;
+        }
+    EXPECT_EQ(m.occupiedCells().empty(), occ.empty());
+
+    // Every visible voxel in exactly one box; within a clip, only inside it.
+    for (const Box3& within : {Box3{Index3(0), g.dims}, Box3{Index3(5, 17, 0), Index3(61, 90, 40)}}) {
+      const std::vector<Box3> boxes = m.visibleVoxelBoxes(within);
+      for (std::int64_t k = 0; k < g.dims.z; ++k)
+        for (std::int64_t j = 0; j < g.dims.y; ++j)
+          for (std::int64_t i = 0; i < g.dims.x; ++i) {
+            int in = 0;
+            for (const Box3& b : boxes) in += b.contains(i, j, k) ? 1 : 0;
+            ASSERT_LE(in, 1) << i << " " << j << " " << k;
+            if (s.at(g.linear(i, j, k)).a != 0 && within.contains(i, j, k)) ASSERT_EQ(in, 1) << i << " " << j << " " << k;
+            if (!within.contains(i, j, k)) ASSERT_EQ(in, 0);
+          }
+      if (points == 0) EXPECT_TRUE(boxes.empty());
+    }
+  }
+}
+
 TEST(StencilBoxes, GrowRuleAndBrickMerging) {
   const Grid g = testGrid();
   const Box3 b{{5, 6, 7}, {9, 10, 11}};

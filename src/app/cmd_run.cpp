@@ -378,8 +378,8 @@ void addRunOptions(CLI::App* cmd, const std::shared_ptr<RunOptions>& o) {
   cmd->add_option("--gps", o->gps, "Graphics processors (overrides parallel.gps)");
   cmd->add_option("--pps", o->pps, "Pixel processors (overrides parallel.pps)");
   cmd->add_flag("--verify", o->verify,
-                "Under mpirun: also run the serial pipeline on the host and require every image to be bitwise equal "
-                "(needs parallel.composite_on = \"lockstep\")");
+                "Under mpirun: also run the serial pipeline on the host and require its images to be bitwise equal: "
+                "every image in lockstep; in tick mode the image once every frame is in, and those after it");
   cmd->add_option("--expect-ranks", o->expectRanks, "Refuse to run unless the job has exactly this many ranks");
 }
 

@@ -132,7 +132,10 @@ struct ControlMsg {
     kFinish = 16,     // end of input: the reconstruction's final passes, then re-shade
   };
   std::uint32_t changes = 0;
-  std::uint32_t pad = 0;
+  // 1: frames were sent before it, h.frame the last of them. In tick mode a
+  // PP applies the change only once every GP has finished those frames, and
+  // shows them in the old view first.
+  std::uint32_t afterFrame = 0;
   ControlState state;
 };
 
@@ -142,6 +145,7 @@ struct CreditMsg {
   std::uint32_t gp = 0;
   std::uint32_t isControl = 0;  // 1: for a control change, not a frame
   StageTimes times;             // this frame's (or change's) time per stage
+  std::uint32_t batch = 1;      // frames in the GP update that included this one (tick mode batches waiting frames)
   std::uint64_t samples = 0;    // samples sent for it
   std::uint64_t bytesSent = 0;  // bytes sent for it
   std::uint64_t dirtyVoxels = 0;

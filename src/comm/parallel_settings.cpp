@@ -31,6 +31,10 @@ void registerOptions(ConfigSchema& schema, ParallelSettings& s) {
   schema.option("parallel.tick_hz", &s.tickHz, 30.0, 1.0, 1000.0, "Compositing ticks per second (composite_on = tick).");
   schema.option("parallel.credits", &s.credits, 4, 1, 1024,
                 "Frames the host may have in flight to each GP before it waits (flow control).");
+  schema.option("parallel.batch_frames", &s.batchFrames, 8, 1, 1024,
+                "tick: a GP reconstructs up to this many frames that are already waiting, then shades, samples "
+                "and sends their union once (1 = one update per frame). Same final images; lockstep always "
+                "updates per frame.");
   schema.option("parallel.timeout_s", &s.timeoutS, 30.0, 0.5, 86400.0,
                 "A rank that hears nothing for this long ends the job with a message naming what it waited for.");
   schema.option("parallel.threads", &s.threads, 1, 0, 1024,

@@ -29,6 +29,7 @@ struct ParallelSettings {
   std::string compositeOn = "tick";       // tick | lockstep
   double tickHz = 30.0;                   // compositing ticks per second (tick)
   int credits = 4;                        // frames in flight per GP
+  int batchFrames = 8;                    // tick: waiting frames a GP updates together
   double timeoutS = 30.0;                 // longest silence before a rank gives up
   int threads = 1;                        // threads per rank (reconstruct, shade, sample, composite)
 

@@ -5,6 +5,7 @@
 #include <cstring>
 #include <memory>
 #include <numeric>
+#include <optional>
 #include <thread>
 
 #include <fmt/format.h>
@@ -118,13 +119,11 @@ public:
 
   void run() {
     for (;;) {
-      const double w0 = t_.waitSeconds();
-      Message m = t_.wait(fmt::format("the host's next frame (GP {})", g_ + 1));
-      clock_.add(kWait, 1e3 * (t_.waitSeconds() - w0));
+      Message m = next();
       const Header& h = m.header();
       if (m.source != 0) throw CommError(fmt::format("unexpected message (tag {}) from rank {}", m.tag, m.source));
       switch (m.tag) {
-        case kTagFrame: onFrame(m); break;
+        case kTagFrame: onFrames(m); break;
         case kTagPrevious: onPrevious(m); break;
         case kTagControl: onControl(m); break;
         case kTagVolumeRequest: sendVolume(h); break;
@@ -143,6 +142,9 @@ public:
 private:
   Transport& t_;
   GpRankConfig c_;
+  // A message polled while gathering a batch of frames that was not one of
+  // them: handled next.
+  std::optional<Message> held_;
   int g_;
   std::chrono::steady_clock::time_point start_;
   StageClock clock_;
@@ -253,7 +255,99 @@ private:
     return f;
   }
 
-  void onFrame(const Message& m) {
+  // The held message, or the next from the network (the time waited for it
+  // counted as waiting).
+  Message next() {
+    if (held_) {
+      Message m = std::move(*held_);
+      held_.reset();
+      return m;
+    }
+    const double w0 = t_.waitSeconds();
+    Message m = t_.wait(fmt::format("the host's next frame (GP {})", g_ + 1));
+    clock_.add(kWait, 1e3 * (t_.waitSeconds() - w0));
+    return m;
+  }
+
+  // A frame, and in tick mode the frames already waiting behind it (up to
+  // parallel.batch_frames): each is reconstructed in order, then shading,
+  // sampling and the samples sent cover the union of their dirty regions
+  // once. The grid, the shade buffer and the cache end up as after one
+  // update per frame (a lattice point re-sampled twice keeps its last value,
+  // and one transparent before and after the batch was and stays 0), at a
+  // fraction of the cost when the frames overlap, which lets a GP that fell
+  // behind catch up. Lockstep keeps one update per frame, as its images are
+  // compared frame by frame. Each frame gets its own credit, with its own
+  // reconstruction time; the batch's shading, sampling and samples are
+  // counted on its last frame.
+  void onFrames(const Message& first) {
+    std::vector<Header> frames;
+    std::vector<std::uint64_t> dirtyOf;
+    std::vector<StageTimes> times;
+    DirtyRegion dirty;
+    bool anyDirty = false;
+    auto add = [&](const Message& m) {
+      InsertResult r = reconstruct(m);
+      frames.push_back(m.header());
+      dirtyOf.push_back(r.dirty.voxelCount());
+      times.push_back(clock_.take());
+      if (r.dirty.empty()) return;
+      if (anyDirty) {
+        dirty.merge(r.dirty);
+      } else {
+        dirty = std::move(r.dirty);
+        anyDirty = true;
+      }
+    };
+    add(first);
+    if (!c_.parallel.lockstep())
+      while (frames.size() < static_cast<std::size_t>(c_.parallel.batchFrames)) {
+        std::optional<Message> n = t_.poll();
+        if (!n) break;
+        const bool same = n->source == 0 && n->header().epoch == epoch_;
+        if (same && n->tag == kTagFrame) {
+          add(*n);
+        } else if (same && n->tag == kTagPrevious) {
+          onPrevious(*n);
+        } else {
+          held_ = std::move(n);
+          break;
+        }
+      }
+    const Header& last = frames.back();
+
+    std::uint64_t samples = 0;
+    std::vector<Box3> all, mine;
+    if (anyDirty) {
+      clock_.start(kShade);
+      all = shadingBoxes(dirty);
+      mine = myShare(all);
+      for (const Box3& b : mine) shade(recon_->output(), tf_, shading_, camera_, b, shade_);
+      spaceBefore_ = space_;
+      space_.update(shade_, mine);
+    }
+    if (!mine.empty()) {
+      clock_.start(kSample);
+      // slab: only this GP's cells' samples can change; tile: the serial
+      // pipeline's few merged boxes (the work-tile mask keeps the rays to this
+      // GP's tiles, whose samples read only voxels of visible bricks).
+      dbuf_.build(camera_, stencilBoxes(c_.grid, slab_ ? mine : all));
+      sampleRegion(shade_, lattice_, dbuf_, render_, *buckets_, &space_, options_, &spaceBefore_);
+    }
+    const std::uint64_t bytes0 = t_.totals().bytesSent;
+    clock_.start(kSend);
+    samples = sendSamples(last, false);
+    const std::uint64_t bytes = t_.totals().bytesSent - bytes0;
+    const StageTimes update = clock_.take();
+    const auto n = static_cast<std::uint32_t>(frames.size());
+    for (std::size_t i = 0; i + 1 < frames.size(); ++i) credit(frames[i], false, 0, 0, dirtyOf[i], times[i], n);
+    StageTimes t = times.back();
+    for (int st = 0; st < kStageCount; ++st) t.ms[st] += update.ms[st];
+    credit(last, false, samples, bytes, dirtyOf.back(), t, n);
+  }
+
+  // One frame's reconstruction.
+  InsertResult reconstruct(const Message& m) {
     clock_.start(kReceive);
     const FrameMsg& fm = m.as<FrameMsg>();
     epoch_ = fm.h.epoch;
@@ -272,30 +366,7 @@ private:
       r = recon_->insert(f, pose, fm.timeS);
     }
     clock_.stop();
-
-    std::uint64_t samples = 0, dirtyVoxels = 0;
-    std::vector<Box3> all, mine;
-    if (!r.dirty.empty()) {
-      clock_.start(kShade);
-      all = shadingBoxes(r.dirty);
-      mine = myShare(all);
-      for (const Box3& b : mine) shade(recon_->output(), tf_, shading_, camera_, b, shade_);
-      spaceBefore_ = space_;
-      space_.update(shade_, mine);
-      dirtyVoxels = r.dirty.voxelCount();
-    }
-    if (!mine.empty()) {
-      clock_.start(kSample);
-      // slab: only this GP's cells' samples can change; tile: the serial
-      // pipeline's few merged boxes (the work-tile mask keeps the rays to this
-      // GP's tiles, whose samples read only voxels of visible bricks).
-      dbuf_.build(camera_, stencilBoxes(c_.grid, slab_ ? mine : all));
-      sampleRegion(shade_, lattice_, dbuf_, render_, *buckets_, &space_, options_, &spaceBefore_);
-    }
-    const std::uint64_t bytes0 = t_.totals().bytesSent;
-    clock_.start(kSend);
-    samples = sendSamples(fm.h, false);
-    credit(fm.h, false, samples, t_.totals().bytesSent - bytes0, dirtyVoxels);
+    return r;
   }
 
   void onPrevious(const Message& m) {
@@ -328,10 +399,19 @@ private:
     std::uint64_t samples = 0;
     const std::uint64_t bytes0 = t_.totals().bytesSent;
     if (ch & (ControlMsg::kView | ControlMsg::kShading | ControlMsg::kTransfer | ControlMsg::kFinish)) {
-      // What the serial pipeline's resampleAll does, for this GP's share.
+      // What the serial pipeline's setCamera or resampleAll does, for this
+      // GP's share.
       clock_.start(kShade);
-      shadeAll();
-      space_ = EmptySpaceMap(shade_, render_.threads);
+      if (slab_ && !(ch & (ControlMsg::kShading | ControlMsg::kTransfer | ControlMsg::kFinish))) {
+        // Only the view changed, so every voxel's opacity is as it was: the
+        // visible voxels of this GP's region get new light, and the
+        // empty-space map stays. (A tile GP has shaded only what its tiles
+        // saw under the old view, so it shades the new view's bricks anew.)
+        shade(recon_->output(), tf_, shading_, camera_, space_.visibleVoxelBoxes(shadeRegion_), shade_);
+      } else {
+        shadeAll();
+        space_ = EmptySpaceMap(shade_, render_.threads);
+      }
       clock_.start(kSample);
       sampleAll(shade_, lattice_, render_, *buckets_, &space_, options_);
       clock_.start(kSend);
@@ -376,11 +456,16 @@ private:
   }
 
   void credit(const Header& of, bool control, std::uint64_t samples, std::uint64_t bytes, std::uint64_t dirtyVoxels) {
+    credit(of, control, samples, bytes, dirtyVoxels, clock_.take(), 1);
+  }
+  void credit(const Header& of, bool control, std::uint64_t samples, std::uint64_t bytes, std::uint64_t dirtyVoxels,
+              const StageTimes& times, std::uint32_t batch) {
     CreditMsg cr;
     cr.h = {kTagCredit, of.epoch, of.frame};
     cr.gp = static_cast<std::uint32_t>(g_);
     cr.isControl = control ? 1 : 0;
-    cr.times = clock_.take();
+    cr.batch = batch;
+    cr.times = times;
     cr.samples = samples;
     cr.bytesSent = bytes;
     cr.dirtyVoxels = dirtyVoxels;

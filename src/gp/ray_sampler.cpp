@@ -1,6 +1,7 @@
 #include "gp/ray_sampler.hpp"
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <cstring>
 #include <limits>
@@ -458,12 +459,26 @@ void EmptySpaceMap::scanBrick(const ShadeBuffer& shade, std::int64_t bi, std::in
   // The brick's cells read voxels [lo, lo + kBrickCells] inclusive.
   const Index3 lo = Index3(bi, bj, bk) * Index3(kBrickCells);
   const Index3 hi = glm::min(lo + Index3(kBrickCells + 1), grid_.dims);
+  // OR whole voxels as 32-bit words and keep alpha, the high byte (r, g, b,
+  // a in memory, little-endian); a full brick's rows (9 voxels) with a fixed
+  // count the compiler unrolls.
+  static_assert(std::endian::native == std::endian::little);
   const ShadeVoxel* v = shade.data();
-  std::uint8_t any = 0;
+  const std::int64_t n = hi.x - lo.x;
+  std::uint32_t any = 0;
+  auto orRow = [](const ShadeVoxel* row, std::int64_t count) {
+    std::uint32_t acc = 0;
+    for (std::int64_t x = 0; x < count; ++x) {
+      std::uint32_t w;
+      std::memcpy(&w, row + x, sizeof w);
+      acc |= w;
+    }
+    return acc;
+  };
   for (std::int64_t z = lo.z; z < hi.z && !any; ++z)
     for (std::int64_t y = lo.y; y < hi.y; ++y) {
       const ShadeVoxel* row = v + grid_.linear(lo.x, y, z);
-      for (std::int64_t x = 0; x < hi.x - lo.x; ++x) any |= row[x].a;
+      any |= (n == kBrickCells + 1 ? orRow(row, kBrickCells + 1) : orRow(row, n)) >> 24;
     }
   occupied_[static_cast<std::size_t>((bk * bdims_.y + bj) * bdims_.x + bi)] = any ? 1 : 0;
 }
@@ -493,34 +508,56 @@ void EmptySpaceMap::update(const ShadeBuffer& shade, std::span<const Box3> chang
 
 void EmptySpaceMap::computeDistances() {
   // Two raster passes with the full 26-neighbour mask give the exact
-  // chessboard distance.
+  // chessboard distance. The map is padded by one brick of "infinity" on
+  // every side, so no neighbour needs a bounds check. In each pass a row
+  // first takes the 12 neighbours of the rows already done (independent
+  // along x, so vectorised), then the one before it in the same row, in order.
   const std::int64_t X = bdims_.x, Y = bdims_.y, Z = bdims_.z;
-  std::vector<std::uint16_t> d(occupied_.size());
-  for (std::size_t i = 0; i < d.size(); ++i) d[i] = occupied_[i] ? 0 : 0xffff;
-  auto idx = [&](std::int64_t x, std::int64_t y, std::int64_t z) {
-    return static_cast<std::size_t>((z * Y + y) * X + x);
-  };
-  auto relax = [&](std::int64_t x, std::int64_t y, std::int64_t z, int sign) {
-    std::uint16_t best = d[idx(x, y, z)];
-    for (int dz = -1; dz <= 0; ++dz)
-      for (int dy = -1; dy <= 1; ++dy)
-        for (int dx = -1; dx <= 1; ++dx) {
-          // The 13 neighbours that come earlier in this pass's order.
-          if (dz == 0 && (dy > 0 || (dy == 0 && dx >= 0))) continue;
-          const std::int64_t nx = x + sign * dx, ny = y + sign * dy, nz = z + sign * dz;
-          if (nx < 0 || ny < 0 || nz < 0 || nx >= X || ny >= Y || nz >= Z) continue;
-          const std::uint16_t v = d[idx(nx, ny, nz)];
-          if (v != 0xffff && v + 1 < best) best = static_cast<std::uint16_t>(v + 1);
-        }
-    d[idx(x, y, z)] = best;
+  const std::int64_t PX = X + 2, PY = Y + 2, PZ = Z + 2;
+  constexpr std::uint16_t kInf = 0x7fff;  // + 1 cannot overflow, and stays above every distance
+  std::vector<std::uint16_t> pad(static_cast<std::size_t>(PX * PY * PZ), kInf);
+  auto at = [&](std::int64_t x, std::int64_t y, std::int64_t z) {
+    return static_cast<std::size_t>((z * PY + y) * PX + x);
   };
   for (std::int64_t z = 0; z < Z; ++z)
     for (std::int64_t y = 0; y < Y; ++y)
-      for (std::int64_t x = 0; x < X; ++x) relax(x, y, z, 1);
-  for (std::int64_t z = Z - 1; z >= 0; --z)
-    for (std::int64_t y = Y - 1; y >= 0; --y)
-      for (std::int64_t x = X - 1; x >= 0; --x) relax(x, y, z, -1);
-  for (std::size_t i = 0; i < d.size(); ++i) dist_[i] = static_cast<std::uint8_t>(std::min<std::uint16_t>(d[i], 255));
+      for (std::int64_t x = 0; x < X; ++x)
+        if (occupied_[static_cast<std::size_t>((z * Y + y) * X + x)]) pad[at(x + 1, y + 1, z + 1)] = 0;
+  std::vector<std::uint16_t> t(static_cast<std::size_t>(PX));
+  auto pass = [&](int sign) {
+    // The 12 earlier neighbours' offsets: the previous row of this plane and
+    // the previous plane's 3x3 rows, in this pass's direction.
+    std::int64_t off[12];
+    int n = 0;
+    for (int dx = -1; dx <= 1; ++dx) off[n++] = sign * (-PX + dx);
+    for (int dy = -1; dy <= 1; ++dy)
+      for (int dx = -1; dx <= 1; ++dx) off[n++] = sign * (-PX * PY + dy * PX + dx);
+    for (std::int64_t zz = 0; zz < Z; ++zz)
+      for (std::int64_t yy = 0; yy < Y; ++yy) {
+        const std::int64_t z = sign > 0 ? zz + 1 : Z - zz, y = sign > 0 ? yy + 1 : Y - yy;
+        std::uint16_t* row = pad.data() + at(0, y, z);
+        for (std::int64_t x = 1; x <= X; ++x) {
+          std::uint16_t m = row[x + off[0]];
+          for (int q = 1; q < 12; ++q) m = std::min(m, row[x + off[q]]);
+          t[static_cast<std::size_t>(x)] = std::min<std::uint16_t>(row[x], static_cast<std::uint16_t>(m + 1));
+        }
+        if (sign > 0)
+          for (std::int64_t x = 1; x <= X; ++x)
+            row[x] = std::min<std::uint16_t>(t[static_cast<std::size_t>(x)], static_cast<std::uint16_t>(row[x - 1] + 1));
+        else
+          for (std::int64_t x = X; x >= 1; --x)
+            row[x] = std::min<std::uint16_t>(t[static_cast<std::size_t>(x)], static_cast<std::uint16_t>(row[x + 1] + 1));
+      }
+  };
+  pass(1);
+  pass(-1);
+  auto idx = [&](std::int64_t x, std::int64_t y, std::int64_t z) {
+    return static_cast<std::size_t>((z * Y + y) * X + x);
+  };
+  for (std::int64_t z = 0; z < Z; ++z)
+    for (std::int64_t y = 0; y < Y; ++y)
+      for (std::int64_t x = 0; x < X; ++x)
+        dist_[idx(x, y, z)] = static_cast<std::uint8_t>(std::min<std::uint16_t>(pad[at(x + 1, y + 1, z + 1)], 255));
   Box3 b{bdims_, Index3(0)};
   for (std::int64_t z = 0; z < Z; ++z)
     for (std::int64_t y = 0; y < Y; ++y)
@@ -530,6 +567,42 @@ void EmptySpaceMap::computeDistances() {
           b.hi = glm::max(b.hi, Index3(x, y, z) + Index3(1));
         }
   occupiedCells_ = b.empty() ? Box3{} : Box3{b.lo * Index3(kBrickCells), glm::min(b.hi * Index3(kBrickCells), cellDims())};
+}
+
+std::vector<Box3> EmptySpaceMap::visibleVoxelBoxes(const Box3& within) const {
+  std::vector<Box3> out;
+  const Box3 clip = within.intersect({Index3(0), grid_.dims});
+  if (clip.empty() || occupied_.empty()) return out;
+  constexpr std::int64_t B = kBrickCells;
+  // Voxel brick v holds voxels [B v, B v + B); cell brick c reads voxels
+  // [B c, B c + B] (scanBrick), so v is read by cell bricks v - 1 and v on
+  // each axis.
+  auto occupied = [&](std::int64_t i, std::int64_t j, std::int64_t k) {
+    if (i < 0 || j < 0 || k < 0 || i >= bdims_.x || j >= bdims_.y || k >= bdims_.z) return false;
+    return occupied_[static_cast<std::size_t>((k * bdims_.y + j) * bdims_.x + i)] != 0;
+  };
+  auto needed = [&](std::int64_t i, std::int64_t j, std::int64_t k) {
+    for (int dz = -1; dz <= 0; ++dz)
+      for (int dy = -1; dy <= 0; ++dy)
+        for (int dx = -1; dx <= 0; ++dx)
+          if (occupied(i + dx, j + dy, k + dz)) return true;
+    return false;
+  };
+  const Index3 lo = clip.lo / Index3(B), hi = (clip.hi + Index3(B - 1)) / Index3(B);
+  for (std::int64_t k = lo.z; k < hi.z; ++k)
+    for (std::int64_t j = lo.y; j < hi.y; ++j)
+      for (std::int64_t i = lo.x; i < hi.x;) {
+        if (!needed(i, j, k)) {
+          ++i;
+          continue;
+        }
+        std::int64_t e = i + 1;
+        while (e < hi.x && needed(e, j, k)) ++e;
+        const Box3 run = Box3{Index3(i, j, k) * Index3(B), Index3(e, j + 1, k + 1) * Index3(B)}.intersect(clip);
+        if (!run.empty()) out.push_back(run);
+        i = e;
+      }
+  return out;
 }
 
 double EmptySpaceMap::emptyFraction() const {

@@ -125,6 +125,13 @@ public:
   // The cells of the bricks with a visible cell, as one box (empty when there
   // are none): a ray only needs walking where it crosses it.
   const Box3& occupiedCells() const { return occupiedCells_; }
+  // Disjoint boxes of voxels, clipped to `within`, that hold every voxel of
+  // `within` whose alpha was above 0 in the scanned shade buffer: the 8^3
+  // voxel bricks that the cells of an occupied brick read, in runs along x.
+  // A voxel outside them was transparent, so premultiplied all zero, and
+  // stays so under any view (opacity does not depend on the view): a view
+  // change needs to re-light only these (SerialPipeline::setCamera).
+  std::vector<Box3> visibleVoxelBoxes(const Box3& within) const;
 
 private:
   Grid grid_;

@@ -502,6 +502,17 @@ void shade(const Volume& values, const TransferFunction& tf, const ShadeSettings
 }
 
 void shade(const Volume& values, const TransferFunction& tf, const ShadeSettings& s, const Camera& view,
+           std::span<const Box3> boxes, ShadeBuffer& out) {
+  std::vector<Box3> clipped;
+  clipped.reserve(boxes.size());
+  for (const Box3& b : boxes) {
+    const Box3 c = b.intersect({Index3(0), values.grid.dims});
+    if (!c.empty()) clipped.push_back(c);
+  }
+  shadeAll(values, tf, s, view, clipped, out);
+}
+
+void shade(const Volume& values, const TransferFunction& tf, const ShadeSettings& s, const Camera& view,
            const DirtyRegion& dirty, ShadeBuffer& out) {
   PP5_CHECK(dirty.grid().dims == values.grid.dims);
   shadeAll(values, tf, s, view, shadingBoxes(dirty), out);

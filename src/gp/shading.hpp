@@ -17,6 +17,7 @@
 // gives the same bits as the same voxels of a full re-shade, for any thread
 // count and any split into boxes.
 #include <cstdint>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -78,6 +79,11 @@ void registerOptions(ConfigSchema& schema, ShadeSettings& s);
 // differ, or (phong) when the camera has no view direction.
 void shade(const Volume& values, const TransferFunction& tf, const ShadeSettings& s, const Camera& view,
            const Box3& box, ShadeBuffer& out);
+
+// Re-shades every voxel of `boxes` (disjoint; each clipped to the grid), as
+// one parallel pass over all of them.
+void shade(const Volume& values, const TransferFunction& tf, const ShadeSettings& s, const Camera& view,
+           std::span<const Box3> boxes, ShadeBuffer& out);
 
 // Re-shades every voxel whose shading the changed values in `dirty` can change:
 // the dirty bricks and the face neighbours of their voxels (shadingBoxes()).

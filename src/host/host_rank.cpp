@@ -48,6 +48,7 @@ public:
     state_ = makeControlState(j_.pipeline.render, j_.pipeline.shading, j_.pipeline.tf);
     fb_.assign(static_cast<std::size_t>(w_) * h_ * 4, 0.0f);
     requestFb_ = fb_;
+    nextFb_ = fb_;
     slab_ = j_.parallel.slab() && j_.pipeline.recon.methodEnum() == gp::Method::Tent;
     if (slab_) {
       slabs_ = SlabLayout(j_.grid, L_.gps, j_.parallel.split());
@@ -59,8 +60,8 @@ public:
       }
     }
     if (j_.verify) {
-      if (!j_.parallel.lockstep())
-        throw InputError("--verify compares every image with the serial pipeline's and needs parallel.composite_on = \"lockstep\"");
+      // lockstep: every image; tick: the image once every frame is in (what
+      // the GPs' batched updates must leave), then those after it.
       PipelineSettings ps = j_.pipeline;
       ps.render.threads = j_.parallel.threads;
       ps.recon.threads = j_.parallel.threads;
@@ -86,11 +87,24 @@ private:
   int requestsDone_ = 0;
   std::vector<float> fb_, requestFb_;
   std::int64_t imageFrame_ = -1;  // every frame up to this one is in fb_ (this epoch)
+  // Until a new epoch's first whole image is in, fb_ goes on showing (and
+  // updating) the epoch before (shownEpoch_, its progress shownPp_): the PPs
+  // send the frames acquired before a control change in the old view first.
+  // The new epoch's tiles gather in nextFb_ (every PP sends all its tiles
+  // first in a new epoch) and replace fb_ at once.
+  std::uint32_t shownEpoch_ = 0;
+  std::vector<PpProgress> shownPp_;
+  std::int64_t shownFrame_ = -1;
+  std::vector<float> nextFb_;
   std::uint64_t sent_ = 0;        // frames sent
   std::uint64_t images_ = 0;      // image updates assembled
   std::uint64_t verified_ = 0;
   std::vector<Clock::time_point> arrival_;
   std::vector<double> latencyMs_;
+  // GP updates for frames (tick mode batches the frames waiting at a GP).
+  std::uint64_t frameCredits_ = 0, framesBatched_ = 0;
+  double gpUpdates_ = 0.0;
+  std::uint32_t maxBatch_ = 0;
   StageClock clock_;
 
   bool slab_ = false;
@@ -115,6 +129,13 @@ private:
       case kTagCredit: {
         const CreditMsg& c = m.as<CreditMsg>();
         ++credits_[c.gp];
+        if (!c.isControl) {
+          const std::uint32_t b = std::max<std::uint32_t>(1, c.batch);
+          ++frameCredits_;
+          gpUpdates_ += 1.0 / b;  // a batch of b frames sends b credits
+          if (b > 1) ++framesBatched_;
+          maxBatch_ = std::max(maxBatch_, b);
+        }
         row(c.h, m.source, Role::Gp, c.times, c.samples, c.bytesSent, c.dirtyVoxels, -1.0);
         break;
       }
@@ -129,6 +150,10 @@ private:
           p.epoch = d.h.epoch;
           p.frame = std::max(p.frame, static_cast<std::int64_t>(d.h.frame));
           advanceImage();
+        } else if (d.h.epoch == shownEpoch_ && shownEpoch_ != epoch_) {
+          PpProgress& p = shownPp_[d.pp];
+          p.frame = std::max(p.frame, static_cast<std::int64_t>(d.h.frame));
+          advanceShown();
         }
         break;
       }
@@ -140,34 +165,55 @@ private:
 
   void onTile(const Message& m) {
     const TileMsg& tm = m.as<TileMsg>();
-    if (!tm.request && tm.h.epoch < epoch_) return;  // an older view's tile, already replaced
+    // An older view's tile is drawn while that view is still shown; the
+    // current epoch's tiles wait in nextFb_ until its first image is whole.
+    if (!tm.request && tm.h.epoch != epoch_ && !(tm.h.epoch == shownEpoch_ && shownEpoch_ != epoch_)) return;
     const auto payload = m.payload<TileMsg>();
     const std::size_t row = static_cast<std::size_t>(tm.width) * 4;
     if (tm.x0 < 0 || tm.y0 < 0 || tm.width < 0 || tm.height < 0 || tm.x0 + tm.width > w_ || tm.y0 + tm.height > h_ ||
         payload.size() != row * static_cast<std::size_t>(tm.height) * sizeof(float))
       throw CommError(fmt::format("a malformed tile from rank {}", m.source));
     clock_.start(kComposite);
-    std::vector<float>& dst = tm.request ? requestFb_ : fb_;
+    std::vector<float>& dst = tm.request ? requestFb_ : tm.h.epoch == shownEpoch_ ? fb_ : nextFb_;
     for (int y = 0; y < tm.height; ++y)
       std::memcpy(dst.data() + (static_cast<std::size_t>(tm.y0 + y) * w_ + tm.x0) * 4,
                   payload.data() + static_cast<std::size_t>(y) * row * sizeof(float), row * sizeof(float));
     clock_.stop();
   }
 
-  void advanceImage() {
-    std::int64_t f = INT64_MAX;
-    for (const PpProgress& p : pp_) f = p.epoch == epoch_ ? std::min(f, p.frame) : -1;
-    if (f <= imageFrame_) return;
+  // Frames up to `f` are in the image shown now: their latency, if not yet set.
+  void imageHas(std::int64_t from, std::int64_t f) {
     const auto now = Clock::now();
-    for (std::int64_t i = std::max<std::int64_t>(imageFrame_ + 1, 0); i <= f && i < static_cast<std::int64_t>(sent_);
-         ++i) {
+    for (std::int64_t i = std::max<std::int64_t>(from, 0); i <= f && i < static_cast<std::int64_t>(sent_); ++i) {
       if (static_cast<std::size_t>(i) < latencyMs_.size() && latencyMs_[static_cast<std::size_t>(i)] < 0.0) {
         const double ms = msBetween(arrival_[static_cast<std::size_t>(i)], now);
         latencyMs_[static_cast<std::size_t>(i)] = ms;
         const StageTimes none;
-        row(Header{0, epoch_, static_cast<std::uint64_t>(i)}, 0, Role::Host, none, 0, 0, 0, ms);
+        row(Header{0, shownEpoch_, static_cast<std::uint64_t>(i)}, 0, Role::Host, none, 0, 0, 0, ms);
       }
     }
+  }
+
+  // An image of the old view while the new one is being made.
+  void advanceShown() {
+    std::int64_t f = INT64_MAX;
+    for (const PpProgress& p : shownPp_) f = std::min(f, p.frame);
+    if (f <= shownFrame_) return;
+    imageHas(shownFrame_ + 1, f);
+    shownFrame_ = f;
+    ++images_;
+  }
+
+  void advanceImage() {
+    std::int64_t f = INT64_MAX;
+    for (const PpProgress& p : pp_) f = p.epoch == epoch_ ? std::min(f, p.frame) : -1;
+    if (f <= imageFrame_) return;
+    if (shownEpoch_ != epoch_) {  // the new view's first whole image
+      fb_.swap(nextFb_);
+      shownEpoch_ = epoch_;
+      shownFrame_ = -1;
+    }
+    imageHas(imageFrame_ + 1, f);
     imageFrame_ = f;
     ++images_;
     if (buildup_ && !j_.parallel.lockstep() && f / j_.buildupEvery > lastBuildup_ / j_.buildupEvery) {
@@ -280,11 +326,16 @@ private:
 
   void sendControl(std::uint32_t changes, const ControlState& next) {
     waitCredits();
+    if (shownEpoch_ == epoch_) {  // the view shown until the new one is whole
+      shownPp_ = pp_;
+      shownFrame_ = imageFrame_;
+    }
     ++epoch_;
     state_ = next;
     ControlMsg cm;
     cm.h = {kTagControl, epoch_, sent_ ? sent_ - 1 : 0};
     cm.changes = changes;
+    cm.afterFrame = sent_ > 0 ? 1 : 0;
     cm.state = next;
     for (int r = 1; r < L_.worldSize(); ++r) t_.send(r, cm);
     for (auto& c : credits_) --c;
@@ -440,6 +491,7 @@ int HostRank::run() {
   waitImage(static_cast<std::int64_t>(sent_) - 1);
   const double streamS = std::chrono::duration<double>(Clock::now() - firstSent).count();
   streamImages_ = images_;
+  if (ref_ && !lockstep) verify(fb_, ref_->image(), fmt::format("after the last frame ({})", sent_ - 1));
 
   // The end of the sweep: final passes, then what is shown of the final volume.
   sendControl(ControlMsg::kFinish, state_);
@@ -547,10 +599,17 @@ void HostRank::writeSummary(double streamS, double totalS, std::uint64_t drops, 
                       "\"previous_messages\": {},\n",
                       static_cast<double>(bytes) / static_cast<double>(sent_), pixelMessages_, poseOnlyMessages_,
                       previousMessages_);
+  const auto updates = static_cast<std::uint64_t>(std::llround(gpUpdates_));
+  json += fmt::format("  \"gp_frame_credits\": {}, \"gp_frame_updates\": {}, \"gp_frames_batched\": {}, "
+                      "\"gp_max_batch\": {},\n",
+                      frameCredits_, updates, framesBatched_, maxBatch_);
   json += "  \"stages\": {";
   std::printf("  frames/s in %.1f, images/s out %.1f, latency median %.1f ms, p95 %.1f ms, %.0f kB per frame\n",
               sent_ / streamS, streamImages_ / streamS, percentile(lat, 0.5), percentile(lat, 0.95),
               static_cast<double>(bytes) / static_cast<double>(sent_) / 1e3);
+  std::printf("  GP updates: %llu for %llu frame messages (%llu updated in batches, up to %u frames at once)\n",
+              static_cast<unsigned long long>(updates), static_cast<unsigned long long>(frameCredits_),
+              static_cast<unsigned long long>(framesBatched_), maxBatch_);
   std::printf("  %-12s %12s %12s %10s\n", "stage", "critical ms", "mean ms", "imbalance");
   for (int s = 0; s < kStageCount; ++s) {
     // The critical path over every rank; the imbalance over the ranks of the

@@ -63,7 +63,15 @@ void SerialPipeline::setCamera(const Camera& camera) {
     cache_ = std::make_unique<pp::RayCache>(tile, camera_.width, lattice_.counts(), s_.cache, live_, 1);
     cache_->setThreads(s_.render.threads);
   }
-  resampleAll(true);
+  if (shadeCurrent_) {
+    // The values and the style are as they were, so every voxel's opacity
+    // is too: only the voxels that were visible need new light, and the
+    // empty-space map (opacity only) stays as it is.
+    gp::shade(recon_->output(), tf_, s_.shading, camera_, space_.visibleVoxelBoxes(wholeGrid(grid_)), shade_);
+    resample(true);
+  } else {
+    resampleAll(true);
+  }
 }
 
 void SerialPipeline::setStyle(const gp::ShadeSettings& shading, const TransferFunctionSettings& tf) {
@@ -83,6 +91,11 @@ void SerialPipeline::setLiveMode(pp::CompositeMode m) {
 void SerialPipeline::resampleAll(bool cleared) {
   gp::shade(recon_->output(), tf_, s_.shading, camera_, wholeGrid(grid_), shade_);
   space_ = gp::EmptySpaceMap(shade_, s_.render.threads);
+  shadeCurrent_ = true;
+  resample(cleared);
+}
+
+void SerialPipeline::resample(bool cleared) {
   if (!cleared) cache_->clear();
   CacheSink sink(*cache_);
   gp::sampleAll(shade_, lattice_, s_.render, sink, &space_);

@@ -32,7 +32,8 @@ public:
     mine_ = tilesOwnedBy(p_, tiles_.count(), c_.layout.pps, c_.parallel.ownership());
     slot_.assign(static_cast<std::size_t>(tiles_.count()), -1);
     for (std::size_t i = 0; i < mine_.size(); ++i) slot_[static_cast<std::size_t>(mine_[i])] = static_cast<int>(i);
-    buildCaches();
+    prepare(state_);
+    swapCaches();
   }
 
   void run() {
@@ -68,12 +69,16 @@ public:
       }
       if (m->source == 0) {
         switch (m->tag) {
-          case kTagControl: onControl(m->as<ControlMsg>()); break;
+          case kTagControl:
+            if (lockstep) onControl(m->as<ControlMsg>());
+            else pending_.push_back(m->as<ControlMsg>());
+            break;
           case kTagRequest: onRequest(m->as<RequestMsg>()); break;
           case kTagQuit: {
             const double wall = std::chrono::duration<double>(Clock::now() - start_).count();
             std::uint64_t mem = 0;
             for (const auto& cache : caches_) mem += cache->memoryBytes();
+            for (const auto& cache : spare_) mem += cache->memoryBytes();
             t_.send(0, makeReport(t_, Role::Pp, clock_.total(), wall, dropped_, mem));
             t_.flush();
             return;
@@ -86,8 +91,12 @@ public:
           throw CommError(fmt::format("unexpected message (tag {}) from rank {}", m->tag, m->source));
         queues_[static_cast<std::size_t>(c_.layout.gpIndex(m->source))].push_back(std::move(*m));
       }
-      if (lockstep) applyComplete();
-      else applyArrived();
+      if (lockstep) {
+        applyComplete();
+      } else {
+        applyArrived();
+        applyPending();
+      }
     }
   }
 
@@ -100,10 +109,17 @@ private:
   RenderSettings render_;
   ControlState state_;
   std::uint32_t epoch_ = 0;
+  // The epoch of the last change that re-samples everything (view, shading,
+  // transfer function, final passes): messages of older epochs are stale and
+  // dropped. A change of the live mode alone starts an epoch too, but the
+  // samples still on their way from before it stay valid.
+  std::uint32_t samplesEpoch_ = 0;
   TileGrid tiles_;
   std::vector<int> mine_;   // tiles owned, ascending
   std::vector<int> slot_;   // tile -> index in caches_, -1 when not owned
   std::vector<std::unique_ptr<RayCache>> caches_;
+  std::vector<std::unique_ptr<RayCache>> spare_;  // the other half of a double buffer (prepare)
+  bool prepared_ = false;                         // spare_ holds the caches of pending_.front()
   std::vector<std::deque<Message>> queues_;  // per GP, in arrival order
   std::vector<std::int64_t> lastDone_;       // per GP: last frame complete in this epoch (-1: none)
   std::int64_t lastSent_ = -1;               // frame of the last PpDone (tick)
@@ -113,27 +129,45 @@ private:
   std::uint64_t dropped_ = 0;
   std::uint64_t samplesPut_ = 0, rays_ = 0, blocks_ = 0;
   std::vector<RaySample> scratch_;  // one batch's samples, aligned
+  std::deque<ControlMsg> pending_;  // tick: control changes not applied yet, in order
 
   CompositeMode live() const { return liveMode(state_); }
+  // Whether a change re-samples everything (new caches) rather than only
+  // changing the live mode.
+  static bool resamples(std::uint32_t ch) {
+    return (ch & (ControlMsg::kView | ControlMsg::kShading | ControlMsg::kTransfer | ControlMsg::kFinish)) != 0;
+  }
 
-  void buildCaches() {
-    const Camera cam = controlCamera(state_, c_.render, c_.grid);
+  // Caches of this PP's tiles for a control state's view and live mode, made
+  // in spare_: the storage of the set used before is reused (RayCache::reset
+  // clears only what that view wrote). With the caches in use they make a
+  // double buffer: a change's caches are made ready as soon as it arrives,
+  // while the current ones still take the frames sent before it
+  // (applyPending), and put in place at once when it is applied.
+  void prepare(const ControlState& state) {
+    const Camera cam = controlCamera(state, c_.render, c_.grid);
     const gp::SampleLattice lattice(cam, c_.grid, render_.step(c_.grid), render_.maxSamples, render_.threads);
-    const bool reuse = caches_.size() == mine_.size();
+    const CompositeMode mode = liveMode(state);
     for (std::size_t i = 0; i < mine_.size(); ++i) {
       const TileRect r = tiles_.rect(mine_[i]);
       std::vector<std::uint16_t> counts(static_cast<std::size_t>(r.width) * static_cast<std::size_t>(r.height));
       for (int y = 0; y < r.height; ++y)
         std::copy_n(lattice.counts().data() + static_cast<std::size_t>(r.y0 + y) * render_.width + r.x0, r.width,
                     counts.data() + static_cast<std::size_t>(y) * r.width);
-      // A new view of the same tiles reuses the caches' storage.
-      if (reuse) {
-        caches_[i]->setLiveMode(live());
-        caches_[i]->reset(counts);
+      if (i < spare_.size()) {
+        spare_[i]->setLiveMode(mode);
+        spare_[i]->reset(counts);
       } else {
-        caches_.push_back(std::make_unique<RayCache>(r, render_.width, counts, c_.cache, live(), render_.threads));
+        spare_.push_back(std::make_unique<RayCache>(r, render_.width, counts, c_.cache, mode, render_.threads));
       }
     }
+    prepared_ = true;
+  }
+
+  // The prepared caches in place; the old ones become the spare set.
+  void swapCaches() {
+    caches_.swap(spare_);
+    prepared_ = false;
   }
 
   void put(const Message& m) {
@@ -161,7 +195,7 @@ private:
       // Drop what an older epoch left behind (none in lockstep, where the
       // host waits for every image, but harmless).
       for (auto& q : queues_)
-        while (!q.empty() && q.front().header().epoch < epoch_) {
+        while (!q.empty() && q.front().header().epoch < samplesEpoch_) {
           q.pop_front();
           ++dropped_;
         }
@@ -195,7 +229,7 @@ private:
       auto& q = queues_[g];
       while (!q.empty()) {
         const Header h = q.front().header();
-        if (h.epoch < epoch_) {
+        if (h.epoch < samplesEpoch_) {
           q.pop_front();
           ++dropped_;
           continue;
@@ -206,10 +240,39 @@ private:
         if (m.tag == kTagSamples) {
           put(m);
         } else {
-          lastDone_[g] = static_cast<std::int64_t>(h.frame);
+          lastDone_[g] = std::max(lastDone_[g], static_cast<std::int64_t>(h.frame));
           if (m.as<GpDoneMsg>().full && awaitingFull_ && ++fullDone_ == c_.layout.gps) awaitingFull_ = false;
         }
       }
+    }
+  }
+
+  // tick: a control change reaches the PP straight from the host, ahead of
+  // the samples of the frames sent before it, which the GPs may still be
+  // working on. Those frames go into the old view and out in an image of it
+  // first; the change is applied once every GP has finished them (the host
+  // shows the old view until the new one is whole), so a view change does
+  // not hold back the frames acquired before it.
+  void applyPending() {
+    while (!pending_.empty()) {
+      const ControlMsg& cm = pending_.front();
+      if (resamples(cm.changes) && !prepared_) {
+        clock_.start(kComposite);
+        prepare(cm.state);
+        clock_.stop();
+      }
+      if (cm.afterFrame)
+        for (const std::int64_t d : lastDone_)
+          if (d < static_cast<std::int64_t>(cm.h.frame)) return;
+      const std::int64_t complete = *std::min_element(lastDone_.begin(), lastDone_.end());
+      if (!awaitingFull_ && complete > lastSent_) {
+        compositeAndSend(static_cast<std::uint64_t>(complete), false);
+        lastSent_ = complete;
+      }
+      const ControlMsg c = cm;
+      pending_.pop_front();
+      onControl(c);
+      applyArrived();  // what the GPs already sent in the new epoch
     }
   }
 
@@ -287,24 +350,32 @@ private:
     const std::uint32_t ch = cm.changes;
     state_ = cm.state;
     clock_.start(kComposite);
-    if (ch & ControlMsg::kView) {
-      buildCaches();
-    } else if (ch & ControlMsg::kMode) {
-      for (auto& c : caches_) c->setLiveMode(live());
-    }
-    std::fill(lastDone_.begin(), lastDone_.end(), -1);
-    lastSent_ = -1;
-    if (ch & (ControlMsg::kView | ControlMsg::kShading | ControlMsg::kTransfer | ControlMsg::kFinish)) {
-      if (!(ch & ControlMsg::kView))  // a new view's caches are empty already
-        for (auto& c : caches_) c->clear();
+    if (resamples(ch)) {
+      // New caches (a new view's, or every sample transparent for a new
+      // shading), prepared when the change arrived or here.
+      if (!prepared_) prepare(state_);
+      swapCaches();
+      samplesEpoch_ = epoch_;
+      std::fill(lastDone_.begin(), lastDone_.end(), -1);
+      lastSent_ = -1;
       sendAll_ = true;
-      awaitingFull_ = true;
+      awaitingFull_ = !c_.parallel.lockstep();  // lockstep waits for whole updates anyway
       fullDone_ = 0;
     } else {
-      // A new live mode only: the same samples, composited again.
-      std::fill(lastDone_.begin(), lastDone_.end(), static_cast<std::int64_t>(cm.h.frame));
-      compositeAndSend(cm.h.frame, true);
-      lastSent_ = static_cast<std::int64_t>(cm.h.frame);
+      if (ch & ControlMsg::kMode)
+        for (auto& c : caches_) c->setLiveMode(live());
+      // A new live mode only: the same samples, composited again. In lockstep
+      // every frame up to the change is in. In tick mode samples of earlier
+      // frames may still be on their way (they are kept, see samplesEpoch_),
+      // so the image claims only the frames complete; and while a full
+      // re-sample is still arriving, the tick sends it once it is whole.
+      if (c_.parallel.lockstep()) std::fill(lastDone_.begin(), lastDone_.end(), static_cast<std::int64_t>(cm.h.frame));
+      sendAll_ = true;
+      if (!awaitingFull_) {
+        const std::int64_t complete = *std::min_element(lastDone_.begin(), lastDone_.end());
+        compositeAndSend(static_cast<std::uint64_t>(std::max<std::int64_t>(complete, 0)), true);
+        lastSent_ = complete;
+      }
     }
     clock_.stop();
   }

@@ -364,6 +364,26 @@ void floatToHalfN(const float* src, std::size_t n, std::uint16_t* dst) {
 
 namespace {
 
+// Whether a stored sample (4 values) has a bit set: a page that only zeros
+// were written to stays all zero and needs no clearing (RayCache::reset).
+template <class T>
+[[gnu::always_inline]] inline bool storedNonzero(const T* d) {
+  if constexpr (sizeof(T) == 4) {
+    std::uint64_t a, b;
+    std::memcpy(&a, d, 8);
+    std::memcpy(&b, d + 2, 8);
+    return (a | b) != 0;
+  } else if constexpr (sizeof(T) == 2) {
+    std::uint64_t a;
+    std::memcpy(&a, d, 8);
+    return a != 0;
+  } else {
+    std::uint32_t a;
+    std::memcpy(&a, d, 4);
+    return a != 0;
+  }
+}
+
 struct EncodeFloat {
   [[gnu::always_inline]] static inline void encode(const RaySample& s, float* d) { std::memcpy(d, &s.r, 16); }
 };
@@ -402,6 +422,7 @@ struct RayCacheAccess {
     const auto w = static_cast<std::uint32_t>(c.imageWidth_);
     const TileRect& t = c.tile_;
     std::uint8_t* dirty = c.dirty_.data();
+    std::uint8_t* touched = c.touched_.data();
     const int shift = c.blockShift_;
     // The tile-local ray of a pixel, or -1 outside the tile.
     auto localOf = [&](std::uint32_t pixel) -> std::int64_t {
@@ -439,7 +460,9 @@ struct RayCacheAccess {
         lastPixel = s.pixel;
       }
       if (s.k >= ray->count) beyondRay(s, ray->count);
-      Enc::encode(s, store + 4 * (ray->sample + s.k));
+      const std::uint64_t at = ray->sample + s.k;
+      Enc::encode(s, store + 4 * at);
+      touched[at >> RayCache::kPageShift] |= static_cast<std::uint8_t>(storedNonzero(store + 4 * at));
       const std::uint32_t b = s.k >> shift;
       // A block behind the termination point cannot change the pixel: it is
       // marked but not listed, and waits until a change in front makes the
@@ -524,13 +547,17 @@ void RayCache::reset(std::span<const std::uint16_t> sampleCounts) {
     // A ray records its first block in 32 bits.
     PP5_CHECK_LE(blockTotal_, std::uint64_t{0xffffffffu});
   }
-  // assign() keeps the vectors' storage when it is large enough: a new view
-  // of the same size costs a fill, not an allocation and its page faults.
+  // The storage is kept, and is all zero but for the pages put() wrote:
+  // zeroing those costs what the last view wrote, not the cache's size; a
+  // larger view gets new zeroed address space (ZeroedArray).
+  zeroTouched();
+  const std::size_t values = 4 * static_cast<std::size_t>(sampleTotal_);
   switch (format_) {
-    case SampleFormat::Rgba8: samples8_.assign(4 * sampleTotal_, 0); break;
-    case SampleFormat::Half: samples16_.assign(4 * sampleTotal_, 0); break;
-    case SampleFormat::Float: samples32_.assign(4 * sampleTotal_, 0.0f); break;
+    case SampleFormat::Rgba8: samples8_.resize(values); break;
+    case SampleFormat::Half: samples16_.resize(values); break;
+    case SampleFormat::Float: samples32_.resize(values); break;
   }
+  touched_.assign((sampleTotal_ >> kPageShift) + 1, 0);
   // A block of transparent samples composites to the identity exactly, so
   // blocks start clean and nothing is dirty until samples arrive.
   partials_.assign(blockTotal_, identityPartial(live_));
@@ -689,10 +716,27 @@ TileImage RayCache::compositeFull(CompositeMode mode) const {
   return out;
 }
 
+void RayCache::zeroTouched() {
+  const std::size_t pages = touched_.size();
+  auto zero = [&](auto& store) {
+    const std::size_t perPage = 4 * (std::size_t{1} << kPageShift);
+    for (std::size_t p = 0; p < pages; ++p) {
+      if (!touched_[p]) continue;
+      const std::size_t begin = p * perPage;
+      const std::size_t end = std::min(store.size(), begin + perPage);
+      if (begin < end) std::memset(store.data() + begin, 0, (end - begin) * sizeof(*store.data()));
+    }
+  };
+  switch (format_) {
+    case SampleFormat::Rgba8: zero(samples8_); break;
+    case SampleFormat::Half: zero(samples16_); break;
+    case SampleFormat::Float: zero(samples32_); break;
+  }
+  std::fill(touched_.begin(), touched_.end(), std::uint8_t{0});
+}
+
 void RayCache::clear() {
-  std::fill(samples8_.begin(), samples8_.end(), std::uint8_t{0});
-  std::fill(samples16_.begin(), samples16_.end(), std::uint16_t{0});
-  std::fill(samples32_.begin(), samples32_.end(), 0.0f);
+  zeroTouched();
   std::fill(partials_.begin(), partials_.end(), identityPartial(live_));
   std::fill(dirty_.begin(), dirty_.end(), std::uint8_t{0});
   for (Ray& r : rays_) {
@@ -716,8 +760,9 @@ void RayCache::invalidate() {
 }
 
 std::size_t RayCache::memoryBytes() const {
-  return rays_.capacity() * sizeof(Ray) + samples8_.capacity() + samples16_.capacity() * sizeof(std::uint16_t) +
-         samples32_.capacity() * sizeof(float) + partials_.capacity() * sizeof(Partial) + dirty_.capacity() +
+  return rays_.capacity() * sizeof(Ray) + samples8_.size() + samples16_.size() * sizeof(std::uint16_t) +
+         samples32_.size() * sizeof(float) + partials_.capacity() * sizeof(Partial) + dirty_.capacity() +
+         touched_.capacity() +
          dirtyRays_.capacity() * sizeof(std::uint32_t) +
          image_.rgba.capacity() * sizeof(float);
 }

@@ -44,6 +44,7 @@
 #include <vector>
 
 #include "core/ray_sample.hpp"
+#include "pp/zeroed_array.hpp"
 
 namespace pp5 {
 class ConfigSchema;
@@ -158,8 +159,10 @@ public:
     invalidate();
   }
 
-  // Bytes held: samples, block partials, dirty flags, per-ray records, the
-  // image and the dirty-ray list.
+  // Bytes held: the current view's samples, block partials, dirty and
+  // touched-page flags, per-ray records, the image and the dirty-ray list.
+  // The samples' storage is zeroed address space that takes memory only
+  // where samples were written (ZeroedArray), so this is an upper bound.
   std::size_t memoryBytes() const;
   std::uint64_t sampleCount() const { return sampleTotal_; }
   std::uint64_t blockCount() const { return blockTotal_; }
@@ -199,11 +202,16 @@ private:
   std::uint64_t sampleTotal_ = 0, blockTotal_ = 0;
   std::vector<Ray> rays_;
   // One of these holds the samples, 4 values each, by format_.
-  std::vector<std::uint8_t> samples8_;
-  std::vector<std::uint16_t> samples16_;
-  std::vector<float> samples32_;
+  ZeroedArray<std::uint8_t> samples8_;
+  ZeroedArray<std::uint16_t> samples16_;
+  ZeroedArray<float> samples32_;
   std::vector<Partial> partials_;
   std::vector<std::uint8_t> dirty_;
+  // One flag per page of 2^kPageShift samples of the storage to which put()
+  // wrote a sample with a bit set since the last clear() or reset(); every
+  // other page is all zero.
+  static constexpr int kPageShift = 6;
+  std::vector<std::uint8_t> touched_;
   std::vector<std::uint32_t> dirtyRays_;
   TileImage image_;
   RayCacheCounters counters_;
@@ -212,6 +220,8 @@ private:
   std::uint16_t blocksOf(std::uint16_t count) const {
     return static_cast<std::uint16_t>((count + (1u << blockShift_) - 1) >> blockShift_);
   }
+  // Zeroes the touched pages and clears their flags.
+  void zeroTouched();
   template <SampleFormat F, CompositeMode M>
   CompositeStats compositeDirty();
   template <SampleFormat F, CompositeMode M>
