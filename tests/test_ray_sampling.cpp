@@ -690,10 +690,16 @@ TEST(EmptySpaceMap, DistancesExactOnAScatteredMapAndVisibleBoxesCoverEveryVisibl
             int in = 0;
             for (const Box3& b : boxes) in += b.contains(i, j, k) ? 1 : 0;
             ASSERT_LE(in, 1) << i << " " << j << " " << k;
-            if (s.at(g.linear(i, j, k)).a != 0 && within.contains(i, j, k)) ASSERT_EQ(in, 1) << i << " " << j << " " << k;
-            if (!within.contains(i, j, k)) ASSERT_EQ(in, 0);
+            if (s.at(g.linear(i, j, k)).a != 0 && within.contains(i, j, k)) {
+              ASSERT_EQ(in, 1) << i << " " << j << " " << k;
+            }
+            if (!within.contains(i, j, k)) {
+              ASSERT_EQ(in, 0);
+            }
           }
-      if (points == 0) EXPECT_TRUE(boxes.empty());
+      if (points == 0) {
+        EXPECT_TRUE(boxes.empty());
+      }
     }
   }
 }
