@@ -96,6 +96,13 @@ public:
       } else {
         applyArrived();
         applyPending();
+        // A new view (or shading) whole at last: shown at once rather than
+        // at the next tick, since everything that arrived during its
+        // re-sample waits for it.
+        if (fullComplete_) {
+          fullComplete_ = false;
+          onTick();
+        }
       }
     }
   }
@@ -124,6 +131,7 @@ private:
   std::vector<std::int64_t> lastDone_;       // per GP: last frame complete in this epoch (-1: none)
   std::int64_t lastSent_ = -1;               // frame of the last PpDone (tick)
   bool awaitingFull_ = false;                // a full re-sample is being received (tick)
+  bool fullComplete_ = false;                // ... and has just been completed
   bool sendAll_ = false;                     // the next image sends every tile (the caches were cleared)
   int fullDone_ = 0;
   std::uint64_t dropped_ = 0;
@@ -241,7 +249,10 @@ private:
           put(m);
         } else {
           lastDone_[g] = std::max(lastDone_[g], static_cast<std::int64_t>(h.frame));
-          if (m.as<GpDoneMsg>().full && awaitingFull_ && ++fullDone_ == c_.layout.gps) awaitingFull_ = false;
+          if (m.as<GpDoneMsg>().full && awaitingFull_ && ++fullDone_ == c_.layout.gps) {
+            awaitingFull_ = false;
+            fullComplete_ = true;
+          }
         }
       }
     }
