@@ -592,6 +592,31 @@ TEST(RaySampler, SameBitsForAnyThreadCountAndWithOrWithoutSkipping) {
   }
 }
 
+// The bricks of cells (8 per side; cell c reads voxels c and c + 1) with a
+// visible voxel, by brute force.
+std::vector<Index3> occupiedBricks(const Grid& g, const ShadeBuffer& s, const Index3& bd) {
+  std::vector<Index3> occ;
+  for (std::int64_t bk = 0; bk < bd.z; ++bk)
+    for (std::int64_t bj = 0; bj < bd.y; ++bj)
+      for (std::int64_t bi = 0; bi < bd.x; ++bi) {
+        bool any = false;
+        for (std::int64_t k = bk * 8; k <= std::min(bk * 8 + 8, g.dims.z - 1); ++k)
+          for (std::int64_t j = bj * 8; j <= std::min(bj * 8 + 8, g.dims.y - 1); ++j)
+            for (std::int64_t i = bi * 8; i <= std::min(bi * 8 + 8, g.dims.x - 1); ++i)
+              any = any || s.at(g.linear(i, j, k)).a != 0;
+        if (any) occ.push_back(Index3(bi, bj, bk));
+      }
+  return occ;
+}
+
+// Chessboard distance from brick b to the nearest of `occ`, 255 if none (or farther).
+int chessboardDistance(const std::vector<Index3>& occ, const Index3& b) {
+  int best = 255;
+  for (const Index3& o : occ)
+    best = std::min<int>(best, static_cast<int>(std::max({std::abs(o.x - b.x), std::abs(o.y - b.y), std::abs(o.z - b.z)})));
+  return best;
+}
+
 TEST(EmptySpaceMap, DistancesAreExactAndUpdatesEqualRebuilds) {
   const Grid g = testGrid();
   ShadeBuffer shade = blobShade(g, 3);
@@ -599,28 +624,11 @@ TEST(EmptySpaceMap, DistancesAreExactAndUpdatesEqualRebuilds) {
   const Index3 bd = m.brickDims();
   EXPECT_EQ(bd, Index3(5, 4, 4));  // ceil((dims - 1) / 8)
   auto check = [&](const pp5::gp::EmptySpaceMap& map, const ShadeBuffer& s) {
-    std::vector<int> occ;
+    const std::vector<Index3> occ = occupiedBricks(g, s, bd);
     for (std::int64_t bk = 0; bk < bd.z; ++bk)
       for (std::int64_t bj = 0; bj < bd.y; ++bj)
-        for (std::int64_t bi = 0; bi < bd.x; ++bi) {
-          bool any = false;
-          for (std::int64_t k = bk * 8; k <= std::min(bk * 8 + 8, g.dims.z - 1); ++k)
-            for (std::int64_t j = bj * 8; j <= std::min(bj * 8 + 8, g.dims.y - 1); ++j)
-              for (std::int64_t i = bi * 8; i <= std::min(bi * 8 + 8, g.dims.x - 1); ++i)
-                any = any || s.at(g.linear(i, j, k)).a != 0;
-          occ.push_back(any);
-        }
-    for (std::int64_t bk = 0; bk < bd.z; ++bk)
-      for (std::int64_t bj = 0; bj < bd.y; ++bj)
-        for (std::int64_t bi = 0; bi < bd.x; ++bi) {
-          int best = 255;
-          for (std::int64_t k = 0; k < bd.z; ++k)
-            for (std::int64_t j = 0; j < bd.y; ++j)
-              for (std::int64_t i = 0; i < bd.x; ++i)
-                if (occ[static_cast<std::size_t>((k * bd.y + j) * bd.x + i)])
-                  best = std::min<int>(best, static_cast<int>(std::max({std::abs(i - bi), std::abs(j - bj), std::abs(k - bk)})));
-          ASSERT_EQ(map.distance(bi, bj, bk), best) << bi << " " << bj << " " << bk;
-        }
+        for (std::int64_t bi = 0; bi < bd.x; ++bi)
+          ASSERT_EQ(map.distance(bi, bj, bk), chessboardDistance(occ, Index3(bi, bj, bk))) << bi << " " << bj << " " << bk;
   };
   check(m, shade);
   // A single opaque voxel on a brick boundary marks the bricks of both cells
@@ -660,25 +668,12 @@ TEST(EmptySpaceMap, DistancesExactOnAScatteredMapAndVisibleBoxesCoverEveryVisibl
     const pp5::gp::EmptySpaceMap m(s, 1);
     const Index3 bd = m.brickDims();
     ASSERT_EQ(bd, Index3(13, 12, 9));
-    std::vector<Index3> occ;
+    const std::vector<Index3> occ = occupiedBricks(g, s, bd);
     for (std::int64_t bk = 0; bk < bd.z; ++bk)
       for (std::int64_t bj = 0; bj < bd.y; ++bj)
-        for (std::int64_t bi = 0; bi < bd.x; ++bi) {
-          bool any = false;
-          for (std::int64_t k = bk * 8; k <= std::min(bk * 8 + 8, g.dims.z - 1); ++k)
-            for (std::int64_t j = bj * 8; j <= std::min(bj * 8 + 8, g.dims.y - 1); ++j)
-              for (std::int64_t i = bi * 8; i <= std::min(bi * 8 + 8, g.dims.x - 1); ++i)
-                any = any || s.at(g.linear(i, j, k)).a != 0;
-          if (any) occ.push_back(Index3(bi, bj, bk));
-        }
-    for (std::int64_t bk = 0; bk < bd.z; ++bk)
-      for (std::int64_t bj = 0; bj < bd.y; ++bj)
-        for (std::int64_t bi = 0; bi < bd.x; ++bi) {
-          int best = 255;
-          for (const Index3& o : occ)
-            best = std::min<int>(best, static_cast<int>(std::max({std::abs(o.x - bi), std::abs(o.y - bj), std::abs(o.z - bk)})));
-          ASSERT_EQ(m.distance(bi, bj, bk), best) << points << " points, brick " << bi << " " << bj << " " << bk;
-        }
+        for (std::int64_t bi = 0; bi < bd.x; ++bi)
+          ASSERT_EQ(m.distance(bi, bj, bk), chessboardDistance(occ, Index3(bi, bj, bk)))
+              << points << " points, brick " << bi << " " << bj << " " << bk;
     EXPECT_EQ(m.occupiedCells().empty(), occ.empty());
 
     // Every visible voxel in exactly one box; within a clip, only inside it.
