@@ -436,16 +436,20 @@ struct DeadPort {
     port = ntohs(a.sin_port);
   }
   ~DeadPort() { ::close(fd); }
+  // A client for this port that gives up connecting after `timeoutS`.
+  ClientOptions options(double timeoutS) const {
+    ClientOptions opt;
+    opt.endpoint = {"127.0.0.1", port};
+    opt.connectTimeoutS = timeoutS;
+    return opt;
+  }
   int fd = -1;
   int port = 0;
 };
 
 TEST(IgtlClient, ConnectionRefusedIsAClearError) {
   DeadPort dead;
-  ClientOptions opt;
-  opt.endpoint = {"127.0.0.1", dead.port};
-  opt.connectTimeoutS = 1.0;
-  Client client(opt);
+  Client client(dead.options(1.0));
   std::atomic<bool> stop{false};
   const auto t0 = Clock::now();
   try {
@@ -488,10 +492,7 @@ TEST(IgtlClient, StopIsHonouredQuickly) {
   EXPECT_LT(got.load(), 5);
 
   DeadPort dead;
-  ClientOptions opt;
-  opt.endpoint = {"127.0.0.1", dead.port};
-  opt.connectTimeoutS = 30;
-  Client connecting(opt);
+  Client connecting(dead.options(30.0));
   std::atomic<bool> stop2{false};
   std::thread stopper([&] {
     std::this_thread::sleep_for(std::chrono::milliseconds(200));

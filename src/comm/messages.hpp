@@ -131,6 +131,11 @@ struct ControlMsg {
     kMode = 8,        // the PPs recomposite in the new live mode; GPs do nothing
     kFinish = 16,     // end of input: the reconstruction's final passes, then re-shade
   };
+  // Changes that can change a voxel's opacity: every voxel is re-shaded.
+  static constexpr std::uint32_t kReshade = kShading | kTransfer | kFinish;
+  // Changes after which every sample is made anew (new caches); a view
+  // change alone re-lights only the visible voxels.
+  static constexpr std::uint32_t kResample = kView | kReshade;
   std::uint32_t changes = 0;
   // 1: frames were sent before it, h.frame the last of them. In tick mode a
   // PP applies the change only once every GP has finished those frames, and

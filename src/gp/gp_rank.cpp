@@ -229,12 +229,14 @@ private:
     // Bricks, so that what none of this GP's tiles sees is skipped.
     constexpr std::int64_t B = 32;
     const Index3 d = c_.grid.dims;
+    std::vector<Box3> seen;
     for (std::int64_t k = 0; k < d.z; k += B)
       for (std::int64_t j = 0; j < d.y; j += B)
         for (std::int64_t i = 0; i < d.x; i += B) {
           const Box3 b{Index3(i, j, k), glm::min(Index3(i, j, k) + Index3(B), d)};
-          if (visible(b)) shade(recon_->output(), tf_, shading_, camera_, b, shade_);
+          if (visible(b)) seen.push_back(b);
         }
+    shade(recon_->output(), tf_, shading_, camera_, seen, shade_);
   }
 
   Frame unpackFrame(const Message& m, int width, int height, std::uint8_t type, std::uint64_t index, double timeS,
@@ -322,7 +324,7 @@ private:
       clock_.start(kShade);
       all = shadingBoxes(dirty);
       mine = myShare(all);
-      for (const Box3& b : mine) shade(recon_->output(), tf_, shading_, camera_, b, shade_);
+      shade(recon_->output(), tf_, shading_, camera_, mine, shade_);
       spaceBefore_ = space_;
       space_.update(shade_, mine);
     }
@@ -398,11 +400,11 @@ private:
     }
     std::uint64_t samples = 0;
     const std::uint64_t bytes0 = t_.totals().bytesSent;
-    if (ch & (ControlMsg::kView | ControlMsg::kShading | ControlMsg::kTransfer | ControlMsg::kFinish)) {
+    if (ch & ControlMsg::kResample) {
       // What the serial pipeline's setCamera or resampleAll does, for this
       // GP's share.
       clock_.start(kShade);
-      if (slab_ && !(ch & (ControlMsg::kShading | ControlMsg::kTransfer | ControlMsg::kFinish))) {
+      if (slab_ && !(ch & ControlMsg::kReshade)) {
         // Only the view changed, so every voxel's opacity is as it was: the
         // visible voxels of this GP's region get new light, and the
         // empty-space map stays. (A tile GP has shaded only what its tiles

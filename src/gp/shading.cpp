@@ -497,8 +497,7 @@ std::vector<Box3> shadingBoxes(const DirtyRegion& dirty) {
 
 void shade(const Volume& values, const TransferFunction& tf, const ShadeSettings& s, const Camera& view,
            const Box3& box, ShadeBuffer& out) {
-  const Box3 clipped = box.intersect({Index3(0), values.grid.dims});
-  shadeAll(values, tf, s, view, clipped.empty() ? std::vector<Box3>{} : std::vector<Box3>{clipped}, out);
+  shade(values, tf, s, view, std::span<const Box3>(&box, 1), out);
 }
 
 void shade(const Volume& values, const TransferFunction& tf, const ShadeSettings& s, const Camera& view,

@@ -81,7 +81,8 @@ void shade(const Volume& values, const TransferFunction& tf, const ShadeSettings
            const Box3& box, ShadeBuffer& out);
 
 // Re-shades every voxel of `boxes` (disjoint; each clipped to the grid), as
-// one parallel pass over all of them.
+// one parallel pass over all of them, with the lighting set up once: prefer
+// it to a loop of single-box calls.
 void shade(const Volume& values, const TransferFunction& tf, const ShadeSettings& s, const Camera& view,
            std::span<const Box3> boxes, ShadeBuffer& out);
 

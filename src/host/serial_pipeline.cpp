@@ -49,11 +49,20 @@ SerialPipeline::SerialPipeline(const Grid& grid, const PipelineSettings& s, std:
   recon_ = gp::makeReconstructor(grid_, s_.recon, memoryLimitBytes, "reconstruction grid ([grid])");
   checkGridFits(grid_, 4, "shade buffer ([grid])", memoryLimitBytes);
   shade_ = gp::ShadeBuffer(grid_);
-  space_ = gp::EmptySpaceMap(shade_, s_.render.threads);
-  setCamera(makeCamera(s_.render, grid_));
+  useCamera(makeCamera(s_.render, grid_));
+  resampleAll(true);
 }
 
 void SerialPipeline::setCamera(const Camera& camera) {
+  useCamera(camera);
+  // The values and the style are as they were, so every voxel's opacity is
+  // too: only the voxels that were visible need new light, and the
+  // empty-space map (opacity only) stays as it is.
+  gp::shade(recon_->output(), tf_, s_.shading, camera_, space_.visibleVoxelBoxes(wholeGrid(grid_)), shade_);
+  resample(true);
+}
+
+void SerialPipeline::useCamera(const Camera& camera) {
   camera_ = camera;
   lattice_ = gp::SampleLattice(camera_, grid_, s_.render.step(grid_), s_.render.maxSamples, s_.render.threads);
   const pp::TileRect tile{0, 0, camera_.width, camera_.height};
@@ -62,15 +71,6 @@ void SerialPipeline::setCamera(const Camera& camera) {
   } else {
     cache_ = std::make_unique<pp::RayCache>(tile, camera_.width, lattice_.counts(), s_.cache, live_, 1);
     cache_->setThreads(s_.render.threads);
-  }
-  if (shadeCurrent_) {
-    // The values and the style are as they were, so every voxel's opacity
-    // is too: only the voxels that were visible need new light, and the
-    // empty-space map (opacity only) stays as it is.
-    gp::shade(recon_->output(), tf_, s_.shading, camera_, space_.visibleVoxelBoxes(wholeGrid(grid_)), shade_);
-    resample(true);
-  } else {
-    resampleAll(true);
   }
 }
 
@@ -91,7 +91,6 @@ void SerialPipeline::setLiveMode(pp::CompositeMode m) {
 void SerialPipeline::resampleAll(bool cleared) {
   gp::shade(recon_->output(), tf_, s_.shading, camera_, wholeGrid(grid_), shade_);
   space_ = gp::EmptySpaceMap(shade_, s_.render.threads);
-  shadeCurrent_ = true;
   resample(cleared);
 }
 
@@ -119,7 +118,7 @@ FrameStats SerialPipeline::insert(const Frame& f, const Mat4& pose, double timeS
   // The dirty bricks and their gradient margin (what shade(dirty) shades),
   // worked out once for shading, the empty-space map and the D-buffer.
   const std::vector<gp::Box3> shaded = gp::shadingBoxes(r.dirty);
-  for (const gp::Box3& b : shaded) gp::shade(recon_->output(), tf_, s_.shading, camera_, b, shade_);
+  gp::shade(recon_->output(), tf_, s_.shading, camera_, shaded, shade_);
   for (const gp::Box3& b : shaded) st.shadedVoxels += b.intersect(wholeGrid(grid_)).voxelCount();
   spaceBefore_ = space_;  // a few kB (a byte per 8^3 cells); assigning keeps the storage
   space_.update(shade_, shaded);

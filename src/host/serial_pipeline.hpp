@@ -93,10 +93,9 @@ private:
   gp::DBuffer dbuf_;
   std::unique_ptr<pp::RayCache> cache_;
   std::uint64_t frames_ = 0;
-  // shade_ and space_ hold the current values in the current style (the
-  // view aside); false until the first full shade.
-  bool shadeCurrent_ = false;
 
+  // The camera, its lattice, and the cache reset for it (every sample transparent).
+  void useCamera(const Camera& camera);
   // Re-shades every voxel and rebuilds the empty-space map, then resample().
   // cleared: the cache holds no sample yet (just reset), so it need not be cleared again.
   void resampleAll(bool cleared = false);

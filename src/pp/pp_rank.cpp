@@ -143,7 +143,7 @@ private:
   // Whether a change re-samples everything (new caches) rather than only
   // changing the live mode.
   static bool resamples(std::uint32_t ch) {
-    return (ch & (ControlMsg::kView | ControlMsg::kShading | ControlMsg::kTransfer | ControlMsg::kFinish)) != 0;
+    return (ch & ControlMsg::kResample) != 0;
   }
 
   // Caches of this PP's tiles for a control state's view and live mode, made
@@ -163,8 +163,7 @@ private:
         std::copy_n(lattice.counts().data() + static_cast<std::size_t>(r.y0 + y) * render_.width + r.x0, r.width,
                     counts.data() + static_cast<std::size_t>(y) * r.width);
       if (i < spare_.size()) {
-        spare_[i]->setLiveMode(mode);
-        spare_[i]->reset(counts);
+        spare_[i]->reset(counts, mode);
       } else {
         spare_.push_back(std::make_unique<RayCache>(r, render_.width, counts, c_.cache, mode, render_.threads));
       }

@@ -149,6 +149,11 @@ public:
   // New sample counts for the same tile (a new view), every sample
   // transparent; the storage is reused where it is large enough.
   void reset(std::span<const std::uint16_t> sampleCounts);
+  // The same, with a new live mode.
+  void reset(std::span<const std::uint16_t> sampleCounts, CompositeMode live) {
+    live_ = live;
+    reset(sampleCounts);
+  }
   // Marks every block and ray dirty, so that the next composite() recomputes
   // the whole tile from its samples (what a full render costs).
   void invalidate();
