@@ -83,11 +83,13 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
   // --- ground truth ---
   struct TruthOpts : CommonOpts {
     std::string truth;
+    std::string volume;
   };
   auto t = std::make_shared<TruthOpts>();
   auto* truth = eval->add_subcommand("truth", "Reconstruct on the truth volume's grid and compare voxel by voxel");
   addCommon(truth, *t);
   truth->add_option("--truth", t->truth, "Ground-truth volume (from `pp5echo simulate`)")->required();
+  truth->add_option("-o,--volume", t->volume, "Also write the reconstruction that was compared (.mha/.nrrd, float32)");
   truth->callback([t, &exitCode] {
     PosedSequence seq = openPosedSequence(t->sequence, t->plusConfig);
     Settings s;
@@ -110,10 +112,12 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     std::printf("  RMSE              %.3f grey levels (the %llu swept voxels with a value)\n", m.rmse,
                 static_cast<unsigned long long>(m.compared));
     std::printf("  MAE               %.3f grey levels\n", m.mae);
+    std::printf("  bias              %+.3f grey levels (mean of reconstruction - truth)\n", m.bias);
     std::printf("  PSNR              %.2f dB\n", m.psnrDb);
     std::printf("  RMSE, tissue      %.3f grey levels (the %llu of them brighter than the background)\n",
                 m.rmseTissue, static_cast<unsigned long long>(m.tissueCompared));
     std::printf("  MAE, tissue       %.3f grey levels\n", m.maeTissue);
+    std::printf("  bias, tissue      %+.3f grey levels\n", m.biasTissue);
     std::printf("  coverage          %.4f of %llu voxels\n", m.coverage(), static_cast<unsigned long long>(m.voxels));
     std::printf("  holes in sweep    %.5f (%llu of %llu swept voxels)\n", m.holeFraction(),
                 static_cast<unsigned long long>(m.sweptHoles), static_cast<unsigned long long>(m.swept));
@@ -126,10 +130,12 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     j["frames_skipped"] = st.skipped;
     j["rmse"] = m.rmse;
     j["mae"] = m.mae;
+    j["bias"] = m.bias;
     j["psnr_db"] = m.psnrDb;
     j["voxels_compared"] = m.compared;
     j["rmse_tissue"] = m.rmseTissue;
     j["mae_tissue"] = m.maeTissue;
+    j["bias_tissue"] = m.biasTissue;
     j["tissue_voxels_compared"] = m.tissueCompared;
     j["coverage"] = m.coverage();
     j["voxels"] = m.voxels;
@@ -137,6 +143,7 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     j["swept_holes"] = m.sweptHoles;
     j["hole_fraction"] = m.holeFraction();
     emitJson(t->json, j);
+    if (!t->volume.empty()) writeVolume(t->volume, recon->output().as(ScalarType::F32));
     exitCode = 0;
   });
 
@@ -189,6 +196,7 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
                 static_cast<unsigned long long>(st.inserted), static_cast<unsigned long long>(m.framesHeldOut),
                 static_cast<unsigned long long>(st.skipped));
     std::printf("  MAE               %.3f grey levels\n", m.mae);
+    std::printf("  bias              %+.3f grey levels (mean of volume - held-out pixel)\n", m.bias);
     std::printf("  RMSE              %.3f grey levels\n", m.rmse);
     std::printf("  pixels compared   %llu\n", static_cast<unsigned long long>(m.pixelsCompared));
     std::printf("  pixels skipped    %llu (no value in the volume there)\n",
@@ -202,6 +210,7 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     j["frames_kept"] = st.inserted;
     j["frames_held_out"] = m.framesHeldOut;
     j["mae"] = m.mae;
+    j["bias"] = m.bias;
     j["rmse"] = m.rmse;
     j["pixels_compared"] = m.pixelsCompared;
     j["pixels_skipped"] = m.pixelsSkipped;

@@ -69,7 +69,7 @@ TruthMetrics compareWithTruth(const Volume& recon, const CoveredFn& covered, con
   m.voxels = g.voxelCount();
   double background = INFINITY;
   for (std::size_t i = 0; i < m.voxels; ++i) background = std::min(background, truth.value(i));
-  double sumSq = 0.0, sumAbs = 0.0, tSq = 0.0, tAbs = 0.0;
+  double sumSq = 0.0, sumAbs = 0.0, sum = 0.0, tSq = 0.0, tAbs = 0.0, tSum = 0.0;
   for (std::size_t i = 0; i < m.voxels; ++i) {
     const bool c = covered(i);
     const bool s = swept.empty() || swept[i];
@@ -83,10 +83,12 @@ TruthMetrics compareWithTruth(const Volume& recon, const CoveredFn& covered, con
       const double d = recon.value(i) - t;
       sumSq += d * d;
       sumAbs += std::abs(d);
+      sum += d;
       ++m.compared;
       if (t > background + 1.0) {
         tSq += d * d;
         tAbs += std::abs(d);
+        tSum += d;
         ++m.tissueCompared;
       }
     }
@@ -94,10 +96,12 @@ TruthMetrics compareWithTruth(const Volume& recon, const CoveredFn& covered, con
   if (m.compared > 0) {
     m.rmse = std::sqrt(sumSq / static_cast<double>(m.compared));
     m.mae = sumAbs / static_cast<double>(m.compared);
+    m.bias = sum / static_cast<double>(m.compared);
   }
   if (m.tissueCompared > 0) {
     m.rmseTissue = std::sqrt(tSq / static_cast<double>(m.tissueCompared));
     m.maeTissue = tAbs / static_cast<double>(m.tissueCompared);
+    m.biasTissue = tSum / static_cast<double>(m.tissueCompared);
   }
   m.psnrDb = m.rmse > 0.0 ? 20.0 * std::log10(255.0 / m.rmse) : INFINITY;
   return m;
@@ -125,6 +129,7 @@ std::optional<double> sampleCovered(const Volume& v, const CoveredFn& covered, c
 void LeaveOutMetrics::finish() {
   if (pixelsCompared == 0) return;
   mae = sumAbs_ / static_cast<double>(pixelsCompared);
+  bias = sum_ / static_cast<double>(pixelsCompared);
   rmse = std::sqrt(sumSq_ / static_cast<double>(pixelsCompared));
 }
 

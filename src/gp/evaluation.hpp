@@ -41,6 +41,10 @@ struct TruthMetrics {
   // grey level: the tissue and its boundaries, where the methods differ most.
   double rmseTissue = 0.0;
   double maeTissue = 0.0;
+  // Mean signed error (recon - truth): a method that brightens or darkens
+  // shows here, where RMSE mixes it with noise and blur.
+  double bias = 0.0;
+  double biasTissue = 0.0;
   double coverage() const { return voxels ? static_cast<double>(covered) / static_cast<double>(voxels) : 0.0; }
   double holeFraction() const { return swept ? static_cast<double>(sweptHoles) / static_cast<double>(swept) : 0.0; }
 };
@@ -61,7 +65,9 @@ struct LeaveOutMetrics {
   std::uint64_t pixelsSkipped = 0;  // uncovered or outside the grid
   double mae = 0.0;
   double rmse = 0.0;
+  double bias = 0.0;  // mean of (volume - held-out pixel)
   void add(double diff) {
+    sum_ += diff;
     sumAbs_ += std::abs(diff);
     sumSq_ += diff * diff;
     ++pixelsCompared;
@@ -69,7 +75,7 @@ struct LeaveOutMetrics {
   void finish();
 
 private:
-  double sumAbs_ = 0.0, sumSq_ = 0.0;
+  double sum_ = 0.0, sumAbs_ = 0.0, sumSq_ = 0.0;
 };
 
 // Compares every pixel of a held-out frame inside `runs` (the clip rectangle
