@@ -69,7 +69,7 @@ void BM_PipelineIncremental(benchmark::State& state) {
   std::size_t i = 0;
   // The first third of the sweep, so that later frames land next to data.
   for (; i < w.frames.size() / 3; ++i) pipe.insert(w.frames[i], w.poses[i], w.frames[i].timestamp);
-  std::uint64_t samples = 0, n = 0;
+  std::uint64_t samples = 0, n = 0, dirty = 0, shaded = 0, pixels = 0;
   double shadeMs = 0.0, sampleMs = 0.0, compositeMs = 0.0;
   for (auto _ : state) {
     if (i == w.frames.size()) {
@@ -80,6 +80,9 @@ void BM_PipelineIncremental(benchmark::State& state) {
     ++i;
     state.SetIterationTime((st.shadeMs + st.sampleMs + st.compositeMs) / 1000.0);
     samples += st.samples;
+    dirty += st.dirtyVoxels;
+    shaded += st.shadedVoxels;
+    pixels += st.dbufferPixels;
     shadeMs += st.shadeMs;
     sampleMs += st.sampleMs;
     compositeMs += st.compositeMs;
@@ -87,6 +90,11 @@ void BM_PipelineIncremental(benchmark::State& state) {
   }
   const double frames = static_cast<double>(std::max<std::uint64_t>(1, n));
   state.counters["samples_per_frame"] = static_cast<double>(samples) / frames;
+  // The work's size: voxels the frame dirtied, voxels shaded (the dirty bricks
+  // and their gradient margin), and pixels the D-buffer found.
+  state.counters["dirty_voxels"] = static_cast<double>(dirty) / frames;
+  state.counters["shaded_voxels"] = static_cast<double>(shaded) / frames;
+  state.counters["dbuffer_pixels"] = static_cast<double>(pixels) / frames;
   // Where the time goes: shading (and the empty-space map), D-buffer and
   // sampling, putting and compositing; ms per frame.
   state.counters["shade_ms"] = shadeMs / frames;

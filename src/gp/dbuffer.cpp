@@ -63,6 +63,20 @@ void DBuffer::reset(const Camera& camera) {
   touched_.clear();
   entries_.clear();
   stats_ = {};
+  if (rays_.perspective()) {
+    const Camera& c = dirsCamera_;
+    const bool same = dirs_.size() == n && c.projection == camera.projection && c.eye == camera.eye &&
+                      c.target == camera.target && c.up == camera.up && c.fovYDeg == camera.fovYDeg &&
+                      c.width == camera.width && c.height == camera.height;
+    if (!same) {
+      dirs_.resize(n);
+      for (int y = 0; y < camera.height; ++y)
+        for (int x = 0; x < camera.width; ++x)
+          dirs_[static_cast<std::size_t>(y) * static_cast<std::size_t>(camera.width) + static_cast<std::size_t>(x)] =
+              rays_.ray(x, y).dir;
+      dirsCamera_ = camera;
+    }
+  }
 }
 
 void DBuffer::build(const Camera& camera, std::span<const WorldBox> boxes) {
@@ -71,7 +85,19 @@ void DBuffer::build(const Camera& camera, std::span<const WorldBox> boxes) {
   finish();
 }
 
-void DBuffer::finish() { std::sort(touched_.begin(), touched_.end()); }
+void DBuffer::finish() {
+  // Ascending pixel order. When many pixels are touched, reading them back off
+  // the slot table in order (a linear scan) beats sorting them.
+  const std::size_t n = touched_.size();
+  if (n < slot_.size() / 32) {
+    std::sort(touched_.begin(), touched_.end());
+    return;
+  }
+  std::size_t at = 0;
+  for (std::size_t p = 0; p < slot_.size(); ++p)
+    if (slot_[p] != kNone) touched_[at++] = static_cast<std::uint32_t>(p);
+  PP5_CHECK_EQ(at, n);
+}
 
 void DBuffer::insert(std::uint32_t pixel, double tIn, double tOut) {
   float a = static_cast<float>(tIn), b = static_cast<float>(tOut);
@@ -230,7 +256,8 @@ void DBuffer::addBox(const WorldBox& box) {
     for (int i = 0; i < bw; ++i) {
       if ((fr[i] | bk[i]) == 0) continue;
       const int x = bx0 + i, y = by0 + j;
-      const Ray r = rays_.ray(x, y);
+      const std::uint32_t pixel = static_cast<std::uint32_t>(y) * static_cast<std::uint32_t>(W) + static_cast<std::uint32_t>(x);
+      const Ray r = persp ? Ray{cam.eye, dirs_[pixel]} : rays_.ray(x, y);
       double tIn = fr[i] ? faceT(r, fr[i]) : 0.0;
       double tOut = bk[i] ? faceT(r, bk[i]) : kInf;
       const bool grazing = std::isnan(tIn) || std::isnan(tOut);
@@ -247,8 +274,7 @@ void DBuffer::addBox(const WorldBox& box) {
       tIn = std::max(tIn, 0.0);
       if (!(tOut >= tIn)) continue;
       ++stats_.boxPixels;
-      insert(static_cast<std::uint32_t>(y) * static_cast<std::uint32_t>(W) + static_cast<std::uint32_t>(x), tIn,
-             tOut);
+      insert(pixel, tIn, tOut);
     }
   }
 }

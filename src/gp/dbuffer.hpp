@@ -91,6 +91,10 @@ private:
   };
 
   PixelRays rays_;
+  // Perspective: every pixel's unit ray direction, kept while the camera
+  // stays (a normalisation per pixel and box was a third of addBox's time).
+  std::vector<Vec3> dirs_;
+  Camera dirsCamera_;
   std::vector<std::uint32_t> slot_;  // per image pixel: index into entries_, or kNone
   std::vector<std::uint32_t> touched_;
   std::vector<Entry> entries_;  // in the order the pixels were first touched

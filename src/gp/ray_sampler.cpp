@@ -1021,29 +1021,49 @@ void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const 
           }
           if (distBefore) {
             // Water around the object is empty in both maps: jump over the
-            // cube of bricks both know to be empty (as sampleAll does), and
-            // sample the rest one at a time.
+            // cube of bricks both know to be empty (as sampleAll does). The
+            // rest goes four samples at a time; a sample is emitted when its
+            // brick is occupied in either map (zero where only the old map
+            // had it), whichever path reaches it.
             const BrickJump jump(vr);
-            std::int64_t k = s0;
-            while (k <= s1) {
-              const auto ku = static_cast<std::uint32_t>(k);
-              const int b[3] = {interp.cellAxis(vr, ku, 0) >> kBrickShift, interp.cellAxis(vr, ku, 1) >> kBrickShift,
-                                interp.cellAxis(vr, ku, 2) >> kBrickShift};
-              const auto brick = static_cast<std::size_t>((static_cast<std::int64_t>(b[2]) * bd.y + b[1]) * bd.x + b[0]);
-              const int d = std::min<int>(dist[brick], distBefore[brick]);
+            std::int64_t g = s0;
+            interp.locate4(vr, static_cast<std::uint32_t>(g), c);
+            while (g <= s1) {
+              const int b[3] = {c.i[0][0] >> kBrickShift, c.i[1][0] >> kBrickShift, c.i[2][0] >> kBrickShift};
+              const auto brick0 =
+                  static_cast<std::size_t>((static_cast<std::int64_t>(b[2]) * bd.y + b[1]) * bd.x + b[0]);
+              const int d = std::min<int>(dist[brick0], distBefore[brick0]);
               if (d > 0) {
-                k = jump.next(b, d, k, s1);
+                g = jump.next(b, d, g, s1);
+                if (g <= s1) interp.locate4(vr, static_cast<std::uint32_t>(g), c);
                 continue;
               }
-              float* rgba = stage.slot();
-              if (dist[brick] == 0) {
-                interp.locate4(vr, ku, c);
-                interp.at(c, 0, rgba);
-              } else {
-                rgba[0] = rgba[1] = rgba[2] = rgba[3] = 0.0f;
+              if (g + 4 <= s1) {
+                interp.locate4(vr, static_cast<std::uint32_t>(g + 4), next);
+                interp.prefetch(next);
               }
-              stage.commit(ku);
-              ++k;
+              const int lanes = static_cast<int>(std::min<std::int64_t>(4, s1 - g + 1));
+              for (int l = 0; l < lanes; ++l) {
+                const std::size_t brick =
+                    static_cast<std::size_t>(((c.i[2][l] >> kBrickShift) * bd.y + (c.i[1][l] >> kBrickShift)) * bd.x +
+                                             (c.i[0][l] >> kBrickShift));
+                if (dist[brick] == 0) {
+                  const std::int64_t idx = interp.index(c, l);
+                  if (idx != loaded) {
+                    interp.load(idx, vox);
+                    loaded = idx;
+                  }
+                  float* rgba = stage.slot();
+                  Interpolator::blend(vox, c, l, rgba);
+                  stage.commit(static_cast<std::uint32_t>(g + l));
+                } else if (distBefore[brick] == 0) {
+                  float* rgba = stage.slot();
+                  rgba[0] = rgba[1] = rgba[2] = rgba[3] = 0.0f;
+                  stage.commit(static_cast<std::uint32_t>(g + l));
+                }
+              }
+              g += 4;
+              std::swap(c, next);  // next holds sample g when g <= s1
             }
             done = std::max(done, k1);
             continue;
