@@ -151,6 +151,9 @@ TEST(DBuffer, MatchesBruteForceRayBoxIntersections) {
   const Vec3 ext = g.maxCorner() - g.minCorner();
   Sandwich st;
   int eyeInBox = 0, behind = 0;
+  // One D-buffer for every view, as a GP keeps it: what it keeps per camera
+  // (the perspective rays) must follow the camera.
+  DBuffer db;
   for (int view = 0; view < 48; ++view) {
     const Projection proj = view % 2 ? Projection::Orthographic : Projection::Perspective;
     const int kind = (view / 2) % 4;  // 0 outside, 1 eye in grid, 2 eye in a box, 3 box across the eye plane
@@ -171,7 +174,6 @@ TEST(DBuffer, MatchesBruteForceRayBoxIntersections) {
       boxes[0] = randomBox(rng, c.eye + rays.right() * (3.0 + 4.0 * u(rng)) + rays.up() * 2.0 * (u(rng) - 0.5), 14.0);
       ++behind;
     }
-    DBuffer db;
     db.build(c, boxes);
     EXPECT_EQ(db.stats().spanMerges, 0u);  // at most 3 boxes: no span limit reached
     for (int y = 0; y < c.height; ++y)
