@@ -459,7 +459,11 @@ std::vector<Box3> shadingBoxes(const DirtyRegion& dirty) {
     return Index3(l % bd.x, (l / bd.x) % bd.y, l / (bd.x * bd.y));
   };
   auto inside = [&](const Index3& b) { return b.x >= 0 && b.y >= 0 && b.z >= 0 && b.x < bd.x && b.y < bd.y && b.z < bd.z; };
-  auto isDirty = [&](const Index3& b) { return inside(b) && std::binary_search(bricks.begin(), bricks.end(), id(b)); };
+  // A byte per brick of the grid (a frame dirties a thousand bricks or more,
+  // each asked about its six neighbours).
+  std::vector<std::uint8_t> dirtyMap(static_cast<std::size_t>(bd.x * bd.y * bd.z), 0);
+  for (const std::uint32_t d : bricks) dirtyMap[d] = 1;
+  auto isDirty = [&](const Index3& b) { return inside(b) && dirtyMap[id(b)] != 0; };
 
   // The clean bricks that share a face with a dirty one.
   std::vector<std::uint32_t> clean;
