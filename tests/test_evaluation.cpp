@@ -71,6 +71,49 @@ TEST(Evaluation, TruthErrorsOverTheVoxelsWithAValueAndOverTissue) {
   EXPECT_THROW(compareWithTruth(recon, covered, t2, {}), InputError);
 }
 
+TEST(Evaluation, BackgroundSplitsIntoTheEdgeOfTissueAndTheRest) {
+  // A 9 x 7 x 5 grid of 1 mm with one tissue voxel in the middle (4, 3, 2):
+  // with a 2 mm edge, the background voxels in the 5 x 5 x 5 box around it
+  // (clipped to the grid) are its edge, the others far from it.
+  const Grid g = smallGrid(Index3(9, 7, 5));
+  Volume truth = filled(g, 5.0f);
+  const std::size_t centre = g.linear(4, 3, 2);
+  truth.setValue(centre, 120.0f);
+  Volume recon = filled(g, 5.0f);
+  recon.setValue(centre, 110.0f);           // -10 in tissue
+  recon.setValue(g.linear(6, 1, 0), 9.0f);  // +4 on the box's corner: edge
+  recon.setValue(g.linear(2, 3, 2), 2.0f);  // -3 two voxels along x: edge
+  recon.setValue(g.linear(7, 3, 2), 11.0f); // +6 three voxels along x: far
+  recon.setValue(g.linear(4, 6, 4), 3.0f);  // -2 three along y: far
+  auto all = [](std::size_t) { return true; };
+  const TruthMetrics m = compareWithTruth(recon, all, truth, {}, 2.0);
+  EXPECT_EQ(m.edgeMm, 2.0);
+  EXPECT_EQ(m.tissueCompared, 1u);
+  EXPECT_EQ(m.edgeCompared, 5u * 5u * 5u - 1u);
+  EXPECT_EQ(m.farCompared, g.voxelCount() - 5u * 5u * 5u);
+  EXPECT_NEAR(m.rmseTissue, 10.0, 1e-9);
+  EXPECT_NEAR(m.rmseEdge, std::sqrt((16.0 + 9.0) / 124.0), 1e-9);
+  EXPECT_NEAR(m.biasEdge, (4.0 - 3.0) / 124.0, 1e-9);
+  EXPECT_NEAR(m.rmseFar, std::sqrt((36.0 + 4.0) / static_cast<double>(m.farCompared)), 1e-9);
+  EXPECT_NEAR(m.bias, (-10.0 + 4.0 - 3.0 + 6.0 - 2.0) / static_cast<double>(g.voxelCount()), 1e-9);
+
+  // The edge is in mm: 2 mm voxels along x reach one voxel that way.
+  Grid wide = g;
+  wide.spacing.x = 2.0;
+  Volume tw = truth, rw = recon;
+  tw.grid = rw.grid = wide;
+  const TruthMetrics w = compareWithTruth(rw, all, tw, {}, 2.0);
+  EXPECT_EQ(w.edgeCompared, 3u * 5u * 5u - 1u);
+  // (6, 1, 0) and (2, 3, 2) are two voxels, 4 mm, along x: now far.
+  EXPECT_EQ(w.rmseEdge, 0.0);
+  EXPECT_NEAR(w.rmseFar, std::sqrt((16.0 + 9.0 + 36.0 + 4.0) / static_cast<double>(w.farCompared)), 1e-9);
+
+  // No edge: every background voxel is far.
+  const TruthMetrics z = compareWithTruth(recon, all, truth, {}, 0.0);
+  EXPECT_EQ(z.edgeCompared, 0u);
+  EXPECT_EQ(z.farCompared, g.voxelCount() - 1u);
+}
+
 TEST(Evaluation, SweptRegionIsBetweenConsecutiveFramesAndInsideThem) {
   // Frames of 11 x 6 pixels, 1 mm pixels, in planes x = 2 and x = 6, the image
   // spanning y 1..11 and z 2..7.

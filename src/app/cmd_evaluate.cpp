@@ -118,6 +118,10 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
                 m.rmseTissue, static_cast<unsigned long long>(m.tissueCompared));
     std::printf("  MAE, tissue       %.3f grey levels\n", m.maeTissue);
     std::printf("  bias, tissue      %+.3f grey levels\n", m.biasTissue);
+    std::printf("  RMSE, edge        %.3f grey levels, bias %+.3f (the %llu background voxels within %g mm of tissue)\n",
+                m.rmseEdge, m.biasEdge, static_cast<unsigned long long>(m.edgeCompared), m.edgeMm);
+    std::printf("  RMSE, far         %.3f grey levels (the %llu other background voxels)\n", m.rmseFar,
+                static_cast<unsigned long long>(m.farCompared));
     std::printf("  coverage          %.4f of %llu voxels\n", m.coverage(), static_cast<unsigned long long>(m.voxels));
     std::printf("  holes in sweep    %.5f (%llu of %llu swept voxels)\n", m.holeFraction(),
                 static_cast<unsigned long long>(m.sweptHoles), static_cast<unsigned long long>(m.swept));
@@ -137,6 +141,12 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     j["mae_tissue"] = m.maeTissue;
     j["bias_tissue"] = m.biasTissue;
     j["tissue_voxels_compared"] = m.tissueCompared;
+    j["edge_mm"] = m.edgeMm;
+    j["rmse_edge"] = m.rmseEdge;
+    j["bias_edge"] = m.biasEdge;
+    j["edge_voxels_compared"] = m.edgeCompared;
+    j["rmse_far"] = m.rmseFar;
+    j["far_voxels_compared"] = m.farCompared;
     j["coverage"] = m.coverage();
     j["voxels"] = m.voxels;
     j["swept_voxels"] = m.swept;

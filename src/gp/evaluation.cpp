@@ -53,8 +53,39 @@ std::vector<std::uint8_t> sweptRegion(const Grid& g, const std::vector<Mat4>& po
   return mask;
 }
 
+namespace {
+
+// Sets every voxel within `radius` voxels of a set one along `axis` (a max
+// filter of width 2 radius + 1, in place): two passes per line that carry the
+// distance to the last set voxel.
+void dilateAlong(std::vector<std::uint8_t>& m, const Index3& dims, int axis, std::int64_t radius) {
+  if (radius <= 0) return;
+  const std::int64_t stride[3] = {1, dims.x, dims.x * dims.y};
+  const std::int64_t n = dims[axis];
+  const int a1 = (axis + 1) % 3, a2 = (axis + 2) % 3;
+  std::vector<std::uint8_t> out(static_cast<std::size_t>(n));
+  for (std::int64_t v = 0; v < dims[a2]; ++v)
+    for (std::int64_t u = 0; u < dims[a1]; ++u) {
+      std::uint8_t* line = m.data() + u * stride[a1] + v * stride[a2];
+      const std::int64_t st = stride[axis];
+      std::int64_t last = -(radius + 1);
+      for (std::int64_t i = 0; i < n; ++i) {
+        if (line[i * st]) last = i;
+        out[static_cast<std::size_t>(i)] = i - last <= radius;
+      }
+      last = n + radius + 1;
+      for (std::int64_t i = n - 1; i >= 0; --i) {
+        if (line[i * st]) last = i;
+        if (last - i <= radius) out[static_cast<std::size_t>(i)] = 1;
+      }
+      for (std::int64_t i = 0; i < n; ++i) line[i * st] = out[static_cast<std::size_t>(i)];
+    }
+}
+
+}  // namespace
+
 TruthMetrics compareWithTruth(const Volume& recon, const CoveredFn& covered, const Volume& truth,
-                              const std::vector<std::uint8_t>& swept) {
+                              const std::vector<std::uint8_t>& swept, double edgeMm) {
   const Grid& g = recon.grid;
   const Grid& t = truth.grid;
   const bool same = g.dims == t.dims && glm::all(glm::lessThan(glm::abs(g.origin - t.origin), Vec3(1e-6))) &&
@@ -67,9 +98,17 @@ TruthMetrics compareWithTruth(const Volume& recon, const CoveredFn& covered, con
   PP5_CHECK(swept.empty() || swept.size() == g.voxelCount());
   TruthMetrics m;
   m.voxels = g.voxelCount();
+  PP5_CHECK(edgeMm >= 0.0);
+  m.edgeMm = edgeMm;
   double background = INFINITY;
   for (std::size_t i = 0; i < m.voxels; ++i) background = std::min(background, truth.value(i));
+  auto isTissue = [&](double t) { return t > background + 1.0; };
+  std::vector<std::uint8_t> nearTissue(m.voxels, 0);
+  for (std::size_t i = 0; i < m.voxels; ++i) nearTissue[i] = isTissue(truth.value(i)) ? 1 : 0;
+  for (int a = 0; a < 3; ++a)
+    dilateAlong(nearTissue, g.dims, a, static_cast<std::int64_t>(std::floor(edgeMm / g.spacing[a] + 1e-9)));
   double sumSq = 0.0, sumAbs = 0.0, sum = 0.0, tSq = 0.0, tAbs = 0.0, tSum = 0.0;
+  double eSq = 0.0, eSum = 0.0, fSq = 0.0;
   for (std::size_t i = 0; i < m.voxels; ++i) {
     const bool c = covered(i);
     const bool s = swept.empty() || swept[i];
@@ -85,11 +124,18 @@ TruthMetrics compareWithTruth(const Volume& recon, const CoveredFn& covered, con
       sumAbs += std::abs(d);
       sum += d;
       ++m.compared;
-      if (t > background + 1.0) {
+      if (isTissue(t)) {
         tSq += d * d;
         tAbs += std::abs(d);
         tSum += d;
         ++m.tissueCompared;
+      } else if (nearTissue[i]) {
+        eSq += d * d;
+        eSum += d;
+        ++m.edgeCompared;
+      } else {
+        fSq += d * d;
+        ++m.farCompared;
       }
     }
   }
@@ -103,6 +149,11 @@ TruthMetrics compareWithTruth(const Volume& recon, const CoveredFn& covered, con
     m.maeTissue = tAbs / static_cast<double>(m.tissueCompared);
     m.biasTissue = tSum / static_cast<double>(m.tissueCompared);
   }
+  if (m.edgeCompared > 0) {
+    m.rmseEdge = std::sqrt(eSq / static_cast<double>(m.edgeCompared));
+    m.biasEdge = eSum / static_cast<double>(m.edgeCompared);
+  }
+  if (m.farCompared > 0) m.rmseFar = std::sqrt(fSq / static_cast<double>(m.farCompared));
   m.psnrDb = m.rmse > 0.0 ? 20.0 * std::log10(255.0 / m.rmse) : INFINITY;
   return m;
 }

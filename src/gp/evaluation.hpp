@@ -26,6 +26,9 @@ using CoveredFn = std::function<bool(std::size_t linearIndex)>;
 std::vector<std::uint8_t> sweptRegion(const Grid& g, const std::vector<Mat4>& imageToReference, int width,
                                       int height);
 
+// How far from tissue the background counts as its edge (TruthMetrics).
+inline constexpr double kEdgeMm = 4.0;
+
 struct TruthMetrics {
   std::uint64_t voxels = 0;       // in the grid
   std::uint64_t covered = 0;      // voxels that hold a value
@@ -45,6 +48,16 @@ struct TruthMetrics {
   // shows here, where RMSE mixes it with noise and blur.
   double bias = 0.0;
   double biasTissue = 0.0;
+  // The background (not tissue) split by distance: within `edgeMm` of a
+  // tissue voxel along every axis (a box around it), where a kernel that
+  // spreads the tissue's echo into its neighbours pays, and the rest, where
+  // averaging the noise floor pays. tissue + edge + far = compared.
+  double edgeMm = 0.0;
+  std::uint64_t edgeCompared = 0;
+  std::uint64_t farCompared = 0;
+  double rmseEdge = 0.0;
+  double biasEdge = 0.0;
+  double rmseFar = 0.0;
   double coverage() const { return voxels ? static_cast<double>(covered) / static_cast<double>(voxels) : 0.0; }
   double holeFraction() const { return swept ? static_cast<double>(sweptHoles) / static_cast<double>(swept) : 0.0; }
 };
@@ -53,7 +66,7 @@ struct TruthMetrics {
 // says where `recon` holds a value. With a non-empty `swept` mask the errors
 // are measured over the voxels with a value inside it, else over all with one.
 TruthMetrics compareWithTruth(const Volume& recon, const CoveredFn& covered, const Volume& truth,
-                              const std::vector<std::uint8_t>& swept);
+                              const std::vector<std::uint8_t>& swept, double edgeMm = kEdgeMm);
 
 // Trilinear sample at a world point; nullopt when any of the 8 neighbours is
 // outside the grid or not covered.
