@@ -228,7 +228,7 @@ void shadeRow(const Context& c, std::int64_t j, std::int64_t k, std::int64_t x0,
   const float fx[3] = {0.0f, c.oneSided.x, c.central.x};
   const std::uint8_t *const rym = row(jm, k), *const ryp = row(jp, k), *const rzm = row(j, km),
                      *const rzp = row(j, kp);
-  {
+  if (x1 > x0) {
     // Rows run along x: in a slab thin in x each row is a few cache lines a
     // kilobyte or more from the last, which the hardware does not fetch ahead.
     // Fetch the row four ahead (the next rows of a box are j + 1, j + 2, ...).
