@@ -199,6 +199,33 @@ TEST(DBuffer, MatchesBruteForceRayBoxIntersections) {
   EXPECT_GT(behind, 0);
 }
 
+TEST(DBuffer, RaysKeptPerCameraCoverEveryPixelABoxNeeds) {
+  // The D-buffer computes a perspective ray the first time a box needs it and
+  // keeps it while the camera stays. Within a view, boxes on the left and the
+  // right of the screen and then one between them (the same rows, a gap in
+  // x); then a new view after one that needed every pixel.
+  std::mt19937 rng(42);
+  const Grid g = testGrid();
+  DBuffer db;
+  Sandwich st;
+  for (int view = 0; view < 4; ++view) {
+    const Camera c = randomCamera(rng, g, Projection::Perspective, false);
+    const pp5::gp::PixelRays rays(c);
+    const Vec3 mid = gridCentre(g);
+    const Vec3 side = rays.right() * 18.0;
+    std::vector<WorldBox> boxes = {{mid - side - Vec3(4.0), mid - side + Vec3(4.0)},
+                                   {mid + side - Vec3(4.0), mid + side + Vec3(4.0)},
+                                   {mid - Vec3(5.0), mid + Vec3(5.0)}};
+    if (view == 2) boxes.push_back({g.minCorner() - Vec3(50.0), g.maxCorner() + Vec3(50.0)});  // the whole screen
+    db.build(c, boxes);
+    for (int y = 0; y < c.height; ++y)
+      for (int x = 0; x < c.width; ++x)
+        checkPixel(db, rays.ray(x, y), static_cast<std::uint32_t>(y * c.width + x), boxes, 1e-6, st);
+  }
+  EXPECT_EQ(st.bad, 0u);
+  EXPECT_GT(st.covered, st.pixels / 20);
+}
+
 TEST(DBuffer, ManyBoxesAlongARayKeepAConservativeUnion) {
   Camera c;
   c.eye = Vec3(0, 0, 100);

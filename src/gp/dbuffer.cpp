@@ -70,13 +70,32 @@ void DBuffer::reset(const Camera& camera) {
                       c.width == camera.width && c.height == camera.height;
     if (!same) {
       dirs_.resize(n);
-      for (int y = 0; y < camera.height; ++y)
-        for (int x = 0; x < camera.width; ++x)
-          dirs_[static_cast<std::size_t>(y) * static_cast<std::size_t>(camera.width) + static_cast<std::size_t>(x)] =
-              rays_.ray(x, y).dir;
+      dirsLo_.assign(static_cast<std::size_t>(camera.height), 0);
+      dirsHi_.assign(static_cast<std::size_t>(camera.height), 0);
       dirsCamera_ = camera;
     }
   }
+}
+
+const Vec3* DBuffer::rowDirs(int y, int x0, int x1) {
+  int& lo = dirsLo_[static_cast<std::size_t>(y)];
+  int& hi = dirsHi_[static_cast<std::size_t>(y)];
+  Vec3* row = dirs_.data() + static_cast<std::size_t>(y) * static_cast<std::size_t>(rays_.width());
+  auto fill = [&](int a, int b) {
+    for (int x = a; x < b; ++x) row[x] = rays_.ray(x, y).dir;
+  };
+  if (lo == hi) {
+    fill(x0, x1);
+    lo = x0;
+    hi = x1;
+  } else {
+    // Keep one interval: what lies between the old one and the new is filled too.
+    if (x0 < lo) fill(x0, lo);
+    if (x1 > hi) fill(hi, x1);
+    lo = std::min(lo, x0);
+    hi = std::max(hi, x1);
+  }
+  return row;
 }
 
 void DBuffer::build(const Camera& camera, std::span<const WorldBox> boxes) {
@@ -253,11 +272,12 @@ void DBuffer::addBox(const WorldBox& box) {
   for (int j = 0; j < bh; ++j) {
     const std::uint8_t* fr = front_.data() + static_cast<std::size_t>(j) * bw;
     const std::uint8_t* bk = back_.data() + static_cast<std::size_t>(j) * bw;
+    const Vec3* dirs = persp ? rowDirs(by0 + j, bx0, bx1) : nullptr;
     for (int i = 0; i < bw; ++i) {
       if ((fr[i] | bk[i]) == 0) continue;
       const int x = bx0 + i, y = by0 + j;
       const std::uint32_t pixel = static_cast<std::uint32_t>(y) * static_cast<std::uint32_t>(W) + static_cast<std::uint32_t>(x);
-      const Ray r = persp ? Ray{cam.eye, dirs_[pixel]} : rays_.ray(x, y);
+      const Ray r = persp ? Ray{cam.eye, dirs[x]} : rays_.ray(x, y);
       double tIn = fr[i] ? faceT(r, fr[i]) : 0.0;
       double tOut = bk[i] ? faceT(r, bk[i]) : kInf;
       const bool grazing = std::isnan(tIn) || std::isnan(tOut);

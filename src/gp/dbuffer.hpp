@@ -91,10 +91,14 @@ private:
   };
 
   PixelRays rays_;
-  // Perspective: every pixel's unit ray direction, kept while the camera
-  // stays (a normalisation per pixel and box was a third of addBox's time).
+  // Perspective: pixels' unit ray directions, kept while the camera stays (a
+  // normalisation per pixel and box was a third of addBox's time). Filled on
+  // demand, row by row: row y holds [dirsLo_[y], dirsHi_[y]), so the first
+  // frame after a view change pays for its own pixels, not the image's.
   std::vector<Vec3> dirs_;
+  std::vector<int> dirsLo_, dirsHi_;
   Camera dirsCamera_;
+  const Vec3* rowDirs(int y, int x0, int x1);
   std::vector<std::uint32_t> slot_;  // per image pixel: index into entries_, or kNone
   std::vector<std::uint32_t> touched_;
   std::vector<Entry> entries_;  // in the order the pixels were first touched
