@@ -1,6 +1,8 @@
 // The global sample lattice, the D-buffer and the ray sampler (issue 4).
 #include <gtest/gtest.h>
 
+#include <bit>
+
 #include <algorithm>
 #include <cmath>
 #include <cstring>
@@ -142,6 +144,65 @@ TEST(PixelRays, MatchCameraBitwise) {
       EXPECT_NEAR(q.y, pr->py, 1e-9);
     }
   }
+}
+
+TEST(PixelRays, RowThroughBoxIsIntersectBoxBitwise) {
+  // The lattice's two-lanes-at-a-time ray-box test against the scalar one,
+  // pixel by pixel: random views and boxes, the eye inside the box, and views
+  // straight down an axis, whose rays run parallel to the box's faces (a zero
+  // direction component: the scalar test's other branch).
+  std::mt19937 rng(5);
+  const Grid g = testGrid();
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  std::uint64_t hits = 0, misses = 0, flat = 0;
+  auto check = [&](const Camera& c, const WorldBox& b) {
+    const pp5::gp::PixelRays rays(c);
+    std::vector<double> tIn(c.width), tOut(c.width);
+    std::vector<std::uint8_t> hit(c.width);
+    for (int y = 0; y < c.height; ++y) {
+      const int x0 = y % 3;  // odd and even starts, and a last lone pixel
+      rays.rowThroughBox(y, x0, c.width, b.lo, b.hi, tIn.data(), tOut.data(), hit.data());
+      for (int x = x0; x < c.width; ++x) {
+        const Ray r = rays.ray(x, y);
+        flat += r.dir.x == 0.0 || r.dir.y == 0.0 || r.dir.z == 0.0;
+        double a, e;
+        const bool h = pp5::gp::intersectBox(r, b.lo, b.hi, a, e);
+        ASSERT_EQ(hit[x - x0] != 0, h) << x << ", " << y;
+        if (!h) {
+          ++misses;
+          continue;
+        }
+        ++hits;
+        ASSERT_EQ(std::bit_cast<std::uint64_t>(tIn[x - x0]), std::bit_cast<std::uint64_t>(a)) << x << ", " << y;
+        ASSERT_EQ(std::bit_cast<std::uint64_t>(tOut[x - x0]), std::bit_cast<std::uint64_t>(e)) << x << ", " << y;
+      }
+    }
+  };
+  const Vec3 ext = g.maxCorner() - g.minCorner();
+  for (int view = 0; view < 12; ++view) {
+    const Projection proj = view % 2 ? Projection::Orthographic : Projection::Perspective;
+    const Camera c = randomCamera(rng, g, proj, view % 4 >= 2, 37, 23);
+    check(c, {g.minCorner(), g.maxCorner()});
+    check(c, randomBox(rng, g.minCorner() + Vec3(u(rng), u(rng), u(rng)) * ext, 5.0 + 20.0 * u(rng)));
+  }
+  // Down the z axis, odd image sizes: the middle column and row have rays
+  // with zero x or y components, and orthographic rays have both.
+  for (const Projection proj : {Projection::Perspective, Projection::Orthographic}) {
+    Camera c;
+    c.projection = proj;
+    c.width = 31;
+    c.height = 21;
+    c.target = gridCentre(g);
+    c.eye = c.target + Vec3(0.0, 0.0, 300.0);
+    c.up = Vec3(0.0, 1.0, 0.0);
+    c.orthoHeightMm = 1.5 * ext.y;
+    check(c, {g.minCorner(), g.maxCorner()});
+    // Rays that run along a face plane: a box whose x face lies on the middle column's rays.
+    check(c, {Vec3(c.eye.x, g.minCorner().y, g.minCorner().z), g.maxCorner()});
+  }
+  EXPECT_GT(hits, 1000u);
+  EXPECT_GT(misses, 100u);
+  EXPECT_GT(flat, 100u);
 }
 
 TEST(DBuffer, MatchesBruteForceRayBoxIntersections) {

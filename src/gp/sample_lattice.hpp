@@ -46,6 +46,11 @@ public:
   const Vec3& up() const { return u_; }
 
   Ray ray(int x, int y) const;
+  // Where the rays of pixels x0 .. x1 - 1 of row y enter and leave the box
+  // [lo, hi]: for each, hit (0 or 1) and, on a hit, tIn <= tOut; bitwise
+  // intersectBox(ray(x, y), lo, hi, ...), two pixels at a time.
+  void rowThroughBox(int y, int x0, int x1, const Vec3& lo, const Vec3& hi, double* tIn, double* tOut,
+                     std::uint8_t* hit) const;
   Ray ray(std::uint32_t pixel) const {
     return ray(static_cast<int>(pixel % static_cast<std::uint32_t>(cam_.width)),
                static_cast<int>(pixel / static_cast<std::uint32_t>(cam_.width)));
