@@ -226,6 +226,17 @@ public:
 #endif
   }
 
+  // Lane `lane`'s sample; the cell's voxels are loaded only when the lane
+  // before read another cell (`loaded`: the index of the cell in `vox`).
+  void blendLane(const Cells4& c, int lane, std::int64_t& loaded, Voxels& vox, float* rgba) const {
+    const std::int64_t idx = index(c, lane);
+    if (idx != loaded) {
+      load(idx, vox);
+      loaded = idx;
+    }
+    blend(vox, c, lane, rgba);
+  }
+
   void at(const Cells4& c, int lane, float* rgba) const {
     Voxels v;
     load(index(c, lane), v);
@@ -655,6 +666,15 @@ struct TileGrid {
 };
 
 constexpr int kBrickShift = 3;
+
+// The empty-space brick (EmptySpaceMap::kBrickCells cells a side) of lane
+// `lane`'s cell, in a map of `bd` bricks.
+inline std::size_t brickOf(const Cells4& c, int lane, const Index3& bd) {
+  return static_cast<std::size_t>((static_cast<std::int64_t>(c.i[2][lane] >> kBrickShift) * bd.y +
+                                   (c.i[1][lane] >> kBrickShift)) *
+                                      bd.x +
+                                  (c.i[0][lane] >> kBrickShift));
+}
 static_assert(EmptySpaceMap::kBrickCells == 1 << kBrickShift);
 
 // The work tiles to sample: all of them (`list` empty, `all` true), or the
@@ -784,13 +804,8 @@ private:
       }
       const int lanes = static_cast<int>(std::min<std::uint32_t>(4, kEnd - g + 1));
       for (int l = 0; l < lanes; ++l) {
-        const std::int64_t idx = interp.index(c, l);
-        if (idx != loaded) {
-          interp.load(idx, vox);
-          loaded = idx;
-        }
         float* rgba = stage.slot();
-        Interpolator::blend(vox, c, l, rgba);
+        interp.blendLane(c, l, loaded, vox, rgba);
         if (rgba[3] > 0.0f) stage.commit(g + static_cast<std::uint32_t>(l));
       }
       if (g + 4 > kEnd) {
@@ -798,8 +813,7 @@ private:
         break;
       }
       std::swap(c, next);
-      if (dist[(static_cast<std::int64_t>(c.i[2][0] >> kBrickShift) * bd.y + (c.i[1][0] >> kBrickShift)) * bd.x +
-               (c.i[0][0] >> kBrickShift)] != 0) {
+      if (dist[brickOf(c, 0, bd)] != 0) {
         k = g + 4;
         break;
       }
@@ -1030,8 +1044,7 @@ void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const 
             interp.locate4(vr, static_cast<std::uint32_t>(g), c);
             while (g <= s1) {
               const int b[3] = {c.i[0][0] >> kBrickShift, c.i[1][0] >> kBrickShift, c.i[2][0] >> kBrickShift};
-              const auto brick0 =
-                  static_cast<std::size_t>((static_cast<std::int64_t>(b[2]) * bd.y + b[1]) * bd.x + b[0]);
+              const std::size_t brick0 = brickOf(c, 0, bd);
               const int d = std::min<int>(dist[brick0], distBefore[brick0]);
               if (d > 0) {
                 g = jump.next(b, d, g, s1);
@@ -1044,17 +1057,9 @@ void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const 
               }
               const int lanes = static_cast<int>(std::min<std::int64_t>(4, s1 - g + 1));
               for (int l = 0; l < lanes; ++l) {
-                const std::size_t brick =
-                    static_cast<std::size_t>(((c.i[2][l] >> kBrickShift) * bd.y + (c.i[1][l] >> kBrickShift)) * bd.x +
-                                             (c.i[0][l] >> kBrickShift));
+                const std::size_t brick = brickOf(c, l, bd);
                 if (dist[brick] == 0) {
-                  const std::int64_t idx = interp.index(c, l);
-                  if (idx != loaded) {
-                    interp.load(idx, vox);
-                    loaded = idx;
-                  }
-                  float* rgba = stage.slot();
-                  Interpolator::blend(vox, c, l, rgba);
+                  interp.blendLane(c, l, loaded, vox, stage.slot());
                   stage.commit(static_cast<std::uint32_t>(g + l));
                 } else if (distBefore[brick] == 0) {
                   float* rgba = stage.slot();
@@ -1077,18 +1082,8 @@ void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const 
             const int lanes = static_cast<int>(std::min<std::int64_t>(4, s1 - g + 1));
             for (int l = 0; l < lanes; ++l) {
               float* rgba = stage.slot();
-              const std::size_t brick =
-                  dist ? static_cast<std::size_t>(((c.i[2][l] >> kBrickShift) * bd.y + (c.i[1][l] >> kBrickShift)) *
-                                                      bd.x +
-                                                  (c.i[0][l] >> kBrickShift))
-                       : 0;
-              if (!dist || dist[brick] == 0) {
-                const std::int64_t idx = interp.index(c, l);
-                if (idx != loaded) {
-                  interp.load(idx, vox);
-                  loaded = idx;
-                }
-                Interpolator::blend(vox, c, l, rgba);
+              if (!dist || dist[brickOf(c, l, bd)] == 0) {
+                interp.blendLane(c, l, loaded, vox, rgba);
               } else {
                 rgba[0] = rgba[1] = rgba[2] = rgba[3] = 0.0f;
               }
