@@ -24,6 +24,7 @@ struct Camera {
   double orthoHeightMm = 200;  // orthographic: height of the view in mm
   int width = 512;
   int height = 512;
+  bool operator==(const Camera&) const = default;  // the same view, field by field
 
   // Right-handed camera basis: right, true up, and forward (towards target).
   Vec3 forward() const;

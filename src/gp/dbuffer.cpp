@@ -64,11 +64,7 @@ void DBuffer::reset(const Camera& camera) {
   entries_.clear();
   stats_ = {};
   if (rays_.perspective()) {
-    const Camera& c = dirsCamera_;
-    const bool same = dirs_.size() == n && c.projection == camera.projection && c.eye == camera.eye &&
-                      c.target == camera.target && c.up == camera.up && c.fovYDeg == camera.fovYDeg &&
-                      c.width == camera.width && c.height == camera.height;
-    if (!same) {
+    if (dirs_.size() != n || !(dirsCamera_ == camera)) {
       dirs_.resize(n);
       dirsLo_.assign(static_cast<std::size_t>(camera.height), 0);
       dirsHi_.assign(static_cast<std::size_t>(camera.height), 0);

@@ -82,6 +82,9 @@ public:
     return {e.s, e.n};
   }
   const Stats& stats() const { return stats_; }
+  // Perspective: the unit ray direction of a touched pixel, bitwise
+  // rays().ray(pixel).dir (kept from addBox); nullptr for orthographic views.
+  const Vec3* touchedDirs() const { return rays_.perspective() ? dirs_.data() : nullptr; }
 
 private:
   static constexpr std::uint32_t kNone = 0xffffffffu;

@@ -952,15 +952,30 @@ void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const 
   // The touched pixels of the selected tiles, by tile (a counting sort keeps
   // each tile's pixels in the D-buffer's ascending order).
   const auto touched = dbuffer.touched();
-  auto tileOf = [&](std::uint32_t p) {
-    const std::uint32_t x = p % static_cast<std::uint32_t>(W), y = p / static_cast<std::uint32_t>(W);
-    return (y / static_cast<std::uint32_t>(tiles.size)) * static_cast<std::uint32_t>(tiles.nx) +
-           x / static_cast<std::uint32_t>(tiles.size);
-  };
+  // Each touched pixel's tile, without a division per pixel: the pixels are
+  // ascending, so the row advances with them, and a column table gives the
+  // tile column.
+  std::vector<std::uint32_t> tileOf(touched.size());
+  {
+    std::vector<std::uint32_t> tileColumn(static_cast<std::size_t>(W));
+    for (int x = 0; x < W; ++x) tileColumn[static_cast<std::size_t>(x)] = static_cast<std::uint32_t>(x / tiles.size);
+    const auto w = static_cast<std::uint32_t>(W);
+    std::uint32_t y = 0, rowStart = 0;
+    for (std::size_t i = 0; i < touched.size(); ++i) {
+      const std::uint32_t p = touched[i];
+      PP5_CHECK(i == 0 || p > touched[i - 1]);
+      while (p - rowStart >= w) {
+        ++y;
+        rowStart += w;
+      }
+      tileOf[i] = (y / static_cast<std::uint32_t>(tiles.size)) * static_cast<std::uint32_t>(tiles.nx) +
+                  tileColumn[p - rowStart];
+    }
+  }
   const std::uint8_t* mask = selection.all ? nullptr : options.workTiles.data();
   std::vector<std::uint32_t> start(tiles.count() + 1, 0);
-  for (const auto p : touched) {
-    const std::uint32_t t = tileOf(p);
+  for (std::size_t i = 0; i < touched.size(); ++i) {
+    const std::uint32_t t = tileOf[i];
     if (!mask || mask[t] != 0) ++start[t + 1];
   }
   std::vector<std::uint32_t> work;
@@ -971,12 +986,16 @@ void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const 
   std::vector<std::uint32_t> order(start.back());
   {
     std::vector<std::uint32_t> pos(start.begin(), start.end() - 1);
-    for (const auto p : touched) {
-      const std::uint32_t t = tileOf(p);
-      if (!mask || mask[t] != 0) order[pos[t]++] = p;
+    for (std::size_t i = 0; i < touched.size(); ++i) {
+      const std::uint32_t t = tileOf[i];
+      if (!mask || mask[t] != 0) order[pos[t]++] = touched[i];
     }
   }
   const double invStep = 1.0 / lattice.step();
+  // The D-buffer has the touched pixels' perspective rays; the same camera's
+  // are the lattice's, bit for bit.
+  const Vec3* dirs = dbuffer.rays().camera() == lattice.camera() ? dbuffer.touchedDirs() : nullptr;
+  const Vec3 eye = lattice.camera().eye;
   const int nt = std::max(1, std::min<int>(threadCount(settings.threads), static_cast<int>(work.size())));
 
 #pragma omp parallel num_threads(nt)
@@ -992,7 +1011,7 @@ void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const 
         const std::uint32_t pixel = order[i];
         const std::int64_t n = lattice.count(pixel);
         if (n == 0) continue;
-        const VoxelRay vr = lattice.voxelRay(pixel);
+        const VoxelRay vr = dirs ? lattice.voxelRay(pixel, Ray{eye, dirs[pixel]}) : lattice.voxelRay(pixel);
         // The ray's owned samples, [own0, own1] (all of them without ownedCells).
         std::int64_t own0 = 0, own1 = n - 1;
         if (mine) {

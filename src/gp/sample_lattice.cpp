@@ -180,8 +180,7 @@ Vec3 SampleLattice::point(std::uint32_t pixel, std::uint32_t k) const {
   return r.origin + r.dir * t(pixel, k);
 }
 
-VoxelRay SampleLattice::voxelRay(std::uint32_t pixel) const {
-  const Ray r = rays_.ray(pixel);
+VoxelRay SampleLattice::voxelRay(std::uint32_t pixel, const Ray& r) const {
   const Vec3 o = (r.origin - grid_.origin) / grid_.spacing;
   const Vec3 d = r.dir / grid_.spacing;
   return {glm::vec3(o + d * static_cast<double>(t0_[pixel])), glm::vec3(d * step_)};

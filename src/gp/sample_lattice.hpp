@@ -115,7 +115,9 @@ public:
   // World position of sample k of `pixel` (double; the sampler's float
   // position voxelRay(pixel).at(k) is within a few float ulps of it).
   Vec3 point(std::uint32_t pixel, std::uint32_t k) const;
-  VoxelRay voxelRay(std::uint32_t pixel) const;
+  VoxelRay voxelRay(std::uint32_t pixel) const { return voxelRay(pixel, rays_.ray(pixel)); }
+  // The same from the pixel's ray, when the caller has it (rays().ray(pixel)).
+  VoxelRay voxelRay(std::uint32_t pixel, const Ray& r) const;
 
 private:
   PixelRays rays_;
