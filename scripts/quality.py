@@ -8,7 +8,7 @@
    SpinePhantomFreehand and NwirePhantomFreehand, keeping every 2nd and every
    4th frame (`pp5echo evaluate leave-out`).
 
-Usage: scripts/quality.py [--build build] [--out out/quality] [--quick]
+Usage: scripts/quality.py [--build build] [--out out/quality] [--quick | --kernel-grid]
 Prints markdown tables; the raw JSON lands in the output folder.
 """
 import argparse
@@ -59,6 +59,8 @@ def main():
     ap.add_argument("--build", default=os.path.join(ROOT, "build"))
     ap.add_argument("--out", default=os.path.join(ROOT, "out", "quality"))
     ap.add_argument("--quick", action="store_true", help="2 mm doll only (smoke test)")
+    ap.add_argument("--kernel-grid", action="store_true",
+                    help="only the search over tent kernels on the 2 mm doll (48 kernels, about 2 minutes)")
     a = ap.parse_args()
     exe = os.path.join(a.build, "src", "app", "pp5echo")
     os.makedirs(a.out, exist_ok=True)
@@ -73,7 +75,7 @@ def main():
             sweeps.append(("%s, %d mm" % (phantom, mm), cfg, ideal + ["sim.sweep.capture_interval_mm=%d" % mm]))
     sweeps.append(("doll, 6-DOF freehand", "freehand.toml", ideal))
     sweeps.append(("doll, 2 mm, physical medium", "doll.toml", []))
-    if a.quick:
+    if a.quick or a.kernel_grid:
         sweeps = sweeps[:1]
 
     def evaluate(d, cfg, phantom, opts, name, against="expected"):
@@ -84,6 +86,26 @@ def main():
         run([exe, "evaluate", "truth", seq, "--plus-config", xml, "--truth", truth, "--json", js,
              "-c", os.path.join(ROOT, "configs", cfg)] + sets(opts))
         return json.load(open(js))
+
+    if a.kernel_grid:
+        label, cfg, extra = sweeps[0]
+        d = os.path.join(a.out, slug(label))
+        run([exe, "simulate", os.path.join(ROOT, "configs", cfg), "-o", d] + sets(extra + ["output.preview_frames=0"]))
+        base = evaluate(d, cfg, "doll", METHODS[BASELINE], BASELINE)
+        rows = []
+        for lat in (2.0, 3.0, 4.0, 5.0):
+            for ax in (0.75, 1.0, 1.25):
+                for el in (3.0, 4.0, 6.0, 8.0):
+                    opts = METHODS[PAPER] + ["recon.kernel_lateral_mm=%g" % lat, "recon.kernel_axial_mm=%g" % ax,
+                                             "recon.kernel_elevation_mm=%g" % el]
+                    j = evaluate(d, cfg, "doll", opts, "grid_%g_%g_%g" % (lat, ax, el))
+                    rows.append(((lat, ax, el), j["rmse"] / base["rmse"], j["rmse_tissue"] / base["rmse_tissue"]))
+        print("### Tent kernels on the 2 mm doll, against nearest + hole filling\n")
+        print("| lateral, axial, elevation (mm) | RMSE ratio: all | tissue |")
+        print("|---|---|---|")
+        for k, r_all, r_tis in sorted(rows, key=lambda r: r[1]):
+            print("| %g, %g, %g | %.3f | %.3f |" % (k + (r_all, r_tis)))
+        return
 
     truth_rows = []
     kernel_rows = []
