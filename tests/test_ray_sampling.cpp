@@ -740,6 +740,38 @@ TEST(EmptySpaceMap, DistancesAreExactAndUpdatesEqualRebuilds) {
   check(m, shade);
 }
 
+TEST(EmptySpaceMap, RandomUpdatesEqualRebuilds) {
+  // Boxes of random voxels (mostly transparent, a few visible, some cleared),
+  // each followed by an update with that box: the map always equals one built
+  // from scratch, whether a brick was empty before (only the box's part of it
+  // is read) or not (all of it is).
+  const Grid g = testGrid();
+  ShadeBuffer shade = blobShade(g, 3);
+  pp5::gp::EmptySpaceMap m(shade, 1);
+  const Index3 bd = m.brickDims();
+  std::mt19937 rng(77);
+  auto pick = [&](std::int64_t n) { return static_cast<std::int64_t>(rng() % static_cast<std::uint32_t>(n)); };
+  for (int round = 0; round < 40; ++round) {
+    Box3 b;
+    for (int a = 0; a < 3; ++a) {
+      b.lo[a] = pick(g.dims[a]);
+      b.hi[a] = std::min<std::int64_t>(g.dims[a], b.lo[a] + 1 + pick(12));
+    }
+    const int visibleEvery = round % 3 == 0 ? 0 : 40 + round;  // every third box clears
+    for (std::int64_t k = b.lo.z; k < b.hi.z; ++k)
+      for (std::int64_t j = b.lo.y; j < b.hi.y; ++j)
+        for (std::int64_t i = b.lo.x; i < b.hi.x; ++i) {
+          ShadeVoxel& v = shade.at(g.linear(i, j, k));
+          v = {};
+          if (visibleEvery > 0 && pick(visibleEvery) == 0) v.a = static_cast<std::uint8_t>(1 + pick(255));
+        }
+    m.update(shade, std::span<const Box3>(&b, 1));
+    const pp5::gp::EmptySpaceMap rebuilt(shade, 1);
+    ASSERT_EQ(0, std::memcmp(m.distances(), rebuilt.distances(), static_cast<std::size_t>(bd.x * bd.y * bd.z)))
+        << "round " << round;
+  }
+}
+
 // A larger map with a few scattered visible voxels (and none at all): the
 // distances are the exact chessboard distances to the nearest occupied brick
 // (255 where there is none), the box of occupied bricks is right, and the

@@ -470,13 +470,17 @@ void EmptySpaceMap::scanBrick(const ShadeBuffer& shade, std::int64_t bi, std::in
   // The brick's cells read voxels [lo, lo + kBrickCells] inclusive.
   const Index3 lo = Index3(bi, bj, bk) * Index3(kBrickCells);
   const Index3 hi = glm::min(lo + Index3(kBrickCells + 1), grid_.dims);
+  occupied_[static_cast<std::size_t>((bk * bdims_.y + bj) * bdims_.x + bi)] = anyVisible(shade, {lo, hi}) ? 1 : 0;
+}
+
+bool EmptySpaceMap::anyVisible(const ShadeBuffer& shade, const Box3& b) const {
   // OR whole voxels as 32-bit words and keep alpha, the high byte (r, g, b,
   // a in memory, little-endian); a full brick's rows (9 voxels) with a fixed
   // count the compiler unrolls.
   static_assert(std::endian::native == std::endian::little);
   const ShadeVoxel* v = shade.data();
-  const std::int64_t n = hi.x - lo.x;
-  std::uint32_t any = 0;
+  const std::int64_t n = b.hi.x - b.lo.x;
+  if (n <= 0) return false;
   auto orRow = [](const ShadeVoxel* row, std::int64_t count) {
     std::uint32_t acc = 0;
     for (std::int64_t x = 0; x < count; ++x) {
@@ -486,32 +490,49 @@ void EmptySpaceMap::scanBrick(const ShadeBuffer& shade, std::int64_t bi, std::in
     }
     return acc;
   };
-  for (std::int64_t z = lo.z; z < hi.z && !any; ++z)
-    for (std::int64_t y = lo.y; y < hi.y; ++y) {
-      const ShadeVoxel* row = v + grid_.linear(lo.x, y, z);
+  std::uint32_t any = 0;
+  for (std::int64_t z = b.lo.z; z < b.hi.z && !any; ++z)
+    for (std::int64_t y = b.lo.y; y < b.hi.y; ++y) {
+      const ShadeVoxel* row = v + grid_.linear(b.lo.x, y, z);
       any |= (n == kBrickCells + 1 ? orRow(row, kBrickCells + 1) : orRow(row, n)) >> 24;
     }
-  occupied_[static_cast<std::size_t>((bk * bdims_.y + bj) * bdims_.x + bi)] = any ? 1 : 0;
+  return any != 0;
 }
 
 void EmptySpaceMap::update(const ShadeBuffer& shade, std::span<const Box3> changed) {
   checkSameGrid(shade.grid(), grid_);
   std::vector<std::uint8_t> seen(occupied_.size(), 0);
-  bool any = false;
+  std::vector<Box3> inGrid;
   for (const Box3& b0 : changed) {
     const Box3 b = b0.intersect({Index3(0), grid_.dims});
-    if (b.empty()) continue;
+    if (!b.empty()) inGrid.push_back(b);
+  }
+  bool any = false;
+  for (const Box3& b : inGrid) {
     // Voxel v is read by cells v - 1 and v.
     const Index3 clo = glm::max(b.lo - Index3(1), Index3(0)) / Index3(kBrickCells);
     const Index3 chi = glm::min((b.hi - Index3(1)) / Index3(kBrickCells), bdims_ - Index3(1));
     for (std::int64_t k = clo.z; k <= chi.z; ++k)
       for (std::int64_t j = clo.y; j <= chi.y; ++j)
         for (std::int64_t i = clo.x; i <= chi.x; ++i) {
-          auto& s = seen[static_cast<std::size_t>((k * bdims_.y + j) * bdims_.x + i)];
-          if (s) continue;
-          s = 1;
-          scanBrick(shade, i, j, k);
+          const auto id = static_cast<std::size_t>((k * bdims_.y + j) * bdims_.x + i);
+          if (seen[id]) continue;
+          seen[id] = 1;
           any = true;
+          if (occupied_[id]) {
+            scanBrick(shade, i, j, k);
+            continue;
+          }
+          // Empty before: every voxel it reads was transparent, and only the
+          // changed boxes were re-shaded, so only their part can be visible now.
+          const Index3 lo = Index3(i, j, k) * Index3(kBrickCells);
+          const Box3 reads{lo, glm::min(lo + Index3(kBrickCells + 1), grid_.dims)};
+          bool visible = false;
+          for (const Box3& c : inGrid) {
+            visible = anyVisible(shade, reads.intersect(c));
+            if (visible) break;
+          }
+          occupied_[id] = visible ? 1 : 0;
         }
   }
   if (any) computeDistances();

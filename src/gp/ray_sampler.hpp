@@ -140,6 +140,8 @@ private:
   std::vector<std::uint8_t> occupied_;
   std::vector<std::uint8_t> dist_;
   void scanBrick(const ShadeBuffer& shade, std::int64_t bi, std::int64_t bj, std::int64_t bk);
+  // Whether any voxel of the box (inside the grid) is visible.
+  bool anyVisible(const ShadeBuffer& shade, const Box3& voxels) const;
   void computeDistances();
 };
 
