@@ -157,6 +157,52 @@ TEST(Shading, ClassificationIsContinuousInTheGreyValue) {
   }
 }
 
+TEST(Shading, TransparentUpToIsExactAndTight) {
+  // transparentUpTo(v) lets shading skip a run whose largest value is v: it
+  // may say so only when every value up to v classifies to opacity 0, and
+  // should say so up to the last table step below the ramp.
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  for (int trial = 0; trial < 20; ++trial) {
+    const double start = trial == 0 ? 0.0 : trial == 1 ? 254.5 : 250.0 * u(rng);
+    TransferFunctionSettings ts;
+    ts.colour = {{0, 1, 1, 1}, {255, 1, 1, 1}};
+    if (trial == 2) {
+      ts.opacity = {{0, 0, 0, 0}, {255, 0, 0, 0}};  // nothing visible at all
+    } else if (start == 0.0) {
+      ts.opacity = {{0, 0.5, 0, 0}, {255, 1, 0, 0}};  // visible from 0
+    } else {
+      ts.opacity = {{0, 0, 0, 0}, {start, 0, 0, 0}, {std::min(255.0, start + 0.5 + 5.0 * u(rng)), 0.7, 0, 0},
+                    {255, 0.7, 0, 0}};
+      if (ts.opacity[2][0] >= 255.0) ts.opacity.pop_back();
+    }
+    const TransferFunction tf(ts);
+    float lastTransparent = -1.0f;  // the largest value on the grid below with transparentUpTo true
+    bool firstVisibleSeen = false;
+    float firstVisible = 256.0f;
+    for (int i = 0; i <= 255 * 64; ++i) {
+      const float v = static_cast<float>(i) / 64.0f;
+      if (tf.transparentUpTo(v)) lastTransparent = v;
+      if (!firstVisibleSeen && tf(v).a > 0.0f) {
+        firstVisibleSeen = true;
+        firstVisible = v;
+      }
+    }
+    // Never claimed past the first visible value...
+    EXPECT_LT(lastTransparent, firstVisible) << trial;
+    // ... and claimed up to within two table steps (1/8 grey level) of it.
+    if (trial == 2) {
+      EXPECT_FALSE(firstVisibleSeen);
+      EXPECT_EQ(lastTransparent, 255.0f);
+    } else if (start == 0.0) {
+      EXPECT_EQ(lastTransparent, -1.0f);
+    } else {
+      EXPECT_GE(lastTransparent, firstVisible - 2.0f / TransferFunction::kStepsPerLevel - 1.0f / 64.0f) << trial;
+    }
+    EXPECT_FALSE(tf.transparentUpTo(1000.0f) && firstVisibleSeen);
+  }
+}
+
 // ---- Phong on a linear ramp, whose gradient is known everywhere ----
 
 struct Ramp {

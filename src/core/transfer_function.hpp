@@ -53,10 +53,20 @@ public:
     return {a.r + f * (b.r - a.r), a.g + f * (b.g - a.g), a.b + f * (b.b - a.b), a.a + f * (b.a - a.a)};
   }
   const TransferFunctionSettings& settings() const { return settings_; }
+  // True when every value up to `value` classifies to opacity exactly 0
+  // (both table entries around it are 0): a run of water below the opacity
+  // ramp needs no lookup.
+  bool transparentUpTo(float value) const {
+    const float x = value <= 0.0f ? 0.0f : value >= 255.0f ? 255.0f : value;
+    return x * static_cast<float>(kStepsPerLevel) < transparentBelow_;
+  }
 
 private:
   TransferFunctionSettings settings_;
   std::vector<Rgba> table_;
+  // operator() blends entries int(t) and int(t) + 1 (t = value * steps):
+  // below the index before the first entry with opacity > 0, both are 0.
+  float transparentBelow_ = 0.0f;
 };
 
 }  // namespace pp5

@@ -250,6 +250,12 @@ void shadeRow(const Context& c, std::int64_t j, std::int64_t k, std::int64_t x0,
     ShadeVoxel* const out = outRow + s;
 
     for (int q = 0; q < n; ++q) buf.v[q] = at(r0, s + q);
+    float vmax = 0.0f;
+    for (int q = 0; q < n; ++q) vmax = std::max(vmax, buf.v[q]);
+    if (c.tf->transparentUpTo(vmax)) {  // below the opacity ramp: what the lookups would give
+      std::fill_n(out, n, ShadeVoxel{});
+      continue;
+    }
     int visible = 0;
     for (int q = 0; q < n; ++q) {
       const Rgba t = (*c.tf)(buf.v[q]);
