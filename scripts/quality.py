@@ -8,7 +8,8 @@
    SpinePhantomFreehand and NwirePhantomFreehand, keeping every 2nd and every
    4th frame (`pp5echo evaluate leave-out`).
 
-Usage: scripts/quality.py [--build build] [--out out/quality] [--quick | --kernel-grid]
+Usage: scripts/quality.py [--build build] [--out out/quality] [--quick | --kernel-grid [doll|forearm]]
+                          [--no-leave-out]
 Prints markdown tables; the raw JSON lands in the output folder.
 """
 import argparse
@@ -59,8 +60,10 @@ def main():
     ap.add_argument("--build", default=os.path.join(ROOT, "build"))
     ap.add_argument("--out", default=os.path.join(ROOT, "out", "quality"))
     ap.add_argument("--quick", action="store_true", help="2 mm doll only (smoke test)")
-    ap.add_argument("--kernel-grid", action="store_true",
-                    help="only the search over tent kernels on the 2 mm doll (48 kernels, about 2 minutes)")
+    ap.add_argument("--kernel-grid", nargs="?", const="doll", choices=("doll", "forearm"),
+                    help="only the search over tent kernels: on the 2 mm doll (48 kernels, about a minute), or "
+                         "on the forearm at 2, 3 and 5 mm (54 kernels, about 2 minutes)")
+    ap.add_argument("--no-leave-out", action="store_true", help="only the ground-truth tables (skip the PLUS recordings)")
     a = ap.parse_args()
     exe = os.path.join(a.build, "src", "app", "pp5echo")
     os.makedirs(a.out, exist_ok=True)
@@ -75,7 +78,9 @@ def main():
             sweeps.append(("%s, %d mm" % (phantom, mm), cfg, ideal + ["sim.sweep.capture_interval_mm=%d" % mm]))
     sweeps.append(("doll, 6-DOF freehand", "freehand.toml", ideal))
     sweeps.append(("doll, 2 mm, physical medium", "doll.toml", []))
-    if a.quick or a.kernel_grid:
+    if a.kernel_grid == "forearm":
+        sweeps = sweeps[3:6]
+    elif a.quick or a.kernel_grid:
         sweeps = sweeps[:1]
 
     def evaluate(d, cfg, phantom, opts, name, against="expected"):
@@ -88,23 +93,30 @@ def main():
         return json.load(open(js))
 
     if a.kernel_grid:
-        label, cfg, extra = sweeps[0]
-        d = os.path.join(a.out, slug(label))
-        run([exe, "simulate", os.path.join(ROOT, "configs", cfg), "-o", d] + sets(extra + ["output.preview_frames=0"]))
-        base = evaluate(d, cfg, "doll", METHODS[BASELINE], BASELINE)
-        rows = []
-        for lat in (2.0, 3.0, 4.0, 5.0):
-            for ax in (0.75, 1.0, 1.25):
-                for el in (3.0, 4.0, 6.0, 8.0):
-                    opts = METHODS[PAPER] + ["recon.kernel_lateral_mm=%g" % lat, "recon.kernel_axial_mm=%g" % ax,
-                                             "recon.kernel_elevation_mm=%g" % el]
-                    j = evaluate(d, cfg, "doll", opts, "grid_%g_%g_%g" % (lat, ax, el))
-                    rows.append(((lat, ax, el), j["rmse"] / base["rmse"], j["rmse_tissue"] / base["rmse_tissue"]))
-        print("### Tent kernels on the 2 mm doll, against nearest + hole filling\n")
-        print("| lateral, axial, elevation (mm) | RMSE ratio: all | tissue |")
-        print("|---|---|---|")
-        for k, r_all, r_tis in sorted(rows, key=lambda r: r[1]):
-            print("| %g, %g, %g | %.3f | %.3f |" % (k + (r_all, r_tis)))
+        phantom = a.kernel_grid
+        if phantom == "doll":
+            grid = [(lat, ax, el) for lat in (2.0, 3.0, 4.0, 5.0) for ax in (0.75, 1.0, 1.25) for el in (3.0, 4.0, 6.0, 8.0)]
+        else:
+            grid = [(lat, ax, el) for lat in (0.55, 0.8, 1.1) for ax in (0.3, 0.4, 0.6)
+                    for el in (1.1, 2.0, 3.0, 4.0, 5.0, 6.0)]
+        ratios = {k: [] for k in grid}  # per sweep: (all, tissue)
+        for label, cfg, extra in sweeps:
+            d = os.path.join(a.out, slug(label))
+            run([exe, "simulate", os.path.join(ROOT, "configs", cfg), "-o", d] +
+                sets(extra + ["output.preview_frames=0"]))
+            base = evaluate(d, cfg, phantom, METHODS[BASELINE], BASELINE)
+            for k in grid:
+                opts = METHODS[PAPER] + ["recon.kernel_lateral_mm=%g" % k[0], "recon.kernel_axial_mm=%g" % k[1],
+                                         "recon.kernel_elevation_mm=%g" % k[2]]
+                j = evaluate(d, cfg, phantom, opts, "grid_%g_%g_%g" % k)
+                ratios[k].append((j["rmse"] / base["rmse"], j["rmse_tissue"] / base["rmse_tissue"]))
+            print("measured", label, file=sys.stderr)
+        labels = [s[0] for s in sweeps]
+        print("### Tent kernels against nearest + hole filling (RMSE ratio: all / tissue), sorted by the worst\n")
+        print("| lateral, axial, elevation (mm) | " + " | ".join(labels) + " |")
+        print("|---|" + "---|" * len(labels))
+        for k in sorted(grid, key=lambda k: max(r[0] for r in ratios[k])):
+            print("| %g, %g, %g | " % k + " | ".join("%.3f / %.3f" % r for r in ratios[k]) + " |")
         return
 
     truth_rows = []
@@ -166,7 +178,7 @@ def main():
             print("| %g, %g, %g | %.2f | %.2f | %.3f, %.3f |" % (k + (j["rmse"], j["rmse_tissue"], j["rmse"] / base["rmse"],
                                                                    j["rmse_tissue"] / base["rmse_tissue"])))
 
-    if a.quick:
+    if a.quick or a.no_leave_out:
         return
     print("\n### Leave-out on real PLUS recordings\n")
     print("MAE / RMSE in grey levels between held-out pixels and the volume sampled there.\n")

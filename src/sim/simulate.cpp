@@ -5,10 +5,13 @@
 #include <cmath>
 #include <condition_variable>
 #include <exception>
+#include <limits>
 #include <map>
 #include <mutex>
 #include <string>
 #include <thread>
+#include <utility>
+#include <vector>
 
 #include <fmt/format.h>
 
@@ -208,28 +211,60 @@ void parallelSlices(std::int64_t n, int threads, Body&& body) {
   for (auto& th : pool) th.join();
 }
 
-// Normalised taps (one per voxel, `spacing` mm apart) of a Gaussian of
-// standard deviation sigma mm convolved with a box `box` mm wide, cut 3 sigma
-// beyond the box.
-std::vector<double> blurTaps(double sigma, double box, double spacing) {
-  const double reach = 0.5 * box + 3.0 * sigma;
-  const int r = static_cast<int>(std::floor(reach / spacing));
-  std::vector<double> w(static_cast<std::size_t>(2 * r + 1));
-  double sum = 0.0;
-  for (int i = -r; i <= r; ++i) {
-    const double x = i * spacing;
-    double v = 0.0;
-    if (box <= 0.0)
-      v = sigma > 0.0 ? std::exp(-0.5 * x * x / (sigma * sigma)) : (i == 0 ? 1.0 : 0.0);
-    else if (sigma <= 0.0)
-      v = std::abs(x) <= 0.5 * box ? 1.0 : 0.0;
-    else  // the Gaussian's mass over [x - box/2, x + box/2]
-      v = std::erf((x + 0.5 * box) / (std::sqrt(2.0) * sigma)) - std::erf((x - 0.5 * box) / (std::sqrt(2.0) * sigma));
-    w[static_cast<std::size_t>(i + r)] = v;
-    sum += v;
+// The cumulative distribution of the axial intensity PSF: a Gaussian of
+// standard deviation sigma convolved with a box `box` mm wide (the pixel's
+// height), i.e. the fraction of the kernel's mass below t. With
+// J(s) = integral of Phi(u / sigma) du up to s = s Phi(s / sigma) + sigma phi(s / sigma),
+// it is (J(t + box/2) - J(t - box/2)) / box.
+double axialCdf(double t, double sigma, double box) {
+  constexpr double kInvSqrt2 = 0.70710678118654752440;
+  constexpr double kInvSqrt2Pi = 0.39894228040143267794;
+  auto Phi = [&](double s) { return 0.5 * std::erfc(-s * kInvSqrt2); };
+  if (box <= 1e-9 * sigma) return Phi(t / sigma);
+  if (sigma <= 1e-9 * box) return std::clamp(t / box + 0.5, 0.0, 1.0);
+  auto J = [&](double s) { return s * Phi(s / sigma) + sigma * kInvSqrt2Pi * std::exp(-0.5 * (s / sigma) * (s / sigma)); };
+  return std::clamp((J(t + 0.5 * box) - J(t - 0.5 * box)) / box, 0.0, 1.0);
+}
+
+// Sphere-traces the line p0 + t * dir, t in [t0, t1], through the speckle
+// bodies, and returns the backscatter power at t0 and every boundary it
+// crosses as (t, power after minus power before), as the B-mode model's beam
+// tracer finds them (its minimum step; boundaries placed to 1e-6 mm).
+struct PowerSteps {
+  double start = 0.0;
+  std::vector<std::pair<double, double>> steps;
+};
+void tracePower(const Phantom& phantom, const std::vector<int>& bodies, const std::array<double, kTissueCount>& pw,
+                const Vec3& p0, const Vec3& dir, double t0, double t1, PowerSteps& out) {
+  constexpr double kMinStepMm = 0.02, kBoundaryTolMm = 1e-6;
+  auto powerOf = [&](Tissue t) { return pw[static_cast<std::size_t>(t)]; };
+  out.steps.clear();
+  double t = t0;
+  Phantom::Sample s = phantom.sample(p0 + t * dir, bodies);
+  out.start = powerOf(s.tissue);
+  while (t < t1) {
+    const double tNext = std::min(t + std::max(s.clearance, kMinStepMm), t1);
+    Phantom::Sample sn = phantom.sample(p0 + tNext * dir, bodies);
+    if (sn.tissue != s.tissue) {
+      double lo = t, hi = tNext;
+      while (hi - lo > kBoundaryTolMm) {
+        const double mid = 0.5 * (lo + hi);
+        const Phantom::Sample sm = phantom.sample(p0 + mid * dir, bodies);
+        if (sm.tissue == s.tissue) {
+          lo = mid;
+        } else {
+          hi = mid;
+          sn = sm;
+        }
+      }
+      const double dp = powerOf(sn.tissue) - powerOf(s.tissue);
+      if (dp != 0.0) out.steps.emplace_back(0.5 * (lo + hi), dp);
+      t = hi;
+    } else {
+      t = tNext;
+    }
+    s = sn;
   }
-  for (double& v : w) v /= sum;
-  return w;
 }
 
 }  // namespace
@@ -261,84 +296,111 @@ Volume expectedImageVolume(const Phantom& phantom, const BModeSimulator& bmode, 
     return glm::dot(grid.voxelToWorld(v) - face, axes[1]);
   };
 
-  // Backscatter power per voxel, the mean of 2 x 2 x 2 sub-samples where a
-  // boundary may cross the voxel. Wires are line targets, imaged as coherent
-  // reflectors rather than speckle (BModeSimulator), so they are left out: a
-  // voxel a wire crosses expects the medium around it.
+  // The frames show the backscatter power of the tissue in their own plane
+  // (the elevation beam shapes the speckle, not the tissue map: the B-mode
+  // model scales each scatterer by the tissue on the image plane), blurred
+  // by the intensity PSF in the plane: the amplitude PSF's sigma over sqrt(2)
+  // laterally (plus the columns' linear splat) and along the pulse, with the
+  // pixel's height (a row averages its sub-rows' envelopes). So each voxel
+  // gets that blurred power at its centre, evaluated as a point value (not
+  // sampled on the grid, which at 1 mm would alias a 0.2 mm pulse):
+  //  - along the depth, exactly: the line through the centre is traced to
+  //    its tissue boundaries, and each boundary's step is blurred by the
+  //    axial PSF's closed-form distribution;
+  //  - laterally, by quadrature over lines `fine` per voxel (a pitch of at
+  //    most an eighth of the lateral sigma), Gaussian weights normalised;
+  //  - no blur across the elevation: voxels on one grid plane along it are
+  //    computed from that plane alone.
+  // Wires are line targets, imaged as coherent reflectors rather than
+  // speckle (BModeSimulator), so they are left out: a voxel a wire crosses
+  // expects the medium around it.
   std::vector<int> speckleBodies;
   for (std::size_t b = 0; b < phantom.bodies.size(); ++b)
     if (!phantom.bodies[b].lineTarget) speckleBodies.push_back(static_cast<int>(b));
-  const std::size_t n = grid.voxelCount();
-  std::vector<double> power(n, 0.0);
   std::array<double, kTissueCount> pw{};
   for (int t = 0; t < kTissueCount; ++t) pw[static_cast<std::size_t>(t)] = bmode.backscatterPower(static_cast<Tissue>(t));
-  const double halfDiagonal = 0.5 * glm::length(grid.spacing);
-  parallelSlices(grid.dims.z, threads, [&](std::int64_t k) {
-    for (std::int64_t j = 0; j < grid.dims.y; ++j)
-      for (std::int64_t i = 0; i < grid.dims.x; ++i) {
-        const Vec3 p = grid.voxelToWorld(Vec3(static_cast<double>(i), static_cast<double>(j), static_cast<double>(k)));
-        const Phantom::Sample s = phantom.sample(p, speckleBodies);
-        double v = pw[static_cast<std::size_t>(s.tissue)];
-        if (s.clearance < halfDiagonal) {
-          v = 0.0;
-          for (int c = 0; c < 8; ++c) {
-            const Vec3 o((c & 1) ? 0.25 : -0.25, (c & 2) ? 0.25 : -0.25, (c & 4) ? 0.25 : -0.25);
-            v += pw[static_cast<std::size_t>(phantom.sample(p + o * grid.spacing, speckleBodies).tissue)];
-          }
-          v /= 8.0;
-        }
-        power[grid.linear(i, j, k)] = v;
-      }
-  });
 
-  // The intensity PSF: the amplitude PSF's sigma over sqrt(2) on each axis,
-  // and along the depth the pixel's height too (a row averages its sub-rows'
-  // envelopes over it). Columns are splatted linearly between neighbours,
-  // a little more lateral blur.
-  const double sx = probe.spacingX(), sy = probe.spacingY();
-  auto tapsFor = [&](int probeAxis, double depth, double spacing) {
-    switch (probeAxis) {
-      case 0: {
-        const double s = probe.lateralSigmaMm(depth);
-        return blurTaps(std::sqrt(0.5 * s * s + sx * sx / 6.0), 0.0, spacing);
-      }
-      case 1: return blurTaps(std::sqrt(0.5) * probe.axialSigmaMm(), sy, spacing);
-      default: return blurTaps(std::sqrt(0.5) * probe.elevationSigmaMm(depth), 0.0, spacing);
-    }
-  };
-
-  // Separable blur along each probe axis's grid axis; the sigma of the
-  // lateral and elevation passes follows the depth of the line.
+  const int latAxis = gridAxis[0], elAxis = gridAxis[2];
   const Index3 d = grid.dims;
-  const std::int64_t stride[3] = {1, d.x, d.x * d.y};
-  std::vector<double> tmp(n);
-  for (int pa = 0; pa < 3; ++pa) {
-    const int ga = gridAxis[pa];
-    const int o1 = (ga + 1) % 3, o2 = (ga + 2) % 3;  // the other two grid axes
-    const std::int64_t len = d[ga];
-    parallelSlices(d[o2], threads, [&](std::int64_t b) {
-      std::vector<double> line(static_cast<std::size_t>(len));
-      for (std::int64_t a = 0; a < d[o1]; ++a) {
-        // The line's depth: its own coordinate on the depth axis (pa != 1).
-        const std::int64_t depthLayer = o1 == depthAxis ? a : b;
-        const std::size_t start = static_cast<std::size_t>(a * stride[o1] + b * stride[o2]);
-        for (std::int64_t t = 0; t < len; ++t) line[static_cast<std::size_t>(t)] = power[start + static_cast<std::size_t>(t * stride[ga])];
-        auto blurLine = [&](const std::vector<double>& taps, std::int64_t t) {
-          const auto r = static_cast<std::int64_t>(taps.size() / 2);
-          double sum = 0.0, wsum = 0.0;
-          for (std::int64_t q = std::max<std::int64_t>(0, t - r); q <= std::min(len - 1, t + r); ++q) {
-            const double w = taps[static_cast<std::size_t>(q - t + r)];
-            sum += w * line[static_cast<std::size_t>(q)];
-            wsum += w;
-          }
-          return sum / wsum;  // renormalised where the kernel leaves the grid
-        };
-        const auto taps = tapsFor(pa, pa == 1 ? 0.0 : depthOf(depthLayer), grid.spacing[ga]);
-        for (std::int64_t t = 0; t < len; ++t) tmp[start + static_cast<std::size_t>(t * stride[ga])] = blurLine(taps, t);
-      }
-    });
-    power.swap(tmp);
+  const std::int64_t nLat = d[latAxis], nDepth = d[depthAxis], nEl = d[elAxis];
+  const double sLat = grid.spacing[latAxis], sDepth = grid.spacing[depthAxis];
+  const double sx = probe.spacingX(), sy = probe.spacingY();
+  const double sigmaAx = std::sqrt(0.5) * probe.axialSigmaMm();
+  const double axialReach = 0.5 * sy + 7.0 * sigmaAx;  // beyond it the distribution is 0 or 1 (to double)
+  std::vector<double> sigmaLat(static_cast<std::size_t>(nDepth));
+  double sigmaLatMin = std::numeric_limits<double>::infinity(), sigmaLatMax = 0.0;
+  for (std::int64_t k = 0; k < nDepth; ++k) {
+    const double s = probe.lateralSigmaMm(std::max(0.0, depthOf(k)));
+    const double v = std::sqrt(0.5 * s * s + sx * sx / 6.0);
+    sigmaLat[static_cast<std::size_t>(k)] = v;
+    sigmaLatMin = std::min(sigmaLatMin, v);
+    sigmaLatMax = std::max(sigmaLatMax, v);
   }
+  const int fine = std::clamp(static_cast<int>(std::ceil(sLat / (0.125 * sigmaLatMin))), 1, 32);
+  const double pitch = sLat / fine;
+  const auto pad = static_cast<std::int64_t>(std::ceil(4.0 * sigmaLatMax / sLat)) + 1;  // voxels of lines beyond each side
+  const std::int64_t lines = (nLat + 2 * pad) * fine;
+  const auto reachLines = static_cast<std::int64_t>(std::ceil(4.0 * sigmaLatMax / pitch));
+  // Lateral weights per depth layer: line q (0..lines) sits at lateral voxel
+  // coordinate (q + 0.5) / fine - 0.5 - pad; voxel L's weights run over the
+  // lines L * fine + pad * fine + (fine - 1) / 2 -+ reachLines (offsets in
+  // units of the pitch, the same for every L).
+  const std::int64_t taps = 2 * reachLines + (fine % 2 == 0 ? 2 : 1);
+  const double firstOffset = -static_cast<double>(reachLines) - (fine % 2 == 0 ? 0.5 : 0.0);  // pitches
+  std::vector<double> weights(static_cast<std::size_t>(nDepth * taps));
+  for (std::int64_t k = 0; k < nDepth; ++k) {
+    double* w = &weights[static_cast<std::size_t>(k * taps)];
+    double sum = 0.0;
+    const double sg = sigmaLat[static_cast<std::size_t>(k)];
+    for (std::int64_t q = 0; q < taps; ++q) {
+      const double x = (firstOffset + static_cast<double>(q)) * pitch;
+      w[q] = std::exp(-0.5 * x * x / (sg * sg));
+      sum += w[q];
+    }
+    for (std::int64_t q = 0; q < taps; ++q) w[q] /= sum;
+  }
+  const std::int64_t firstTapLine0 = pad * fine + (fine - 1) / 2 - reachLines;
+
+  const std::size_t n = grid.voxelCount();
+  std::vector<double> power(n, 0.0);
+  Vec3 depthStep(0.0);
+  depthStep[depthAxis] = 1.0;
+  const Vec3 dir = glm::normalize(grid.voxelToWorld(depthStep) - grid.voxelToWorld(Vec3(0.0)));
+  parallelSlices(nEl, threads, [&](std::int64_t e) {
+    std::vector<double> blurred(static_cast<std::size_t>(lines * nDepth));  // [line][depth]
+    PowerSteps steps;
+    for (std::int64_t q = 0; q < lines; ++q) {
+      Vec3 v(0.0);
+      v[elAxis] = static_cast<double>(e);
+      v[latAxis] = (static_cast<double>(q) + 0.5) / fine - 0.5 - static_cast<double>(pad);
+      const Vec3 p0 = grid.voxelToWorld(v);
+      const double tEnd = static_cast<double>(nDepth - 1) * sDepth;
+      tracePower(phantom, speckleBodies, pw, p0, dir, -axialReach, tEnd + axialReach, steps);
+      double* out = &blurred[static_cast<std::size_t>(q * nDepth)];
+      std::fill_n(out, nDepth, steps.start);
+      for (const auto& [tb, dp] : steps.steps) {
+        // Layers whose centre lies farther than the reach below the boundary get the whole step.
+        const auto k0 = std::max<std::int64_t>(0, static_cast<std::int64_t>(std::ceil((tb - axialReach) / sDepth)));
+        const auto k1 = std::min<std::int64_t>(nDepth - 1, static_cast<std::int64_t>(std::floor((tb + axialReach) / sDepth)));
+        for (std::int64_t k = k0; k <= k1; ++k)
+          out[k] += dp * axialCdf(static_cast<double>(k) * sDepth - tb, sigmaAx, sy);
+        for (std::int64_t k = std::max<std::int64_t>(k1 + 1, 0); k < nDepth; ++k) out[k] += dp;
+      }
+    }
+    Index3 idx(0);
+    idx[elAxis] = e;
+    for (std::int64_t L = 0; L < nLat; ++L) {
+      idx[latAxis] = L;
+      const std::int64_t first = L * fine + firstTapLine0;
+      for (std::int64_t k = 0; k < nDepth; ++k) {
+        const double* w = &weights[static_cast<std::size_t>(k * taps)];
+        double sum = 0.0;
+        for (std::int64_t q = 0; q < taps; ++q) sum += w[q] * blurred[static_cast<std::size_t>((first + q) * nDepth + k)];
+        idx[depthAxis] = k;
+        power[grid.linear(idx.x, idx.y, idx.z)] = sum;
+      }
+    }
+  });
 
   Volume vol;
   vol.allocate(grid, type);

@@ -73,19 +73,24 @@ Grid fitGrid(const std::vector<Mat4>& imageToReference, int width, int height, c
 Volume truthVolume(const Phantom& phantom, const BModeSimulator& bmode, const Grid& grid, ScalarType type,
                    int threads = 0, std::uint64_t memoryLimitBytes = 0);
 
-// The expected image on `grid`: at each voxel, the mean pixel value that a
-// frame through it, from a probe oriented as `probeToReference` (rigid,
-// Probe -> Reference mm), would show in the "ideal" medium (speckle only, no
-// attenuation, interfaces or shadows). That is the tissues' backscatter
-// power blurred by the intensity PSF (the amplitude PSF squared: Gaussian
-// laterally and in elevation with the beam widths at each depth, and along
-// the pulse; plus the pixel's own extent), then log-compressed as
-// BModeSimulator::expectedLevel does. It is what a perfect reconstruction of
-// the frames would converge to, so errors against it are the
-// reconstruction's own: speckle left over and blur added. The probe's axes
-// must lie along the grid's (within 25 degrees; InputError otherwise), since
-// the blur runs along grid lines. Throws InputError when the grid does not
-// fit in `memoryLimitBytes` (0 = what is available).
+// The expected image on `grid`: at each voxel centre, the mean pixel value
+// that a frame through it, from a probe oriented as `probeToReference`
+// (rigid, Probe -> Reference mm), would show in the "ideal" medium (speckle
+// only, no attenuation, interfaces or shadows). That is the backscatter power
+// of the tissue on the frame's plane blurred by the in-plane intensity PSF
+// (the amplitude PSF squared: Gaussian laterally with the beam width at each
+// depth, and along the pulse, with the pixel's height), then log-compressed
+// as BModeSimulator::expectedLevel does. There is no blur across the
+// elevation: the B-mode model lets the elevation beam shape the speckle, not
+// the tissue map. Each voxel holds the point value at its centre, found by
+// tracing the tissue boundaries along the depth (closed-form blur) and a
+// quadrature over lines an eighth of the lateral sigma apart, so it does not
+// depend on the grid's spacing or offset. It is what a perfect
+// reconstruction of the frames would converge to, so errors against it are
+// the reconstruction's own: speckle left over and blur added. The probe's
+// axes must lie along the grid's (within 25 degrees; InputError otherwise),
+// since the blur runs along grid lines. Throws InputError when the grid does
+// not fit in `memoryLimitBytes` (0 = what is available).
 Volume expectedImageVolume(const Phantom& phantom, const BModeSimulator& bmode, const Grid& grid,
                            const Mat4& probeToReference, ScalarType type, int threads = 0,
                            std::uint64_t memoryLimitBytes = 0);
