@@ -22,6 +22,7 @@ pkgs=(
   nlohmann-json3-dev
   libgtest-dev libgmock-dev
   libbenchmark-dev
+  python3-matplotlib  # the plots of `pp5echo bench` (scripts/bench_plots.py)
 )
 
 missing=()
