@@ -220,8 +220,8 @@ double axialCdf(double t, double sigma, double box) {
   constexpr double kInvSqrt2 = 0.70710678118654752440;
   constexpr double kInvSqrt2Pi = 0.39894228040143267794;
   auto Phi = [&](double s) { return 0.5 * std::erfc(-s * kInvSqrt2); };
-  if (box <= 1e-9 * sigma) return Phi(t / sigma);
-  if (sigma <= 1e-9 * box) return std::clamp(t / box + 0.5, 0.0, 1.0);
+  if (box <= 1e-4 * sigma) return Phi(t / sigma);
+  if (sigma <= 1e-4 * box) return std::clamp(t / box + 0.5, 0.0, 1.0);
   auto J = [&](double s) { return s * Phi(s / sigma) + sigma * kInvSqrt2Pi * std::exp(-0.5 * (s / sigma) * (s / sigma)); };
   return std::clamp((J(t + 0.5 * box) - J(t - 0.5 * box)) / box, 0.0, 1.0);
 }
@@ -308,7 +308,7 @@ Volume expectedImageVolume(const Phantom& phantom, const BModeSimulator& bmode, 
   //    its tissue boundaries, and each boundary's step is blurred by the
   //    axial PSF's closed-form distribution;
   //  - laterally, by quadrature over lines `fine` per voxel (a pitch of at
-  //    most an eighth of the lateral sigma), Gaussian weights normalised;
+  //    most an eighth of the lateral sigma, up to 32 lines per voxel), Gaussian weights normalised;
   //  - no blur across the elevation: voxels on one grid plane along it are
   //    computed from that plane alone.
   // Wires are line targets, imaged as coherent reflectors rather than
@@ -342,9 +342,10 @@ Volume expectedImageVolume(const Phantom& phantom, const BModeSimulator& bmode, 
   const std::int64_t lines = (nLat + 2 * pad) * fine;
   const auto reachLines = static_cast<std::int64_t>(std::ceil(4.0 * sigmaLatMax / pitch));
   // Lateral weights per depth layer: line q (0..lines) sits at lateral voxel
-  // coordinate (q + 0.5) / fine - 0.5 - pad; voxel L's weights run over the
-  // lines L * fine + pad * fine + (fine - 1) / 2 -+ reachLines (offsets in
-  // units of the pitch, the same for every L).
+  // coordinate (q + 0.5) / fine - 0.5 - pad; voxel L's `taps` weights run
+  // over the lines from L * fine + firstTapLine0 on, at firstOffset ..
+  // -firstOffset pitches from its centre (whole pitches for an odd `fine`,
+  // half pitches for an even one), the same for every L.
   const std::int64_t taps = 2 * reachLines + (fine % 2 == 0 ? 2 : 1);
   const double firstOffset = -static_cast<double>(reachLines) - (fine % 2 == 0 ? 0.5 : 0.0);  // pitches
   std::vector<double> weights(static_cast<std::size_t>(nDepth * taps));
@@ -397,7 +398,7 @@ Volume expectedImageVolume(const Phantom& phantom, const BModeSimulator& bmode, 
         double sum = 0.0;
         for (std::int64_t q = 0; q < taps; ++q) sum += w[q] * blurred[static_cast<std::size_t>((first + q) * nDepth + k)];
         idx[depthAxis] = k;
-        power[grid.linear(idx.x, idx.y, idx.z)] = sum;
+        power[grid.linear(idx.x, idx.y, idx.z)] = std::max(sum, 0.0);  // steps summed in water can leave -1e-17
       }
     }
   });

@@ -84,10 +84,10 @@ Volume truthVolume(const Phantom& phantom, const BModeSimulator& bmode, const Gr
 // elevation: the B-mode model lets the elevation beam shape the speckle, not
 // the tissue map. Each voxel holds the point value at its centre, found by
 // tracing the tissue boundaries along the depth (closed-form blur) and a
-// quadrature over lines an eighth of the lateral sigma apart, so it does not
-// depend on the grid's spacing or offset. It is what a perfect
-// reconstruction of the frames would converge to, so errors against it are
-// the reconstruction's own: speckle left over and blur added. The probe's
+// quadrature over lines an eighth of the lateral sigma apart (at most 32
+// per voxel), so it does not depend on the grid's spacing or offset. It is
+// what a perfect reconstruction of the frames would converge to, so errors
+// against it are the reconstruction's own: speckle left over and blur added. The probe's
 // axes must lie along the grid's (within 25 degrees; InputError otherwise),
 // since the blur runs along grid lines. Throws InputError when the grid does
 // not fit in `memoryLimitBytes` (0 = what is available).
