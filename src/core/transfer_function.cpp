@@ -1,5 +1,6 @@
 #include "core/transfer_function.hpp"
 
+#include <algorithm>
 #include <limits>
 
 #include "core/config.hpp"
@@ -60,10 +61,9 @@ TransferFunction::TransferFunction(const TransferFunctionSettings& s) : settings
                                            static_cast<float>(lerpPoints(s.colour, x, 3)),
                                            static_cast<float>(lerpPoints(s.opacity, x, 1))};
   }
-  int first = kTableSize;  // the first entry with opacity > 0
-  for (int i = 0; i < kTableSize && first == kTableSize; ++i)
-    if (table_[static_cast<std::size_t>(i)].a > 0.0f) first = i;
-  transparentBelow_ = first == kTableSize ? std::numeric_limits<float>::infinity() : static_cast<float>(first - 1);
+  const auto first = std::find_if(table_.begin(), table_.end(), [](const Rgba& e) { return e.a > 0.0f; });
+  transparentBelow_ = first == table_.end() ? std::numeric_limits<float>::infinity()
+                                            : static_cast<float>(first - table_.begin() - 1);
 }
 
 }  // namespace pp5

@@ -250,7 +250,7 @@ void shadeRow(const Context& c, std::int64_t j, std::int64_t k, std::int64_t x0,
     ShadeVoxel* const out = outRow + s;
 
     for (int q = 0; q < n; ++q) buf.v[q] = at(r0, s + q);
-    float vmax = 0.0f;
+    float vmax = 0.0f;  // a pass of its own: it vectorises, and folded into the loads it was slower
     for (int q = 0; q < n; ++q) vmax = std::max(vmax, buf.v[q]);
     if (c.tf->transparentUpTo(vmax)) {  // below the opacity ramp: what the lookups would give
       std::fill_n(out, n, ShadeVoxel{});

@@ -394,13 +394,10 @@ void BModeSimulator::traceColumns(const FrameGeometry& g, const std::vector<int>
 
   for (int c = 0; c < probe_.width; ++c) {
     const Vec3 top = g.origin + (c * sx) * g.u;
-    auto at = [&](double v) { return phantom_.sample(top + v * g.v, bodies); };
     float* echo = &ws.echo[static_cast<std::size_t>(c) * fineRows];
     float* trans = &ws.trans[static_cast<std::size_t>(c) * fineRows];
     std::uint8_t* mask = &ws.mask[static_cast<std::size_t>(c) * static_cast<std::size_t>(ws.maskRows)];
 
-    double v = 0.0;
-    Phantom::Sample s = at(v);
     double segStart = 0.0;
     double attenDb = 0.0;  // two-way attenuation down to segStart
     double tInterfaces = 1.0;
@@ -443,79 +440,55 @@ void BModeSimulator::traceColumns(const FrameGeometry& g, const std::vector<int>
       nextFine = fEnd;
     };
 
-    while (v < vMax_) {
-      // Sphere-trace to the next change of tissue: nothing changes within
-      // the clearance, so stepping by it cannot skip a thin shell.
-      const double vNext = std::min(v + std::max(s.clearance, kMinStepMm), vMax_);
-      Phantom::Sample sn = at(vNext);
-      if (sn.tissue == s.tissue) {
-        v = vNext;
-        s = sn;
-        continue;
-      }
-      double lo = v, hi = vNext;
-      while (hi - lo > kBoundaryTolMm) {
-        const double mid = 0.5 * (lo + hi);
-        const Phantom::Sample sm = at(mid);
-        if (sm.tissue == s.tissue) {
-          lo = mid;
-        } else {
-          hi = mid;
-          sn = sm;
-        }
-      }
-      const double vb = 0.5 * (lo + hi);
-      fillSegment(s.tissue, vb);
-      if (ideal_) {  // no attenuation, echo, loss or rim at the boundary
-        segStart = vb;
-        v = hi;
-        s = sn;
-        continue;
-      }
+    const Phantom::Sample last = phantom_.traceBoundaries(
+        top, g.v, 0.0, vMax_, bodies, kMinStepMm, kBoundaryTolMm,
+        [&](double vb, const Phantom::Sample& s, const Phantom::Sample& sn) {
+          fillSegment(s.tissue, vb);
+          if (ideal_) {  // no attenuation, echo, loss or rim at the boundary
+            segStart = vb;
+            return;
+          }
+          const TissueProperties& tp = tissueProperties(s.tissue);
+          attenDb += 2.0 * tp.attenuationDbPerCmMHz * f0 / 10.0 * (vb - segStart);
+          const double tAbove = tInterfaces * std::pow(10.0, -attenDb / 20.0);
 
-      const TissueProperties& tp = tissueProperties(s.tissue);
-      attenDb += 2.0 * tp.attenuationDbPerCmMHz * f0 / 10.0 * (vb - segStart);
-      const double tAbove = tInterfaces * std::pow(10.0, -attenDb / 20.0);
+          // Specular echo: the surface is that of whichever body's distance is
+          // smaller at the boundary.
+          const Vec3 pb = top + vb * g.v;
+          int body = s.body;
+          if (body < 0 || (sn.body >= 0 && std::abs(phantom_.bodies[static_cast<std::size_t>(sn.body)].distance(pb)) <
+                                               std::abs(phantom_.bodies[static_cast<std::size_t>(body)].distance(pb))))
+            body = sn.body;
+          double angleFactor = 1.0, cosA = 1.0;
+          if (body >= 0) {
+            cosA = std::min(1.0, std::abs(glm::dot(phantom_.normal(body, pb), g.v)));
+            const double angle = std::acos(cosA);
+            angleFactor = kDiffuseFloor + (1.0 - kDiffuseFloor) * std::exp(-0.5 * angle * angle / (specSigma * specSigma));
+          }
+          // The echo is that of the energy arriving at the surface (tAbove):
+          // this interface's own transmission loss only darkens what lies beyond.
+          const double r = reflectionCoefficient(s.tissue, sn.tissue);
+          const int fb = std::min(fineRows_ - 1, static_cast<int>(vb / fineDy_));
+          const double amp = r * angleFactor * tAbove * reflectorNorm_[static_cast<std::size_t>(fb)];
+          float cs, sn2;
+          phase.lookup(-k2_ * vb / (2.0 * std::numbers::pi), cs, sn2);
+          splat(ws, c, vb, static_cast<float>(amp * cs), static_cast<float>(amp * sn2));
 
-      // Specular echo: the surface is that of whichever body's distance is
-      // smaller at the boundary.
-      const Vec3 pb = top + vb * g.v;
-      int body = s.body;
-      if (body < 0 || (sn.body >= 0 && std::abs(phantom_.bodies[static_cast<std::size_t>(sn.body)].distance(pb)) <
-                                           std::abs(phantom_.bodies[static_cast<std::size_t>(body)].distance(pb))))
-        body = sn.body;
-      double angleFactor = 1.0, cosA = 1.0;
-      if (body >= 0) {
-        cosA = std::min(1.0, std::abs(glm::dot(phantom_.normal(body, pb), g.v)));
-        const double angle = std::acos(cosA);
-        angleFactor = kDiffuseFloor + (1.0 - kDiffuseFloor) * std::exp(-0.5 * angle * angle / (specSigma * specSigma));
-      }
-      // The echo is that of the energy arriving at the surface (tAbove):
-      // this interface's own transmission loss only darkens what lies beyond.
-      const double r = reflectionCoefficient(s.tissue, sn.tissue);
-      const int fb = std::min(fineRows_ - 1, static_cast<int>(vb / fineDy_));
-      const double amp = r * angleFactor * tAbove * reflectorNorm_[static_cast<std::size_t>(fb)];
-      float cs, sn2;
-      phase.lookup(-k2_ * vb / (2.0 * std::numbers::pi), cs, sn2);
-      splat(ws, c, vb, static_cast<float>(amp * cs), static_cast<float>(amp * sn2));
-
-      tInterfaces *= (1.0 - r * r);
-      // Entering a tissue with a rough surface: a Lambertian layer, rimMm
-      // thick along the surface normal (so an oblique beam crosses more of
-      // it) and fainter as the surface turns away from the beam.
-      const TissueProperties& tn = tissueProperties(sn.tissue);
-      if (tn.rimMm > 0.0 && std::isfinite(tn.rimBackscatterDb)) {
-        rimAmp = std::pow(10.0, tn.rimBackscatterDb / 20.0) * cosA;
-        rimTrans = tAbove;
-        rimEnd = vb + tn.rimMm / std::max(cosA, kMinRimCos);
-      } else {
-        rimEnd = -1.0;
-      }
-      segStart = vb;
-      v = hi;
-      s = sn;
-    }
-    fillSegment(s.tissue, vMax_ + fineDy_);
+          tInterfaces *= (1.0 - r * r);
+          // Entering a tissue with a rough surface: a Lambertian layer, rimMm
+          // thick along the surface normal (so an oblique beam crosses more of
+          // it) and fainter as the surface turns away from the beam.
+          const TissueProperties& tn = tissueProperties(sn.tissue);
+          if (tn.rimMm > 0.0 && std::isfinite(tn.rimBackscatterDb)) {
+            rimAmp = std::pow(10.0, tn.rimBackscatterDb / 20.0) * cosA;
+            rimTrans = tAbove;
+            rimEnd = vb + tn.rimMm / std::max(cosA, kMinRimCos);
+          } else {
+            rimEnd = -1.0;
+          }
+          segStart = vb;
+        });
+    fillSegment(last.tissue, vMax_ + fineDy_);
     // Rows past the end keep the last values.
     for (int f = nextFine; f < fineRows_; ++f) {
       trans[f] = nextFine > 0 ? trans[nextFine - 1] : 1.0f;

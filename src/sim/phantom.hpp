@@ -12,6 +12,7 @@
 //
 // Thin wires are also kept as line targets: the B-mode model integrates them
 // over the elevation beam profile instead of sampling them on the image plane.
+#include <algorithm>
 #include <cstdint>
 #include <functional>
 #include <limits>
@@ -160,6 +161,42 @@ public:
   // Only the listed bodies (in increasing order), as the beam tracer uses it
   // after culling the bodies that cannot touch the image plane.
   Sample sample(const Vec3& p, const std::vector<int>& bodyIndices) const;
+  // Walks the line p0 + t * dir from t0 to t1 through the listed bodies
+  // (sample(p, bodies)) by sphere tracing, in steps of the clearance but at
+  // least `minStepMm` (so a layer thinner than that may be missed), and calls
+  // onBoundary(tb, before, after) at every change of tissue, with tb placed
+  // by bisection to within `tolMm` and `after` sampled just past it. Returns
+  // the sample the walk ended in.
+  template <class OnBoundary>
+  Sample traceBoundaries(const Vec3& p0, const Vec3& dir, double t0, double t1, const std::vector<int>& bodyIndices,
+                         double minStepMm, double tolMm, OnBoundary&& onBoundary) const {
+    double t = t0;
+    Sample s = sample(p0 + t * dir, bodyIndices);
+    while (t < t1) {
+      // Nothing changes within the clearance, so stepping by it cannot skip a thin shell.
+      const double tNext = std::min(t + std::max(s.clearance, minStepMm), t1);
+      Sample sn = sample(p0 + tNext * dir, bodyIndices);
+      if (sn.tissue != s.tissue) {
+        double lo = t, hi = tNext;
+        while (hi - lo > tolMm) {
+          const double mid = 0.5 * (lo + hi);
+          const Sample sm = sample(p0 + mid * dir, bodyIndices);
+          if (sm.tissue == s.tissue) {
+            lo = mid;
+          } else {
+            hi = mid;
+            sn = sm;
+          }
+        }
+        onBoundary(0.5 * (lo + hi), s, sn);
+        t = hi;
+      } else {
+        t = tNext;
+      }
+      s = sn;
+    }
+    return s;
+  }
   // Outward unit normal of body b's surface near p (central differences).
   Vec3 normal(int b, const Vec3& p) const;
   // A named point (e.g. "left_eye"); throws InvariantError when unknown.

@@ -226,10 +226,10 @@ double axialCdf(double t, double sigma, double box) {
   return std::clamp((J(t + 0.5 * box) - J(t - 0.5 * box)) / box, 0.0, 1.0);
 }
 
-// Sphere-traces the line p0 + t * dir, t in [t0, t1], through the speckle
-// bodies, and returns the backscatter power at t0 and every boundary it
-// crosses as (t, power after minus power before), as the B-mode model's beam
-// tracer finds them (its minimum step; boundaries placed to 1e-6 mm).
+// The backscatter power along the line p0 + t * dir, t in [t0, t1], through
+// the speckle bodies: its value at t0 and, at every boundary, (t, power after
+// minus power before), found as the B-mode model's beam tracer finds them
+// (its minimum step) but placed to 1e-6 mm.
 struct PowerSteps {
   double start = 0.0;
   std::vector<std::pair<double, double>> steps;
@@ -239,32 +239,12 @@ void tracePower(const Phantom& phantom, const std::vector<int>& bodies, const st
   constexpr double kMinStepMm = 0.02, kBoundaryTolMm = 1e-6;
   auto powerOf = [&](Tissue t) { return pw[static_cast<std::size_t>(t)]; };
   out.steps.clear();
-  double t = t0;
-  Phantom::Sample s = phantom.sample(p0 + t * dir, bodies);
-  out.start = powerOf(s.tissue);
-  while (t < t1) {
-    const double tNext = std::min(t + std::max(s.clearance, kMinStepMm), t1);
-    Phantom::Sample sn = phantom.sample(p0 + tNext * dir, bodies);
-    if (sn.tissue != s.tissue) {
-      double lo = t, hi = tNext;
-      while (hi - lo > kBoundaryTolMm) {
-        const double mid = 0.5 * (lo + hi);
-        const Phantom::Sample sm = phantom.sample(p0 + mid * dir, bodies);
-        if (sm.tissue == s.tissue) {
-          lo = mid;
-        } else {
-          hi = mid;
-          sn = sm;
-        }
-      }
-      const double dp = powerOf(sn.tissue) - powerOf(s.tissue);
-      if (dp != 0.0) out.steps.emplace_back(0.5 * (lo + hi), dp);
-      t = hi;
-    } else {
-      t = tNext;
-    }
-    s = sn;
-  }
+  out.start = powerOf(phantom.sample(p0 + t0 * dir, bodies).tissue);
+  phantom.traceBoundaries(p0, dir, t0, t1, bodies, kMinStepMm, kBoundaryTolMm,
+                          [&](double tb, const Phantom::Sample& before, const Phantom::Sample& after) {
+                            const double dp = powerOf(after.tissue) - powerOf(before.tissue);
+                            if (dp != 0.0) out.steps.emplace_back(tb, dp);
+                          });
 }
 
 }  // namespace
@@ -308,7 +288,8 @@ Volume expectedImageVolume(const Phantom& phantom, const BModeSimulator& bmode, 
   //    its tissue boundaries, and each boundary's step is blurred by the
   //    axial PSF's closed-form distribution;
   //  - laterally, by quadrature over lines `fine` per voxel (a pitch of at
-  //    most an eighth of the lateral sigma, up to 32 lines per voxel), Gaussian weights normalised;
+  //    most an eighth of the lateral sigma, up to 32 lines per voxel),
+  //    Gaussian weights normalised;
   //  - no blur across the elevation: voxels on one grid plane along it are
   //    computed from that plane alone.
   // Wires are line targets, imaged as coherent reflectors rather than
@@ -367,6 +348,7 @@ Volume expectedImageVolume(const Phantom& phantom, const BModeSimulator& bmode, 
   Vec3 depthStep(0.0);
   depthStep[depthAxis] = 1.0;
   const Vec3 dir = glm::normalize(grid.voxelToWorld(depthStep) - grid.voxelToWorld(Vec3(0.0)));
+  const double tEnd = static_cast<double>(nDepth - 1) * sDepth;  // the last layer, along the line
   parallelSlices(nEl, threads, [&](std::int64_t e) {
     std::vector<double> blurred(static_cast<std::size_t>(lines * nDepth));  // [line][depth]
     PowerSteps steps;
@@ -374,9 +356,7 @@ Volume expectedImageVolume(const Phantom& phantom, const BModeSimulator& bmode, 
       Vec3 v(0.0);
       v[elAxis] = static_cast<double>(e);
       v[latAxis] = (static_cast<double>(q) + 0.5) / fine - 0.5 - static_cast<double>(pad);
-      const Vec3 p0 = grid.voxelToWorld(v);
-      const double tEnd = static_cast<double>(nDepth - 1) * sDepth;
-      tracePower(phantom, speckleBodies, pw, p0, dir, -axialReach, tEnd + axialReach, steps);
+      tracePower(phantom, speckleBodies, pw, grid.voxelToWorld(v), dir, -axialReach, tEnd + axialReach, steps);
       double* out = &blurred[static_cast<std::size_t>(q * nDepth)];
       std::fill_n(out, nDepth, steps.start);
       for (const auto& [tb, dp] : steps.steps) {

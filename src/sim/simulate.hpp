@@ -87,9 +87,9 @@ Volume truthVolume(const Phantom& phantom, const BModeSimulator& bmode, const Gr
 // quadrature over lines an eighth of the lateral sigma apart (at most 32
 // per voxel), so it does not depend on the grid's spacing or offset. It is
 // what a perfect reconstruction of the frames would converge to, so errors
-// against it are the reconstruction's own: speckle left over and blur added. The probe's
-// axes must lie along the grid's (within 25 degrees; InputError otherwise),
-// since the blur runs along grid lines. Throws InputError when the grid does
+// against it are the reconstruction's own: speckle left over and blur added.
+// The probe's axes must lie along the grid's (within 25 degrees; InputError
+// otherwise), since the blur runs along grid lines. Throws InputError when the grid does
 // not fit in `memoryLimitBytes` (0 = what is available).
 Volume expectedImageVolume(const Phantom& phantom, const BModeSimulator& bmode, const Grid& grid,
                            const Mat4& probeToReference, ScalarType type, int threads = 0,
