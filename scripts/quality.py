@@ -61,7 +61,7 @@ def main():
     ap.add_argument("--out", default=os.path.join(ROOT, "out", "quality"))
     ap.add_argument("--quick", action="store_true", help="2 mm doll only (smoke test)")
     ap.add_argument("--kernel-grid", nargs="?", const="doll", choices=("doll", "forearm"),
-                    help="only the search over tent kernels: on the 2 mm doll (48 kernels, about a minute), or "
+                    help="only the search over tent kernels: on the 2 mm doll (48 kernels, about 40 s), or "
                          "on the forearm at 2, 3 and 5 mm (54 kernels, about 2 minutes)")
     ap.add_argument("--no-leave-out", action="store_true", help="only the ground-truth tables (skip the PLUS recordings)")
     a = ap.parse_args()
