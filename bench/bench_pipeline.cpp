@@ -13,7 +13,7 @@
 #include <memory>
 #include <vector>
 
-#include "host/serial_pipeline.hpp"
+#include "serial/serial_pipeline.hpp"
 #include "sim/simulate.hpp"
 
 namespace {
@@ -51,8 +51,8 @@ const Workload& workload() {
   return w;
 }
 
-host::PipelineSettings settings(int threads) {
-  host::PipelineSettings ps;
+serial::PipelineSettings settings(int threads) {
+  serial::PipelineSettings ps;
   ps.render.width = 512;
   ps.render.height = 512;
   ps.render.maxSamples = 512;
@@ -65,7 +65,7 @@ host::PipelineSettings settings(int threads) {
 
 void BM_PipelineIncremental(benchmark::State& state) {
   const Workload& w = workload();
-  host::SerialPipeline pipe(w.grid, settings(1));
+  serial::SerialPipeline pipe(w.grid, settings(1));
   std::size_t i = 0;
   // The first third of the sweep, so that later frames land next to data.
   for (; i < w.frames.size() / 3; ++i) pipe.insert(w.frames[i], w.poses[i], w.frames[i].timestamp);
@@ -76,7 +76,7 @@ void BM_PipelineIncremental(benchmark::State& state) {
       state.SkipWithError("ran out of frames; lower the iterations");
       break;
     }
-    const host::FrameStats st = pipe.insert(w.frames[i], w.poses[i], w.frames[i].timestamp);
+    const serial::FrameStats st = pipe.insert(w.frames[i], w.poses[i], w.frames[i].timestamp);
     ++i;
     state.SetIterationTime((st.shadeMs + st.sampleMs + st.compositeMs) / 1000.0);
     samples += st.samples;
@@ -105,7 +105,7 @@ BENCHMARK(BM_PipelineIncremental)->UseManualTime()->Unit(benchmark::kMillisecond
 
 void BM_PipelineViewChange(benchmark::State& state) {
   const Workload& w = workload();
-  host::SerialPipeline pipe(w.grid, settings(0));
+  serial::SerialPipeline pipe(w.grid, settings(0));
   for (std::size_t i = 0; i < w.frames.size(); ++i) pipe.insert(w.frames[i], w.poses[i], w.frames[i].timestamp);
   const Camera base = pipe.camera();
   int turn = 0;

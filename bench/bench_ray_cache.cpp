@@ -105,7 +105,7 @@ RayCache& sharedCache(int blockSize) {
     s.counts = sphereCounts();
     pp5::pp::RayCacheSettings settings;
     settings.blockSize = blockSize;
-    s.cache = std::make_unique<RayCache>(pp5::pp::TileRect{0, 0, kSize, kSize}, kSize, s.counts, settings,
+    s.cache = std::make_unique<RayCache>(pp5::TileRect{0, 0, kSize, kSize}, kSize, s.counts, settings,
                                          pp5::pp::CompositeMode::Over, 0);
     for (int y = 0; y < kSize; y += 16) {
       const auto band = bandSamples(s.counts, y, 16, 0);

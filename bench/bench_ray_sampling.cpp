@@ -29,7 +29,7 @@
 #include "gp/dbuffer.hpp"
 #include "gp/dirty_region.hpp"
 #include "gp/ray_sampler.hpp"
-#include "gp/sample_lattice.hpp"
+#include "core/sample_lattice.hpp"
 #include "gp/shade_buffer.hpp"
 
 namespace {
@@ -38,6 +38,7 @@ using pp5::Grid;
 using pp5::Index3;
 using pp5::Vec3;
 namespace gp = pp5::gp;
+using pp5::SampleLattice;
 
 constexpr double kFrameWidthMm = 256 * 0.38, kFrameDepthMm = 256 * 0.76;
 const Vec3 kTentReachMm(2.0, 1.0, 3.0);  // lateral, axial, elevational
@@ -64,7 +65,7 @@ struct Scene {
   pp5::RenderSettings settings;
   gp::ShadeBuffer shade{grid};
   std::unique_ptr<gp::EmptySpaceMap> space;
-  std::unique_ptr<gp::SampleLattice> lattice;
+  std::unique_ptr<SampleLattice> lattice;
 
   Scene() {
     for (std::int64_t k = 0; k < grid.dims.z; ++k)
@@ -88,7 +89,7 @@ struct Scene {
           }
         }
     space = std::make_unique<gp::EmptySpaceMap>(shade, 0);
-    lattice = std::make_unique<gp::SampleLattice>(settings, grid);
+    lattice = std::make_unique<SampleLattice>(settings, grid);
   }
 };
 
@@ -158,7 +159,7 @@ void BM_SampleLattice(benchmark::State& state) {
   const pp5::Camera cam = pp5::makeCamera(sc.settings, sc.grid);
   const double step = sc.settings.step(sc.grid);
   for (auto _ : state) {
-    const gp::SampleLattice lat(cam, sc.grid, step, sc.settings.maxSamples, static_cast<int>(state.range(0)));
+    const SampleLattice lat(cam, sc.grid, step, sc.settings.maxSamples, static_cast<int>(state.range(0)));
     benchmark::DoNotOptimize(lat.t0s().data());
   }
 }

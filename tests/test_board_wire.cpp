@@ -588,8 +588,8 @@ TEST(ArmCalibration, FromSimMatchesTheSimulatorsConverters) {
   s.ySpanMm = 290.0;
   s.thetaSpanDeg = 170.0;
   s.referenceToTrackerMm = {190.0, 140.0, 5.0};
-  const pp5::sim::ArmAdc adc(s);
-  const ArmCalibration cal = ArmCalibration::fromSim(s, 42.0);
+  const pp5::ArmAdc adc = pp5::sim::armAdc(s);
+  const ArmCalibration cal = ArmCalibration::linear(pp5::sim::armAdc(s), s.referenceToTrackerMm, 42.0);
   EXPECT_NO_THROW(cal.validate());
   std::mt19937 rng(2);
   for (int i = 0; i < 2000; ++i) {
@@ -601,7 +601,7 @@ TEST(ArmCalibration, FromSimMatchesTheSimulatorsConverters) {
     ASSERT_NEAR(got.xMm, want.xMm, 1e-9);
     ASSERT_NEAR(got.yMm, want.yMm, 1e-9);
     ASSERT_NEAR(got.thetaDeg, want.thetaDeg, 1e-9);
-    const pp5::Mat4 m = cal.probeToTracker(c), w = pp5::sim::armProbeToTracker(want, 42.0);
+    const pp5::Mat4 m = cal.probeToTracker(c), w = pp5::armProbeToTracker(want, 42.0);
     for (int col = 0; col < 4; ++col)
       for (int row = 0; row < 4; ++row) ASSERT_NEAR(m[col][row], w[col][row], 1e-9);
   }
@@ -661,11 +661,11 @@ TEST(ArmCalibration, BadTablesAreRefusedNamingTheChannel) {
   refused({"0 1", "10 inf"}, 0, "not finite");
 
   pp5::sim::ArmSettings s;
-  ArmCalibration cal = ArmCalibration::fromSim(s, 0.0);
+  ArmCalibration cal = ArmCalibration::linear(pp5::sim::armAdc(s), s.referenceToTrackerMm, 0.0);
   cal.table[2] = {{5.0, 1.0}, {5.0, 2.0}};
   const std::string m = message([&] { cal.validate("board.arm"); });
   EXPECT_NE(m.find("board.arm: the arm's theta table"), std::string::npos) << m;
-  cal = ArmCalibration::fromSim(s, std::nan(""));
+  cal = ArmCalibration::linear(pp5::sim::armAdc(s), s.referenceToTrackerMm, std::nan(""));
   EXPECT_NE(message([&] { cal.validate(); }).find("probe height"), std::string::npos);
 }
 

@@ -15,7 +15,7 @@
 #include <vector>
 
 #include "core/image_io.hpp"
-#include "host/serial_pipeline.hpp"
+#include "serial/serial_pipeline.hpp"
 #include "sim/simulate.hpp"
 
 namespace {
@@ -43,7 +43,7 @@ std::vector<std::uint8_t> render(const GoldenCase& c, const std::string& mode, i
   std::vector<Mat4> poses;
   for (std::size_t i = 0; i < sim.frameCount(); ++i) poses.push_back(sim.imageToReference(i));
   const Grid g = sim::fitGrid(poses, sim.probe().width, sim.probe().height, Vec3(c.spacingMm), 2.0);
-  host::PipelineSettings ps;
+  serial::PipelineSettings ps;
   ps.render.width = w = 160;
   ps.render.height = h = 128;
   ps.render.compositing = {mode};
@@ -57,7 +57,7 @@ std::vector<std::uint8_t> render(const GoldenCase& c, const std::string& mode, i
     ps.render.azimuthDeg = -60.0;
     ps.render.elevationDeg = 50.0;
   }
-  host::SerialPipeline pipe(g, ps);
+  serial::SerialPipeline pipe(g, ps);
   sim.run(2, [&](Frame&& f) { pipe.insert(f, poses[f.index], f.timestamp); });
   pipe.finish();
   std::vector<std::uint8_t> rgb(static_cast<std::size_t>(w) * static_cast<std::size_t>(h) * 3);

@@ -9,7 +9,7 @@
 #include <string>
 #include <vector>
 
-#include "host/serial_pipeline.hpp"
+#include "serial/serial_pipeline.hpp"
 #include "sim/simulate.hpp"
 
 namespace {
@@ -44,14 +44,14 @@ TEST_P(IncrementalEqualsFull, AfterEveryFrame) {
   for (std::size_t i = 0; i < sim.frameCount(); ++i) poses.push_back(sim.imageToReference(i));
   const Grid g = sim::fitGrid(poses, sim.probe().width, sim.probe().height, Vec3(2.0), 2.0);
 
-  host::PipelineSettings ps;
+  serial::PipelineSettings ps;
   ps.render.width = 96;
   ps.render.height = 80;
   ps.render.projection = c.projection;
   ps.render.compositing = {c.mode};
   ps.render.threads = 2;
   ps.shading.mode = c.shading;
-  host::SerialPipeline pipe(g, ps);
+  serial::SerialPipeline pipe(g, ps);
   const pp::CompositeMode mode = pp::compositeModeFromName(c.mode);
 
   std::size_t nonBlank = 0;
@@ -149,8 +149,8 @@ TEST(AnalyticImage, MipOfABrightSphereHasItsValueAndRadius) {
   const Camera cam = makeCamera(rs, g);
   gp::ShadeBuffer shade(g);
   gp::shade(v, tf, ss, cam, gp::Box3{Index3(0), g.dims}, shade);
-  const gp::SampleLattice lattice(cam, g, rs.step(g), rs.maxSamples, 2);
-  pp::RayCache cache(pp::TileRect{0, 0, rs.width, rs.height}, rs.width, lattice.counts(), pp::RayCacheSettings{},
+  const SampleLattice lattice(cam, g, rs.step(g), rs.maxSamples, 2);
+  pp::RayCache cache(TileRect{0, 0, rs.width, rs.height}, rs.width, lattice.counts(), pp::RayCacheSettings{},
                      pp::CompositeMode::Mip, 2);
   gp::SampleCollector collect;
   gp::sampleAll(shade, lattice, rs, collect);

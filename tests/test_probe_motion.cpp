@@ -46,7 +46,7 @@ TEST(Arm, KinematicsLookDownWithElevationAlongX) {
 
 TEST(Arm, AdcQuantisesToTwelveBitsAndCalibratesBack) {
   const ArmSettings s;
-  const ArmAdc adc(s);
+  const ArmAdc adc = armAdc(s);
   // Noise-free readings round-trip within half a count.
   for (const ArmPose p : {ArmPose{0.0, 0.0, 0.0}, ArmPose{123.4, 56.7, -12.3}, ArmPose{399.9, 299.9, 89.9}}) {
     const auto ideal = adc.idealCounts(p);
@@ -140,7 +140,7 @@ TEST(Sweep, ArmReadingsAreNoisyButDeterministic) {
   EXPECT_GT(differ, a.frames.size() / 2);
   // Without noise, the reading is the true pose quantised.
   s.arm.noiseCounts = 0.0;
-  const ArmAdc adc(s.arm);
+  const ArmAdc adc = armAdc(s.arm);
   for (const CapturedFrame& f : plan(s).frames) {
     EXPECT_LE(std::abs(f.armReported.yMm - position(f.trueProbeToTracker).y), adc.resolution(1));
     EXPECT_LE(std::abs(f.armReported.thetaDeg), adc.resolution(2));

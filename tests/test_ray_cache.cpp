@@ -13,6 +13,7 @@
 
 #include "core/config.hpp"
 #include "core/error.hpp"
+#include "pp/half_float.hpp"
 #include "pp/ray_cache.hpp"
 
 namespace {
@@ -23,7 +24,7 @@ using pp5::pp::RayCache;
 using pp5::pp::RayCacheSettings;
 using pp5::pp::SampleFormat;
 using pp5::pp::TileImage;
-using pp5::pp::TileRect;
+using pp5::TileRect;
 
 RayCacheSettings settingsFor(SampleFormat f, int blockSize = 32, bool termination = true) {
   RayCacheSettings s;

@@ -18,7 +18,7 @@
 #include "gp/dbuffer.hpp"
 #include "gp/dirty_region.hpp"
 #include "gp/ray_sampler.hpp"
-#include "gp/sample_lattice.hpp"
+#include "core/sample_lattice.hpp"
 #include "gp/shade_buffer.hpp"
 
 #include "geometry_test_util.hpp"
@@ -35,7 +35,7 @@ using pp5::RenderSettings;
 using pp5::Vec3;
 using pp5::gp::Box3;
 using pp5::gp::DBuffer;
-using pp5::gp::SampleLattice;
+using pp5::SampleLattice;
 using pp5::gp::ShadeBuffer;
 using pp5::gp::ShadeVoxel;
 using pp5::gp::WorldBox;
@@ -64,7 +64,7 @@ Intervals bruteUnion(const Ray& r, const std::vector<WorldBox>& boxes, double gr
     double e0, e1;
     const Vec3 lo = b.lo - Vec3(grow), hi = b.hi + Vec3(grow);
     if (hi.x < lo.x || hi.y < lo.y || hi.z < lo.z) continue;
-    if (!pp5::gp::intersectBox(r, lo, hi, e0, e1)) continue;
+    if (!pp5::intersectBox(r, lo, hi, e0, e1)) continue;
     e0 = std::max(e0, 0.0);
     if (e1 >= e0) v.emplace_back(e0, e1);
   }
@@ -129,7 +129,7 @@ TEST(PixelRays, MatchCameraBitwise) {
   const Grid g = testGrid();
   for (int v = 0; v < 6; ++v) {
     const Camera c = randomCamera(rng, g, v % 2 ? Projection::Orthographic : Projection::Perspective, v == 4, 31, 17);
-    const pp5::gp::PixelRays rays(c);
+    const pp5::PixelRays rays(c);
     for (int y = 0; y < c.height; ++y)
       for (int x = 0; x < c.width; ++x) {
         const Ray a = c.pixelRay(x, y), b = rays.ray(x, y);
@@ -156,7 +156,7 @@ TEST(PixelRays, RowThroughBoxIsIntersectBoxBitwise) {
   std::uniform_real_distribution<double> u(0.0, 1.0);
   std::uint64_t hits = 0, misses = 0, flat = 0;
   auto check = [&](const Camera& c, const WorldBox& b) {
-    const pp5::gp::PixelRays rays(c);
+    const pp5::PixelRays rays(c);
     std::vector<double> tIn(c.width), tOut(c.width);
     std::vector<std::uint8_t> hit(c.width);
     for (int y = 0; y < c.height; ++y) {
@@ -166,7 +166,7 @@ TEST(PixelRays, RowThroughBoxIsIntersectBoxBitwise) {
         const Ray r = rays.ray(x, y);
         flat += r.dir.x == 0.0 || r.dir.y == 0.0 || r.dir.z == 0.0;
         double a, e;
-        const bool h = pp5::gp::intersectBox(r, b.lo, b.hi, a, e);
+        const bool h = pp5::intersectBox(r, b.lo, b.hi, a, e);
         ASSERT_EQ(hit[x - x0] != 0, h) << x << ", " << y;
         if (!h) {
           ++misses;
@@ -223,7 +223,7 @@ TEST(DBuffer, MatchesBruteForceRayBoxIntersections) {
     const int n = 1 + static_cast<int>(u(rng) * 3.0);
     for (int i = 0; i < n; ++i)
       boxes.push_back(randomBox(rng, g.minCorner() + Vec3(u(rng), u(rng), u(rng)) * ext, 10.0 + 30.0 * u(rng)));
-    const pp5::gp::PixelRays rays(c);
+    const pp5::PixelRays rays(c);
     if (kind == 2) {
       boxes[0] = randomBox(rng, c.eye, 12.0);
       boxes[0].lo = glm::min(boxes[0].lo, c.eye - Vec3(0.5));
@@ -271,7 +271,7 @@ TEST(DBuffer, RaysKeptPerCameraCoverEveryPixelABoxNeeds) {
   Sandwich st;
   for (int view = 0; view < 4; ++view) {
     const Camera c = randomCamera(rng, g, Projection::Perspective, false);
-    const pp5::gp::PixelRays rays(c);
+    const pp5::PixelRays rays(c);
     const Vec3 mid = gridCentre(g);
     const Vec3 side = rays.right() * 18.0;
     std::vector<WorldBox> boxes = {{mid - side - Vec3(4.0), mid - side + Vec3(4.0)},

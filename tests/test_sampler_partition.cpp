@@ -20,7 +20,7 @@
 #include "gp/dbuffer.hpp"
 #include "gp/dirty_region.hpp"
 #include "gp/ray_sampler.hpp"
-#include "gp/sample_lattice.hpp"
+#include "core/sample_lattice.hpp"
 #include "gp/shade_buffer.hpp"
 
 #include "geometry_test_util.hpp"
@@ -37,7 +37,7 @@ using pp5::Vec3;
 using pp5::gp::Box3;
 using pp5::gp::DBuffer;
 using pp5::gp::EmptySpaceMap;
-using pp5::gp::SampleLattice;
+using pp5::SampleLattice;
 using pp5::gp::SamplerOptions;
 using pp5::gp::ShadeBuffer;
 using pp5::gp::ShadeVoxel;
@@ -379,7 +379,7 @@ TEST(SamplerPartition, SamplesWithinRoundingOfACellFaceGoToTheirCell) {
     const SampleLattice lat(c, g, 0.45, 512, 1);
     std::set<std::pair<int, std::int64_t>> faces;  // (axis, face) with a straddling sample
     for (std::uint32_t p = 0; p < lat.pixelCount(); ++p) {
-      const pp5::gp::VoxelRay vr = lat.voxelRay(p);
+      const pp5::VoxelRay vr = lat.voxelRay(p);
       for (std::uint32_t k = 0; k < lat.count(p); ++k) {
         const glm::vec3 pf = vr.at(k);
         for (int a = 0; a < 3; ++a) {

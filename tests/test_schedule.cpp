@@ -1,4 +1,4 @@
-// The distributed pipeline's schedules (comm/schedule.hpp), tested
+// The distributed pipeline's schedules (parallel/schedule.hpp), tested
 // exhaustively for small counts (1..16 ranks, owners and GPs, odd and prime
 // ones included) against brute-force loops.
 #include <gtest/gtest.h>
@@ -16,7 +16,7 @@
 
 #include <glm/gtc/quaternion.hpp>
 
-#include "comm/schedule.hpp"
+#include "parallel/schedule.hpp"
 #include "core/camera.hpp"
 #include "core/error.hpp"
 #include "core/frame.hpp"
@@ -25,7 +25,8 @@
 #include "core/volume_io.hpp"
 #include "gp/ray_sampler.hpp"
 #include "gp/reconstruction.hpp"
-#include "gp/sample_lattice.hpp"
+#include "core/sample_lattice.hpp"
+#include "gp/slice_geometry.hpp"
 #include "gp/splat_tent.hpp"
 
 namespace {
@@ -36,12 +37,12 @@ using pp5::InputError;
 using pp5::InvariantError;
 using pp5::Mat4;
 using pp5::Vec3;
-using pp5::comm::RankLayout;
-using pp5::comm::Role;
-using pp5::comm::SlabLayout;
-using pp5::comm::SlabSplit;
-using pp5::comm::TileGrid;
-using pp5::comm::TileOwnership;
+using pp5::parallel::RankLayout;
+using pp5::parallel::Role;
+using pp5::parallel::SlabLayout;
+using pp5::parallel::SlabSplit;
+using pp5::TileGrid;
+using pp5::parallel::TileOwnership;
 using pp5::gp::Box3;
 using pp5::gp::ReconSettings;
 using pp5::gp::WorldBox;
@@ -119,9 +120,9 @@ TEST(RankLayout, ErrorsAreOneSentenceNamingTheOption) {
   EXPECT_NE(inputErrorMessage([] { RankLayout::choose(6, 0, 5); }).find("parallel.pps = 5"), std::string::npos);
   EXPECT_NE(inputErrorMessage([] { RankLayout::choose(6, -1); }).find("parallel.gps"), std::string::npos);
   EXPECT_NE(inputErrorMessage([] { RankLayout::choose(6, 0, -2); }).find("parallel.pps"), std::string::npos);
-  EXPECT_STREQ(pp5::comm::roleName(Role::Host), "host");
-  EXPECT_STREQ(pp5::comm::roleName(Role::Gp), "GP");
-  EXPECT_STREQ(pp5::comm::roleName(Role::Pp), "PP");
+  EXPECT_STREQ(pp5::parallel::roleName(Role::Host), "host");
+  EXPECT_STREQ(pp5::parallel::roleName(Role::Gp), "GP");
+  EXPECT_STREQ(pp5::parallel::roleName(Role::Pp), "PP");
 }
 
 // ------------------------------------------------------------------ tiles --
@@ -133,7 +134,7 @@ TEST(TileOwner, ContiguousRunsAreInOrderAndBalanced) {
       std::vector<int> runLength(static_cast<std::size_t>(owners), 0);
       int prev = 0;
       for (int t = 0; t < count; ++t) {
-        const int o = pp5::comm::tileOwner(t, count, owners, TileOwnership::Contiguous);
+        const int o = pp5::parallel::tileOwner(t, count, owners, TileOwnership::Contiguous);
         ASSERT_GE(o, 0);
         ASSERT_LT(o, owners);
         ASSERT_GE(o, prev) << "owners out of order at tile " << t;  // so each owner holds one run
@@ -145,11 +146,11 @@ TEST(TileOwner, ContiguousRunsAreInOrderAndBalanced) {
       EXPECT_LE(*mx - *mn, 1);
       std::vector<int> seen(static_cast<std::size_t>(count), 0);
       for (int o = 0; o < owners; ++o) {
-        const std::vector<int> tiles = pp5::comm::tilesOwnedBy(o, count, owners, TileOwnership::Contiguous);
+        const std::vector<int> tiles = pp5::parallel::tilesOwnedBy(o, count, owners, TileOwnership::Contiguous);
         EXPECT_EQ(static_cast<int>(tiles.size()), runLength[static_cast<std::size_t>(o)]);
         for (std::size_t i = 0; i < tiles.size(); ++i) {
           if (i > 0) { EXPECT_EQ(tiles[i], tiles[i - 1] + 1) << "not one run"; }
-          EXPECT_EQ(pp5::comm::tileOwner(tiles[i], count, owners, TileOwnership::Contiguous), o);
+          EXPECT_EQ(pp5::parallel::tileOwner(tiles[i], count, owners, TileOwnership::Contiguous), o);
           ++seen[static_cast<std::size_t>(tiles[i])];
         }
       }
@@ -162,13 +163,13 @@ TEST(TileOwner, InterleavedIsTileModOwners) {
     for (int owners = 1; owners <= 16; ++owners) {
       SCOPED_TRACE(testing::Message() << count << " tiles, " << owners << " owners");
       std::vector<int> seen(static_cast<std::size_t>(count), 0);
-      for (int t = 0; t < count; ++t) EXPECT_EQ(pp5::comm::tileOwner(t, count, owners, TileOwnership::Interleaved), t % owners);
+      for (int t = 0; t < count; ++t) EXPECT_EQ(pp5::parallel::tileOwner(t, count, owners, TileOwnership::Interleaved), t % owners);
       for (int o = 0; o < owners; ++o) {
-        const std::vector<int> tiles = pp5::comm::tilesOwnedBy(o, count, owners, TileOwnership::Interleaved);
+        const std::vector<int> tiles = pp5::parallel::tilesOwnedBy(o, count, owners, TileOwnership::Interleaved);
         EXPECT_TRUE(std::is_sorted(tiles.begin(), tiles.end()));
         EXPECT_EQ(static_cast<int>(tiles.size()), count / owners + (o < count % owners ? 1 : 0));
         for (const int t : tiles) {
-          EXPECT_EQ(pp5::comm::tileOwner(t, count, owners, TileOwnership::Interleaved), o);
+          EXPECT_EQ(pp5::parallel::tileOwner(t, count, owners, TileOwnership::Interleaved), o);
           ++seen[static_cast<std::size_t>(t)];
         }
       }
@@ -178,13 +179,13 @@ TEST(TileOwner, InterleavedIsTileModOwners) {
 
 TEST(TileOwner, NamesAndInvalidArguments) {
   for (const TileOwnership o : {TileOwnership::Contiguous, TileOwnership::Interleaved}) {
-    EXPECT_EQ(pp5::comm::tileOwnershipFromName(pp5::comm::tileOwnershipName(o)), o);
-    EXPECT_THROW(pp5::comm::tileOwner(5, 5, 2, o), InvariantError);
-    EXPECT_THROW(pp5::comm::tileOwner(-1, 5, 2, o), InvariantError);
-    EXPECT_THROW(pp5::comm::tileOwner(0, 5, 0, o), InvariantError);
-    EXPECT_THROW(pp5::comm::tilesOwnedBy(2, 5, 2, o), InvariantError);
+    EXPECT_EQ(pp5::parallel::tileOwnershipFromName(pp5::parallel::tileOwnershipName(o)), o);
+    EXPECT_THROW(pp5::parallel::tileOwner(5, 5, 2, o), InvariantError);
+    EXPECT_THROW(pp5::parallel::tileOwner(-1, 5, 2, o), InvariantError);
+    EXPECT_THROW(pp5::parallel::tileOwner(0, 5, 0, o), InvariantError);
+    EXPECT_THROW(pp5::parallel::tilesOwnedBy(2, 5, 2, o), InvariantError);
   }
-  EXPECT_EQ(inputErrorMessage([] { pp5::comm::tileOwnershipFromName("striped"); }),
+  EXPECT_EQ(inputErrorMessage([] { pp5::parallel::tileOwnershipFromName("striped"); }),
             "parallel.tile_owner = \"striped\" is not one of contiguous, interleaved");
 }
 
@@ -200,7 +201,7 @@ TEST(TileGrid, RectsCoverTheImageExactlyOnce) {
         ASSERT_EQ(tg.rows(), (h + ts - 1) / ts);
         std::vector<int> owner(static_cast<std::size_t>(w * h), -1);
         for (int t = 0; t < tg.count(); ++t) {
-          const pp5::pp::TileRect r = tg.rect(t);
+          const pp5::TileRect r = tg.rect(t);
           ASSERT_FALSE(r.empty());
           ASSERT_GE(r.x0, 0);
           ASSERT_GE(r.y0, 0);
@@ -251,11 +252,11 @@ TEST(SamplesPerTile, RandomCountsMatchAPixelLoop) {
         const TileGrid tg(w, h, ts);
         std::vector<std::uint16_t> counts(static_cast<std::size_t>(w * h));
         for (auto& v : counts) v = static_cast<std::uint16_t>(c(rng));
-        EXPECT_EQ(pp5::comm::samplesPerTile(tg, counts), bruteSamplesPerTile(tg, counts)) << w << "x" << h << " / " << ts;
+        EXPECT_EQ(pp5::samplesPerTile(tg, counts), bruteSamplesPerTile(tg, counts)) << w << "x" << h << " / " << ts;
       }
   const TileGrid tg(4, 4, 2);
   std::vector<std::uint16_t> wrong(15);
-  EXPECT_THROW(pp5::comm::samplesPerTile(tg, wrong), InvariantError);
+  EXPECT_THROW(pp5::samplesPerTile(tg, wrong), InvariantError);
 }
 
 Grid smallGrid() {
@@ -268,8 +269,8 @@ Grid smallGrid() {
 
 // A few views of the grid: perspective from two sides, orthographic, and one
 // with the eye inside.
-std::vector<pp5::gp::SampleLattice> smallLattices(const Grid& g) {
-  std::vector<pp5::gp::SampleLattice> out;
+std::vector<pp5::SampleLattice> smallLattices(const Grid& g) {
+  std::vector<pp5::SampleLattice> out;
   struct View {
     const char* projection;
     double az, el, dist;
@@ -297,7 +298,7 @@ TEST(SamplesPerTile, RealLatticeMatchesAPixelLoop) {
     ASSERT_GT(lat.totalSamples(), 1000u);
     for (const int ts : {1, 4, 8, 13, 128}) {
       const TileGrid tg(lat.width(), lat.height(), ts);
-      const auto s = pp5::comm::samplesPerTile(tg, lat.counts());
+      const auto s = pp5::samplesPerTile(tg, lat.counts());
       EXPECT_EQ(s, bruteSamplesPerTile(tg, lat.counts()));
       EXPECT_EQ(std::accumulate(s.begin(), s.end(), std::uint64_t{0}), lat.totalSamples());
     }
@@ -313,7 +314,7 @@ std::int64_t surfaceCost(const Index3& n, const Index3& f) {
 // Checks every promise of the layout for one grid, count and split.
 void checkLayout(const Grid& grid, int G, SlabSplit split, int align) {
   SCOPED_TRACE(testing::Message() << "dims " << grid.dims.x << "x" << grid.dims.y << "x" << grid.dims.z << ", " << G
-                                  << " GPs, " << pp5::comm::slabSplitName(split) << ", align " << align);
+                                  << " GPs, " << pp5::parallel::slabSplitName(split) << ", align " << align);
   const SlabLayout L(grid, G, split, align);
   const Index3 n = grid.dims - Index3(1);
   ASSERT_EQ(L.gps(), G);
@@ -460,8 +461,8 @@ TEST(SlabLayout, Grid3dMakesCubes) {
 
 TEST(SlabLayout, NamesAndInvalidArguments) {
   for (const SlabSplit s : {SlabSplit::Longest, SlabSplit::Grid3d})
-    EXPECT_EQ(pp5::comm::slabSplitFromName(pp5::comm::slabSplitName(s)), s);
-  EXPECT_EQ(inputErrorMessage([] { pp5::comm::slabSplitFromName("octree"); }),
+    EXPECT_EQ(pp5::parallel::slabSplitFromName(pp5::parallel::slabSplitName(s)), s);
+  EXPECT_EQ(inputErrorMessage([] { pp5::parallel::slabSplitFromName("octree"); }),
             "parallel.slab_split = \"octree\" is not one of longest, 3d");
   const Grid g = smallGrid();
   EXPECT_THROW(SlabLayout(g, 0, SlabSplit::Longest), InvariantError);
@@ -476,7 +477,7 @@ TEST(SlabLayout, EveryLatticeSampleHasExactlyOneOwner) {
   for (std::size_t v = 0; v < lattices.size(); ++v) {
     const auto& lat = lattices[v];
     const TileGrid tg(lat.width(), lat.height(), 8);
-    const auto expected = pp5::comm::samplesPerTile(tg, lat.counts());
+    const auto expected = pp5::samplesPerTile(tg, lat.counts());
     // The cells, computed once per view.
     std::vector<Index3> cells;
     std::vector<int> tileOf;
@@ -488,7 +489,7 @@ TEST(SlabLayout, EveryLatticeSampleHasExactlyOneOwner) {
     for (int G = 1; G <= 16; ++G)
       for (const SlabSplit split : {SlabSplit::Longest, SlabSplit::Grid3d})
         for (const int align : {1, 4}) {
-          SCOPED_TRACE(testing::Message() << "view " << v << ", " << G << " GPs, " << pp5::comm::slabSplitName(split)
+          SCOPED_TRACE(testing::Message() << "view " << v << ", " << G << " GPs, " << pp5::parallel::slabSplitName(split)
                                           << ", align " << align);
           const SlabLayout L(grid, G, split, align);
           std::vector<std::vector<std::uint64_t>> perOwner(static_cast<std::size_t>(G),
@@ -646,7 +647,7 @@ TEST(FrameReach, HoldsEveryKernelPointAndIsTheHullPlusAPad) {
     const ReconSettings s = randomRecon(rng, w, h);
     const Mat4 m = randomPose(rng, trial);
     const Axes a = axesOf(m);
-    const WorldBox box = pp5::comm::frameReach(m, w, h, s);
+    const WorldBox box = pp5::gp::frameReach(m, w, h, s);
     Hull hull;
     forReachPoints(rng, clippedRect(w, h, s), s, [&](double c, double r, const Vec3& k) {
       const Vec3 p = a.origin + c * a.ex + r * a.ey + k.x * a.u + k.y * a.v + k.z * a.n;
@@ -669,7 +670,7 @@ TEST(FrameReach, ClipRectangleAndErrors) {
   s.kernelElevationMm = 2.0;
   // Identity pose: pixel (c, r) at (c, r, 0) mm.
   const Mat4 id(1.0);
-  WorldBox b = pp5::comm::frameReach(id, 100, 50, s);
+  WorldBox b = pp5::gp::frameReach(id, 100, 50, s);
   EXPECT_NEAR(b.lo.x, -1.0, 1.1e-3);
   EXPECT_NEAR(b.hi.x, 100.0, 1.1e-3);
   EXPECT_NEAR(b.lo.y, -0.5, 1.1e-3);
@@ -678,21 +679,21 @@ TEST(FrameReach, ClipRectangleAndErrors) {
   EXPECT_NEAR(b.hi.z, 2.0, 1.1e-3);
   s.clipOrigin = glm::ivec2(10, 20);
   s.clipSize = glm::ivec2(30, 5);  // columns 10..40, rows 20..25, as PLUS counts them
-  b = pp5::comm::frameReach(id, 100, 50, s);
+  b = pp5::gp::frameReach(id, 100, 50, s);
   EXPECT_NEAR(b.lo.x, 9.0, 1.1e-3);
   EXPECT_NEAR(b.hi.x, 41.0, 1.1e-3);
   EXPECT_NEAR(b.lo.y, 19.5, 1.1e-3);
   EXPECT_NEAR(b.hi.y, 25.5, 1.1e-3);
   s.clipOrigin = glm::ivec2(200, 20);  // misses the frame: nothing is selected, the whole frame is taken
-  b = pp5::comm::frameReach(id, 100, 50, s);
+  b = pp5::gp::frameReach(id, 100, 50, s);
   EXPECT_NEAR(b.hi.x, 100.0, 1.1e-3);
   Mat4 flat(1.0);
   flat[1] = glm::dvec4(2.0, 0.0, 0.0, 0.0);  // y along x
-  EXPECT_THROW(pp5::comm::frameReach(flat, 10, 10, s), InputError);
+  EXPECT_THROW(pp5::gp::frameReach(flat, 10, 10, s), InputError);
   Mat4 nan(1.0);
   nan[3][0] = std::numeric_limits<double>::quiet_NaN();
-  EXPECT_THROW(pp5::comm::frameReach(nan, 10, 10, s), InputError);
-  EXPECT_THROW(pp5::comm::frameReach(id, 0, 10, s), InputError);
+  EXPECT_THROW(pp5::gp::frameReach(nan, 10, 10, s), InputError);
+  EXPECT_THROW(pp5::gp::frameReach(id, 0, 10, s), InputError);
 }
 
 // interpolatePose (gp/splat_tent.cpp), written out: origin linear, rotation
@@ -764,7 +765,7 @@ TEST(FillInReach, HoldsEverySlerpedSliceAndStaysNearTheHull) {
     s.fillInMaxAngleDeg = 20.0;
     const Mat4 m0 = randomPose(rng, trial);
     const Mat4 m1 = nextPose(rng, m0, 20.0, trial);
-    const WorldBox box = pp5::comm::fillInReach(m0, m1, w, h, s);
+    const WorldBox box = pp5::gp::fillInReach(m0, m1, w, h, s);
     const SliceAt a = sliceOf(m0), b = sliceOf(m1);
     const Rect rect = clippedRect(w, h, s);
     Hull hull, ends;
@@ -825,10 +826,10 @@ TEST(FillInReach, NoGrowthWithoutFillIn) {
     ReconSettings s = randomRecon(rng, 120, 80);
     const Mat4 m0 = randomPose(rng, trial);
     const Mat4 m1 = nextPose(rng, m0, 20.0, trial);
-    const WorldBox a = pp5::comm::frameReach(m0, 120, 80, s), b = pp5::comm::frameReach(m1, 120, 80, s);
-    const WorldBox grown = pp5::comm::fillInReach(m0, m1, 120, 80, s);
+    const WorldBox a = pp5::gp::frameReach(m0, 120, 80, s), b = pp5::gp::frameReach(m1, 120, 80, s);
+    const WorldBox grown = pp5::gp::fillInReach(m0, m1, 120, 80, s);
     s.fillIn = false;
-    const WorldBox u = pp5::comm::fillInReach(m0, m1, 120, 80, s);
+    const WorldBox u = pp5::gp::fillInReach(m0, m1, 120, 80, s);
     for (int i = 0; i < 3; ++i) {  // equal up to the relative part of the pad
       EXPECT_NEAR(u.lo[i], std::min(a.lo[i], b.lo[i]), 1e-12 + 2e-9 * std::max(std::abs(u.lo[i]), std::abs(u.hi[i])));
       EXPECT_NEAR(u.hi[i], std::max(a.hi[i], b.hi[i]), 1e-12 + 2e-9 * std::max(std::abs(u.lo[i]), std::abs(u.hi[i])));
@@ -844,8 +845,8 @@ TEST(FillInReach, NoGrowthWithoutFillIn) {
   m1[0] = glm::dvec4(r[0], 0.0);
   m1[1] = glm::dvec4(r[1], 0.0);
   m1[2] = glm::dvec4(r[2], 0.0);
-  const WorldBox a = pp5::comm::frameReach(m0, 50, 50, s), b = pp5::comm::frameReach(m1, 50, 50, s);
-  const WorldBox j = pp5::comm::fillInReach(m0, m1, 50, 50, s);
+  const WorldBox a = pp5::gp::frameReach(m0, 50, 50, s), b = pp5::gp::frameReach(m1, 50, 50, s);
+  const WorldBox j = pp5::gp::fillInReach(m0, m1, 50, 50, s);
   for (int i = 0; i < 3; ++i) {
     EXPECT_NEAR(j.lo[i], std::min(a.lo[i], b.lo[i]), 1e-12 + 2e-9 * std::max(std::abs(j.lo[i]), std::abs(j.hi[i])));
     EXPECT_NEAR(j.hi[i], std::max(a.hi[i], b.hi[i]), 1e-12 + 2e-9 * std::max(std::abs(j.lo[i]), std::abs(j.hi[i])));
@@ -870,8 +871,8 @@ TEST(FillInReach, RockingSweepNeedsTheSagitta) {
   s.kernelElevationMm = 0.5;
   const int w = 100, h = 241;  // 120 mm deep at 0.5 mm
   const Mat4 m0 = rockingPose(-9.0, 0.5), m1 = rockingPose(9.0, 0.5);
-  const WorldBox box = pp5::comm::fillInReach(m0, m1, w, h, s);
-  const WorldBox a = pp5::comm::frameReach(m0, w, h, s), b = pp5::comm::frameReach(m1, w, h, s);
+  const WorldBox box = pp5::gp::fillInReach(m0, m1, w, h, s);
+  const WorldBox a = pp5::gp::frameReach(m0, w, h, s), b = pp5::gp::frameReach(m1, w, h, s);
   const SliceAt p0 = sliceOf(m0), p1 = sliceOf(m1);
   Hull hull;
   int outsideUnion = 0;
@@ -919,8 +920,8 @@ TEST(FillInReach, ContainsEveryVoxelTheFillInWrites) {
   const pp5::Volume before = rec->weights();
   EXPECT_GT(rec->insert(f, m1, 0.1).fillInSlices, 10);
   const pp5::Volume after = rec->weights();
-  const WorldBox box = pp5::comm::fillInReach(m0, m1, w, h, s);
-  const WorldBox a = pp5::comm::frameReach(m0, w, h, s), b = pp5::comm::frameReach(m1, w, h, s);
+  const WorldBox box = pp5::gp::fillInReach(m0, m1, w, h, s);
+  const WorldBox a = pp5::gp::frameReach(m0, w, h, s), b = pp5::gp::frameReach(m1, w, h, s);
   std::size_t changed = 0, outsideUnion = 0;
   forEachChangedVoxel(g, before, after, [&](std::int64_t i, std::int64_t j, std::int64_t k) {
     ++changed;
@@ -966,7 +967,7 @@ TEST(FrameReach, ContainsEveryVoxelTheTentSplatWrites) {
       fillIns += rec->insert(f, m, 0.1 * step).fillInSlices;
       ++frames;
       const pp5::Volume after = rec->weights();
-      const WorldBox box = step == 0 ? pp5::comm::frameReach(m, w, h, s) : pp5::comm::fillInReach(prev, m, w, h, s);
+      const WorldBox box = step == 0 ? pp5::gp::frameReach(m, w, h, s) : pp5::gp::fillInReach(prev, m, w, h, s);
       forEachChangedVoxel(g, before, after, [&](std::int64_t i, std::int64_t j, std::int64_t k) {
         ++changed;
         return inside(box, g.voxelToWorld(Vec3(i, j, k)));
@@ -982,11 +983,11 @@ TEST(FrameReach, ContainsEveryVoxelTheTentSplatWrites) {
 
 // ------------------------------------------------------------- touched --
 
-std::vector<int> bruteTouched(const SlabLayout& L, const WorldBox& box, int ghost) {
+std::vector<int> bruteTouched(const SlabLayout& L, const WorldBox& box, int ghost, const ReconSettings& recon) {
   std::vector<int> out;
   const Grid& g = L.grid();
   for (int gp = 0; gp < L.gps(); ++gp) {
-    const Box3 w = L.window(gp, ghost);
+    const Box3 w = L.reach(gp, ghost, recon);
     bool hit = false;
     for (std::int64_t k = w.lo.z; k < w.hi.z && !hit; ++k)
       for (std::int64_t j = w.lo.y; j < w.hi.y && !hit; ++j)
@@ -1026,20 +1027,26 @@ TEST(GpsTouched, MatchesABruteForceVoxelLoop) {
     boxes.push_back({Vec3(1.0), Vec3(0.0)});
     boxes.push_back({Vec3(-1e300), Vec3(1e300)});
     boxes.push_back({g.maxCorner() + Vec3(1.0), g.maxCorner() + Vec3(2.0)});
-    for (int G = 1; G <= 16; ++G)
-      for (const SlabSplit split : {SlabSplit::Longest, SlabSplit::Grid3d})
-        for (const int align : {1, 2}) {
-          const SlabLayout L(g, G, split, align);
-          for (int ghost = 0; ghost <= 3; ++ghost)
-            for (std::size_t b = 0; b < boxes.size(); ++b) {
-              const auto expect = bruteTouched(L, boxes[b], ghost);
-              ASSERT_EQ(pp5::comm::gpsTouched(L, boxes[b], ghost), expect)
-                  << "dims " << dims.x << "x" << dims.y << "x" << dims.z << ", " << G << " GPs, "
-                  << pp5::comm::slabSplitName(split) << ", ghost " << ghost << ", box " << b;
-              ++checks;
-              if (!expect.empty() && static_cast<int>(expect.size()) < G) ++nonTrivial;
-            }
-        }
+    // The tent's windows as they are, and grown to whole motion-vector cells.
+    ReconSettings plain, motion;
+    motion.replacement = "motion_vector";
+    motion.motionVectorBrick = 4;
+    for (const ReconSettings* recon : {&plain, &motion})
+      for (int G = 1; G <= 16; ++G)
+        for (const SlabSplit split : {SlabSplit::Longest, SlabSplit::Grid3d})
+          for (const int align : {1, 2}) {
+            const SlabLayout L(g, G, split, align);
+            for (int ghost = 0; ghost <= 3; ++ghost)
+              for (std::size_t b = 0; b < boxes.size(); ++b) {
+                const auto expect = bruteTouched(L, boxes[b], ghost, *recon);
+                ASSERT_EQ(pp5::parallel::gpsTouched(L, boxes[b], ghost, *recon), expect)
+                    << "dims " << dims.x << "x" << dims.y << "x" << dims.z << ", " << G << " GPs, "
+                    << pp5::parallel::slabSplitName(split) << ", ghost " << ghost << ", box " << b << ", "
+                    << recon->replacement;
+                ++checks;
+                if (!expect.empty() && static_cast<int>(expect.size()) < G) ++nonTrivial;
+              }
+          }
   }
   EXPECT_GT(checks, 50000);
   EXPECT_GT(nonTrivial, 10000);

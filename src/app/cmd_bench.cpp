@@ -39,13 +39,13 @@
 #include <unistd.h>
 
 #include <fmt/format.h>
-#include <mpi.h>
 #include <nlohmann/json.hpp>
 #include <spdlog/spdlog.h>
 
 #include "app/commands.hpp"
 #include "app/recon_run.hpp"
 #include "app/settings.hpp"
+#include "comm/mpi.hpp"
 #include "core/error.hpp"
 #include "core/io_util.hpp"
 #include "core/plus_config.hpp"
@@ -353,38 +353,15 @@ Sequence simulateSequence(const Settings& s, const std::string& dir) {
 
 // The hidden `bench --pingpong` child: two ranks bounce messages of a few sizes.
 int runPingPong() {
-  MPI_Init(nullptr, nullptr);
-  int rank = 0, size = 0;
-  MPI_Comm_rank(MPI_COMM_WORLD, &rank);
-  MPI_Comm_size(MPI_COMM_WORLD, &size);
-  if (size != 2) {
-    if (rank == 0) std::fprintf(stderr, "bench --pingpong: needs exactly 2 ranks, got %d\n", size);
-    MPI_Finalize();
+  const comm::MpiSession mpi;
+  if (mpi.size() != 2) {
+    if (mpi.rank() == 0) std::fprintf(stderr, "bench --pingpong: needs exactly 2 ranks, got %d\n", mpi.size());
     return 1;
   }
-  // The fastest of a few blocks: the link's capacity, as far as other work on
-  // the machine lets it show.
   for (const std::size_t bytes : {std::size_t{8}, std::size_t{64} << 10, std::size_t{1} << 20, std::size_t{4} << 20}) {
-    std::vector<char> buf(bytes, 1);
-    const int reps = bytes < 4096 ? 1000 : 20, blocks = 5;
-    double best = 1e300;
-    for (int b = 0; b < blocks; ++b) {
-      MPI_Barrier(MPI_COMM_WORLD);
-      const double t0 = MPI_Wtime();
-      for (int i = 0; i < reps; ++i) {
-        if (rank == 0) {
-          MPI_Send(buf.data(), static_cast<int>(bytes), MPI_BYTE, 1, 0, MPI_COMM_WORLD);
-          MPI_Recv(buf.data(), static_cast<int>(bytes), MPI_BYTE, 1, 0, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
-        } else {
-          MPI_Recv(buf.data(), static_cast<int>(bytes), MPI_BYTE, 0, 0, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
-          MPI_Send(buf.data(), static_cast<int>(bytes), MPI_BYTE, 0, 0, MPI_COMM_WORLD);
-        }
-      }
-      best = std::min(best, (MPI_Wtime() - t0) / (2.0 * reps));
-    }
-    if (rank == 0) std::printf("pingpong %zu %.9f %.6e\n", bytes, best, static_cast<double>(bytes) / best);
+    const double best = mpi.pingPongSeconds(bytes, bytes < 4096 ? 1000 : 20, 5);
+    if (mpi.rank() == 0) std::printf("pingpong %zu %.9f %.6e\n", bytes, best, static_cast<double>(bytes) / best);
   }
-  MPI_Finalize();
   return 0;
 }
 

@@ -3,7 +3,9 @@
 // rotating loop, orthogonal slices, the volume and per-frame statistics.
 // Without mpirun (and with --serial) it runs the single-process pipeline.
 #include <algorithm>
+#include <atomic>
 #include <chrono>
+#include <csignal>
 #include <cstdio>
 #include <filesystem>
 #include <memory>
@@ -16,23 +18,18 @@
 #include "app/recon_run.hpp"
 #include "app/settings.hpp"
 #include "app/sources.hpp"
+#include "comm/mpi.hpp"
 #include "core/error.hpp"
 #include "core/image_io.hpp"
 #include "core/io_util.hpp"
 #include "core/volume_io.hpp"
-#include <atomic>
-#include <csignal>
-
-#include <mpi.h>
-
-#include "comm/parallel_settings.hpp"
-#include "comm/transport.hpp"
-#include "gp/gp_rank.hpp"
 #include "host/acquisition.hpp"
 #include "host/host_rank.hpp"
 #include "host/outputs.hpp"
-#include "pp/pp_rank.hpp"
-#include "host/serial_pipeline.hpp"
+#include "parallel/parallel_settings.hpp"
+#include "ranks/gp_rank.hpp"
+#include "ranks/pp_rank.hpp"
+#include "serial/serial_pipeline.hpp"
 #include "sim/simulate.hpp"
 
 namespace pp5::app {
@@ -77,11 +74,11 @@ int runSerial(const RunOptions& o) {
   makeOutputDir(dir);
 
   Source src = makeSource(s);
-  host::PipelineSettings ps{s.recon, s.render, s.shading, s.tf, s.cache};
+  serial::PipelineSettings ps{s.recon, s.render, s.shading, s.tf, s.cache};
   spdlog::info("run: {}; grid {}x{}x{} of {} mm; {}x{} image, {} composition", src.description, src.grid.dims.x,
                src.grid.dims.y, src.grid.dims.z, src.grid.spacing.x, s.render.width, s.render.height,
                s.render.compositing.front());
-  host::SerialPipeline pipe(src.grid, ps, s.grid.memoryLimitBytes());
+  serial::SerialPipeline pipe(src.grid, ps, s.grid.memoryLimitBytes());
   spdlog::info("run: ray cache {:.1f} MiB ({} samples, {} format), shade buffer {:.1f} MiB",
                static_cast<double>(pipe.cache().memoryBytes()) / (1 << 20), pipe.cache().sampleCount(),
                pp::sampleFormatName(pipe.cache().format()),
@@ -113,7 +110,7 @@ int runSerial(const RunOptions& o) {
       host::preprocess(pre, cropped, pose);
       fp = &cropped;
     }
-    const host::FrameStats st = pipe.insert(*fp, pose, t);
+    const serial::FrameStats st = pipe.insert(*fp, pose, t);
     stats.row({static_cast<double>(st.index), st.reconMs, st.shadeMs, st.sampleMs, st.compositeMs, st.totalMs(),
                static_cast<double>(st.fillInSlices), static_cast<double>(st.dirtyBricks),
                static_cast<double>(st.dirtyVoxels), static_cast<double>(st.shadedVoxels),
@@ -236,29 +233,21 @@ std::vector<host::ScriptedControl> parseScript(const Settings& base) {
       any = true;
     }
     if (!any) throw InputError(what + ": no change given after the frame number");
-    out.push_back({frame, comm::makeControlState(cur.render, cur.shading, cur.tf), e});
+    out.push_back({frame, parallel::makeControlState(cur.render, cur.shading, cur.tf), e});
   }
   return out;
 }
 
-struct GridPod {
-  std::int64_t dims[3];
-  double origin[3], spacing[3];
-};
-
 int runDistributed(const RunOptions& o) {
-  int provided = 0;
-  MPI_Init_thread(nullptr, nullptr, MPI_THREAD_FUNNELED, &provided);
-  int rank = 0, size = 1;
-  MPI_Comm_rank(MPI_COMM_WORLD, &rank);
-  MPI_Comm_size(MPI_COMM_WORLD, &size);
+  const comm::MpiSession mpi;
+  const int rank = mpi.rank(), size = mpi.size();
   std::signal(SIGINT, onInterrupt);
   std::signal(SIGTERM, onInterrupt);
   std::signal(SIGUSR1, onInterrupt);  // what scripts/mpirun.sh turns Ctrl-C into (mpirun forwards it)
   const char* role = "host";
   Settings s;
   ConfigSchema schema;
-  comm::RankLayout layout;
+  parallel::RankLayout layout;
   try {
     registerAll(schema, s);
     std::vector<std::string> overrides = o.overrides;
@@ -269,40 +258,41 @@ int runDistributed(const RunOptions& o) {
       throw InputError(fmt::format("--expect-ranks {}: the job has {} ranks (was it started by another MPI's "
                                    "launcher?)",
                                    o.expectRanks, size));
-    layout = comm::RankLayout::choose(size, s.parallel.gps, s.parallel.pps);
+    layout = parallel::RankLayout::choose(size, s.parallel.gps, s.parallel.pps);
     if (s.parallel.tileSize % 8 != 0)
       throw InputError(fmt::format("parallel.tile_size = {}: use a multiple of 8", s.parallel.tileSize));
   } catch (const std::exception& e) {
     // Every rank reads the same configuration and fails the same way: one message.
     if (rank == 0) comm::abortJob(rank, role, e.what());
-    MPI_Abort(MPI_COMM_WORLD, 1);
-    return 1;
+    comm::abortJobQuietly();
   }
-  role = comm::roleName(layout.role(rank));
+  role = parallel::roleName(layout.role(rank));
   int status = 0;
   try {
-    comm::Transport t(MPI_COMM_WORLD, s.parallel.timeoutS);
+    const std::unique_ptr<comm::Transport> transport = mpi.transport(s.parallel.timeoutS);
+    comm::Transport& t = *transport;
     const std::string dir = o.outDir.empty() ? s.output.dir : o.outDir;
     host::Source src;
-    GridPod gp{};
+    comm::GridMsg gm;
+    gm.h.tag = comm::kTagGrid;
     if (rank == 0) {
       makeOutputDir(dir);
       src = makeSource(s);
       for (int a = 0; a < 3; ++a) {
-        gp.dims[a] = src.grid.dims[a];
-        gp.origin[a] = src.grid.origin[a];
-        gp.spacing[a] = src.grid.spacing[a];
+        gm.dims[a] = src.grid.dims[a];
+        gm.origin[a] = src.grid.origin[a];
+        gm.spacing[a] = src.grid.spacing[a];
       }
     }
-    MPI_Bcast(&gp, sizeof gp, MPI_BYTE, 0, MPI_COMM_WORLD);
+    t.broadcast(gm, 0);
     Grid grid;
     for (int a = 0; a < 3; ++a) {
-      grid.dims[a] = gp.dims[a];
-      grid.origin[a] = gp.origin[a];
-      grid.spacing[a] = gp.spacing[a];
+      grid.dims[a] = gm.dims[a];
+      grid.origin[a] = gm.origin[a];
+      grid.spacing[a] = gm.spacing[a];
     }
     switch (layout.role(rank)) {
-      case comm::Role::Host: {
+      case parallel::Role::Host: {
         host::HostJob j;
         j.grid = grid;
         j.pipeline = {s.recon, s.render, s.shading, s.tf, s.cache};
@@ -337,21 +327,20 @@ int runDistributed(const RunOptions& o) {
         status = host::runHostRank(t, j);
         break;
       }
-      case comm::Role::Gp: {
-        gp::GpRankConfig c{grid, s.recon, s.render, s.shading, s.tf, s.parallel, layout, s.grid.memoryLimitBytes()};
-        gp::runGpRank(t, c);
+      case parallel::Role::Gp: {
+        ranks::GpRankConfig c{grid, s.recon, s.render, s.shading, s.tf, s.parallel, layout, s.grid.memoryLimitBytes()};
+        ranks::runGpRank(t, c);
         break;
       }
-      case comm::Role::Pp: {
-        pp::PpRankConfig c{grid, s.render, s.shading, s.tf, s.cache, s.parallel, layout};
-        pp::runPpRank(t, c);
+      case parallel::Role::Pp: {
+        ranks::PpRankConfig c{grid, s.render, s.shading, s.tf, s.cache, s.parallel, layout};
+        ranks::runPpRank(t, c);
         break;
       }
     }
   } catch (const std::exception& e) {
     comm::abortJob(rank, role, e.what());
   }
-  MPI_Finalize();
   return status;
 }
 

@@ -113,7 +113,7 @@ void registerAll(ConfigSchema& schema, Settings& s) {
   schema.choice("run.drop", &s.run.drop, "oldest", {"oldest", "newest"},
                 "A live source's queue is full: drop the oldest queued frame, or the new one. Drops are counted.");
 
-  comm::registerOptions(schema, s.parallel);
+  parallel::registerOptions(schema, s.parallel);
 
   schema.section("output", "Where results are written.");
   schema.option("output.dir", &s.output.dir, "out/doll", "Output folder, unless the command line gives `-o`.");

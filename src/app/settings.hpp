@@ -6,7 +6,7 @@
 
 #include "core/config.hpp"
 #include "core/grid.hpp"
-#include "comm/parallel_settings.hpp"
+#include "parallel/parallel_settings.hpp"
 #include "core/render_settings.hpp"
 #include "core/transfer_function.hpp"
 #include "gp/reconstruction.hpp"
@@ -100,7 +100,7 @@ struct Settings {
   TransferFunctionSettings tf;
   pp::RayCacheSettings cache;
   RunSettings run;
-  comm::ParallelSettings parallel;
+  parallel::ParallelSettings parallel;
   OutputSettings output;
 };
 

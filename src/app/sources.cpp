@@ -250,7 +250,8 @@ board::DriverOptions driverOptions(const Settings& s) {
 }
 
 board::ArmCalibration armCalibration(const Settings& s) {
-  board::ArmCalibration c = board::ArmCalibration::fromSim(s.sim.arm, s.board.armProbeZMm);
+  board::ArmCalibration c = board::ArmCalibration::linear(sim::armAdc(s.sim.arm), s.sim.arm.referenceToTrackerMm,
+                                                                    s.board.armProbeZMm);
   const std::vector<std::string>* rows[3] = {&s.board.armXTable, &s.board.armYTable, &s.board.armThetaTable};
   const char* keys[3] = {"board.arm_x_table", "board.arm_y_table", "board.arm_theta_table"};
   for (int ch = 0; ch < 3; ++ch)

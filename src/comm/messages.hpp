@@ -55,6 +55,10 @@ enum Tag : int {
   kTagQuit = 12,
   // GP, PP -> host: transport counters and timer totals, the last message.
   kTagReport = 13,
+  // host -> every rank, once, by broadcast before the ranks start: the
+  // reconstruction grid, which only the host's source knows (its extent comes
+  // from the frames it reads or simulates).
+  kTagGrid = 14,
 };
 
 struct Header {
@@ -221,7 +225,7 @@ struct VolumeMsg {
 struct ReportMsg {
   Header h;
   std::uint32_t rank = 0;
-  std::uint32_t role = 0;  // comm::Role
+  std::uint32_t role = 0;  // parallel::Role
   StageTimes total;        // whole run, per stage
   double cpuS = 0.0;       // process CPU time (user + system)
   double wallS = 0.0;
@@ -230,12 +234,20 @@ struct ReportMsg {
   std::uint64_t memoryBytes = 0;  // the main buffers (grid, shade buffer, caches)
 };
 
+// kTagGrid (broadcast).
+struct GridMsg {
+  Header h;
+  std::int64_t dims[3] = {};
+  double origin[3] = {}, spacing[3] = {};  // mm
+};
+
 template <typename T>
 inline constexpr bool kIsMessage = std::is_trivially_copyable_v<T> && std::is_standard_layout_v<T> &&
                                    offsetof(T, h) == 0;
 static_assert(kIsMessage<FrameMsg> && kIsMessage<PreviousMsg> && kIsMessage<ControlMsg> && kIsMessage<CreditMsg> &&
               kIsMessage<SamplesMsg> && kIsMessage<GpDoneMsg> && kIsMessage<TileMsg> && kIsMessage<PpDoneMsg> &&
-              kIsMessage<RequestMsg> && kIsMessage<EmptyMsg> && kIsMessage<VolumeMsg> && kIsMessage<ReportMsg>);
+              kIsMessage<RequestMsg> && kIsMessage<EmptyMsg> && kIsMessage<VolumeMsg> && kIsMessage<ReportMsg> &&
+              kIsMessage<GridMsg>);
 static_assert(sizeof(RaySample) == 24);
 
 }  // namespace pp5::comm

@@ -1,28 +1,25 @@
 #pragma once
-// The MPI transport: every byte the pipeline sends goes through here, and is
+// The transport: every byte the pipeline sends goes through here, and is
 // counted here (per peer, both directions), never in the algorithms.
 //
 // Sends never block: a message is copied once into a buffer the transport
-// owns and sent with MPI_Isend; the buffer is freed when MPI is done with it.
-// (The pipeline's messages flow host -> GP -> PP -> host; blocking sends of
-// large messages around that cycle could deadlock.) Receives take whatever
-// has arrived, from any rank, in MPI's per-sender order. Waiting polls and
-// sleeps in short steps rather than spinning, because ranks share cores.
+// owns and the send completes in the background. (The pipeline's messages
+// flow host -> GP -> PP -> host; blocking sends of large messages around that
+// cycle could deadlock.) Receives take whatever has arrived, from any rank,
+// in per-sender order. Waiting polls and sleeps in short steps rather than
+// spinning, because ranks share cores.
 //
 // A peer that vanishes must not hang the job: wait() gives up after the
 // configured timeout with a CommError naming what it waited for.
-#include <chrono>
 #include <cstddef>
 #include <cstdint>
 #include <cstring>
-#include <deque>
 #include <optional>
 #include <span>
 #include <stdexcept>
 #include <string>
+#include <type_traits>
 #include <vector>
-
-#include <mpi.h>
 
 #include "comm/messages.hpp"
 
@@ -58,64 +55,68 @@ struct Message {
   }
 };
 
+// The interface every rank loop talks through; the MPI implementation is
+// behind comm/mpi.hpp (and is the only code that sees MPI), so the loops and
+// their headers never include <mpi.h>. The counters live here, in the base,
+// so every implementation counts the same way.
 class Transport {
 public:
-  // timeoutS: the longest wait() for any message before it gives up.
-  Transport(MPI_Comm comm, double timeoutS);
-  ~Transport();
+  virtual ~Transport() = default;
   Transport(const Transport&) = delete;
   Transport& operator=(const Transport&) = delete;
 
   int rank() const { return rank_; }
   int size() const { return size_; }
 
-  // Sends struct m (its Header's tag is the MPI tag) followed by `payload`.
+  // Sends struct m (its Header's tag is the message tag) followed by `payload`.
   template <typename M>
   void send(int dest, const M& m, const void* payload = nullptr, std::size_t payloadBytes = 0) {
+    static_assert(std::is_trivially_copyable_v<M>, "messages are plain structs");
     std::vector<std::byte> buf(sizeof(M) + payloadBytes);
     std::memcpy(buf.data(), &m, sizeof(M));
     if (payloadBytes) std::memcpy(buf.data() + sizeof(M), payload, payloadBytes);
     sendBuffer(dest, static_cast<int>(m.h.tag), std::move(buf));
   }
   // A message already assembled (struct first).
-  void sendBuffer(int dest, int tag, std::vector<std::byte>&& buf);
+  virtual void sendBuffer(int dest, int tag, std::vector<std::byte>&& buf) = 0;
 
   // One message if one has arrived (also moves pending sends on).
-  std::optional<Message> poll();
+  virtual std::optional<Message> poll() = 0;
   // The next message; CommError after the timeout, naming `waitingFor`.
   // The time spent here is counted as waiting.
   Message wait(const std::string& waitingFor);
   // Until every queued send has completed (CommError after the timeout).
-  void flush();
+  virtual void flush() = 0;
+
+  // Every rank waits here until all have arrived (the ranks' "ready" before
+  // the host starts acquiring).
+  virtual void barrier() = 0;
+  // Rank `root`'s struct m copied into every rank's m. A set-up collective,
+  // not peer traffic: it is not counted per peer.
+  template <typename M>
+  void broadcast(M& m, int root) {
+    static_assert(std::is_trivially_copyable_v<M>, "messages are plain structs");
+    broadcastBytes(&m, sizeof m, root);
+  }
 
   const std::vector<PeerCounters>& counters() const { return peers_; }
   PeerCounters totals() const;
   double waitSeconds() const { return waitS_; }
-  std::size_t pendingSends() const { return pending_.size(); }
   double timeoutS() const { return timeoutS_; }
 
+protected:
+  // timeoutS: the longest wait() for any message before it gives up.
+  Transport(int rank, int size, double timeoutS);
+  virtual void broadcastBytes(void* data, std::size_t bytes, int root) = 0;
+  // What implementations call for each message, so counting is written once.
+  void countSent(int dest, std::size_t bytes);
+  void countReceived(int source, std::size_t bytes);
+
 private:
-  struct Pending {
-    MPI_Request request;
-    std::vector<std::byte> buf;
-  };
-  MPI_Comm comm_;
   int rank_ = 0, size_ = 1;
   double timeoutS_;
-  std::deque<Pending> pending_;
-  std::size_t pendingBytes_ = 0;
   std::vector<PeerCounters> peers_;
   double waitS_ = 0.0;
-
-  void progress();
 };
-
-// Prints "pp5echo: rank R (ROLE): message" on stderr and ends the whole job
-// (MPI_Abort), so no rank is left waiting for this one.
-[[noreturn]] void abortJob(int rank, const char* role, const std::string& message);
-
-// True when this process was started by an MPI launcher (mpirun, mpiexec,
-// srun), from its environment.
-bool launchedByMpi();
 
 }  // namespace pp5::comm

@@ -66,4 +66,11 @@ void checkGridFits(const Grid& g, std::uint64_t bytesPerVoxel, const std::string
         what, g.dims.x, g.dims.y, g.dims.z, bytesPerVoxel, gib(need), gib(have)));
 }
 
+void checkSameGrid(const Grid& a, const Grid& b) {
+  PP5_CHECK_EQ(a.dims.x, b.dims.x);
+  PP5_CHECK_EQ(a.dims.y, b.dims.y);
+  PP5_CHECK_EQ(a.dims.z, b.dims.z);
+  PP5_CHECK(a.origin == b.origin && a.spacing == b.spacing);
+}
+
 }  // namespace pp5

@@ -37,6 +37,10 @@ struct Grid {
   }
 };
 
+// InvariantError (naming both) unless the two grids are the same lattice:
+// equal dims, origin and spacing, bit for bit.
+void checkSameGrid(const Grid& a, const Grid& b);
+
 // Memory a process may use for grids, in bytes: MemAvailable from /proc/meminfo
 // (or sysconf as a fallback), or the override when > 0.
 std::uint64_t availableMemoryBytes();

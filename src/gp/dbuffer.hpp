@@ -29,7 +29,7 @@
 #include <vector>
 
 #include "core/camera.hpp"
-#include "gp/sample_lattice.hpp"
+#include "core/sample_lattice.hpp"
 
 namespace pp5::gp {
 

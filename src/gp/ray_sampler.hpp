@@ -23,24 +23,8 @@
 // IEEE arithmetic without contraction into FMAs: ISO C++ mode, no
 // -ffast-math, as the build sets it.)
 //
-// Which samples a changed voxel affects: the sample at voxel position p
-// (float, VoxelRay::at) reads the 8 voxels of the cell floor(p) (clamped to the
-// grid's last cell), so a voxel v changes the samples with floor(p) in [v - 1,
-// v] along each axis, the samples within one voxel of it. The grow rule for a
-// box of changed voxels [lo, hi) is therefore: the sampling points with p in
-// [lo - 1, hi] (voxel units), clipped to the sampling box [0, dims - 1], and
-// widened by kStencilSlackVoxels for the float rounding of p. stencilBoxes()
-// applies it; pass it the voxels whose *shade* changed (e.g.
-// shadingBoxes(dirty), which already adds the gradient's reach). The D-buffer
-// of those boxes then covers every sample that can have changed, plus the
-// few within the slack.
-//
-// Empty space: EmptySpaceMap marks bricks of cells whose 8-voxel stencils are
-// all transparent, with each empty brick's Chebyshev distance to the nearest
-// visible one, so sampleAll jumps over runs of empty bricks with one step per
-// empty cube, and a ray is only walked where it crosses the bounding box of
-// the visible bricks; no division per sample. Skipping never changes the
-// output: a skipped sample is exactly transparent.
+// Which samples a changed voxel affects: gp/stencil.hpp. Empty space, which
+// sampleAll jumps over without changing the output: gp/empty_space.hpp.
 //
 // Output goes to a SampleSink in batches. The image is cut into square work
 // tiles of SamplerOptions::tileSize pixels (a divisor of the PP's tile, so a
@@ -81,69 +65,14 @@
 #include "core/ray_sample.hpp"
 #include "core/render_settings.hpp"
 #include "gp/dbuffer.hpp"
+#include "core/sample_lattice.hpp"
 #include "gp/dirty_region.hpp"
-#include "gp/sample_lattice.hpp"
+#include "gp/empty_space.hpp"
+#include "gp/opacity_correction.hpp"
 #include "gp/shade_buffer.hpp"
+#include "gp/stencil.hpp"
 
 namespace pp5::gp {
-
-// Voxel units added around each stencil box: far more than the float error of
-// a sample position (a few 1e-5 voxel in a 1024^3 grid), so the D-buffer
-// never misses a sample whose stencil touches a changed voxel.
-inline constexpr double kStencilSlackVoxels = 1.0 / 256.0;
-
-// The world boxes (sampling-box clipped) that hold every lattice sample whose
-// trilinear stencil touches a voxel of `changed` grown by `extraVoxels`.
-std::vector<WorldBox> stencilBoxes(const Grid& grid, std::span<const Box3> changed, int extraVoxels = 0);
-// The same for the bricks of `changed`: runs of bricks are merged into larger
-// boxes first, so the D-buffer scan-converts a few boxes rather than many.
-std::vector<WorldBox> stencilBoxes(const DirtyRegion& changed, int extraVoxels = 0);
-
-class EmptySpaceMap {
-public:
-  static constexpr int kBrickCells = 8;
-
-  EmptySpaceMap() = default;
-  // Scans every voxel; threads: 0 = every core.
-  explicit EmptySpaceMap(const ShadeBuffer& shade, int threads = 0);
-  // After the voxels of `changed` were re-shaded: rescans the bricks whose
-  // stencils reach them, then the distances.
-  void update(const ShadeBuffer& shade, std::span<const Box3> changed);
-
-  const Grid& grid() const { return grid_; }
-  Index3 brickDims() const { return bdims_; }
-  // Cells per axis: dims - 1.
-  Index3 cellDims() const { return grid_.dims - Index3(1); }
-  // 0: some cell of the brick has a voxel with alpha > 0 in its stencil.
-  // d > 0: every brick within Chebyshev distance d - 1 of it (in bricks) is
-  // empty. Saturates at 255.
-  const std::uint8_t* distances() const { return dist_.data(); }
-  std::uint8_t distance(std::int64_t bi, std::int64_t bj, std::int64_t bk) const {
-    return dist_[static_cast<std::size_t>((bk * bdims_.y + bj) * bdims_.x + bi)];
-  }
-  double emptyFraction() const;
-  // The cells of the bricks with a visible cell, as one box (empty when there
-  // are none): a ray only needs walking where it crosses it.
-  const Box3& occupiedCells() const { return occupiedCells_; }
-  // Disjoint boxes of voxels, clipped to `within`, that hold every voxel of
-  // `within` whose alpha was above 0 in the scanned shade buffer: the 8^3
-  // voxel bricks that the cells of an occupied brick read, in runs along x.
-  // A voxel outside them was transparent, so premultiplied all zero, and
-  // stays so under any view (opacity does not depend on the view): a view
-  // change needs to re-light only these (SerialPipeline::setCamera).
-  std::vector<Box3> visibleVoxelBoxes(const Box3& within) const;
-
-private:
-  Grid grid_;
-  Index3 bdims_{0};
-  Box3 occupiedCells_;
-  std::vector<std::uint8_t> occupied_;
-  std::vector<std::uint8_t> dist_;
-  void scanBrick(const ShadeBuffer& shade, std::int64_t bi, std::int64_t bj, std::int64_t bk);
-  // Whether any voxel of the box (inside the grid) is visible.
-  bool anyVisible(const ShadeBuffer& shade, const Box3& voxels) const;
-  void computeDistances();
-};
 
 class SampleSink {
 public:
@@ -221,13 +150,5 @@ void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const 
 // One sample, by the same arithmetic (the reference in tests).
 RaySample sampleAt(const ShadeBuffer& shade, const SampleLattice& lattice, const RenderSettings& settings,
                    std::uint32_t pixel, std::uint32_t k);
-
-// The voxel cell (its lowest corner) whose 8 voxels sample k of `pixel` reads:
-// the cell SamplerOptions::ownedCells tests, by the sampler's arithmetic.
-Index3 stencilCell(const SampleLattice& lattice, std::uint32_t pixel, std::uint32_t k);
-
-// 1 - (1 - a)^e for a in [0, 1], e > 0: the opacity correction, as the
-// sampler computes it.
-float correctOpacity(float a, float e);
 
 }  // namespace pp5::gp

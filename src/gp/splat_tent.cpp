@@ -68,6 +68,7 @@
 
 #include "core/error.hpp"
 #include "gp/fan_mask.hpp"
+#include "gp/slice_geometry.hpp"
 
 namespace pp5::gp {
 
@@ -128,95 +129,6 @@ void selectPixels(const Frame& f, const std::vector<PixelRun>& runs, double reje
   if (out.selected > 0 && out.selected == static_cast<std::uint64_t>(out.x1 - out.x0 + 1) *
                                               static_cast<std::uint64_t>(out.y1 - out.y0 + 1))
     out.mask.clear();
-}
-
-// ------------------------------------------------------------------ poses --
-
-// A slice's placement: pixel (c, r) lies at origin + (c*sx + r*eyu)*u + r*syv*v.
-// u is the image x axis, n = normalize(x cross y), v = n cross u; the upper
-// triangular (sx, eyu, syv) keeps any pixel scale and shear of the matrix.
-struct SlicePose {
-  Vec3 origin{0.0};
-  Vec3 u{1, 0, 0}, v{0, 1, 0}, n{0, 0, 1};
-  double sx = 1, eyu = 0, syv = 1;
-  Quat q{1, 0, 0, 0};  // rotation with columns u, v, n
-  Vec3 pixel(double c, double r) const { return origin + (c * sx + r * eyu) * u + (r * syv) * v; }
-};
-
-SlicePose poseFromMatrix(const Mat4& m, const std::string& what) {
-  if (!isFinite(m)) throw InputError(what + ": the image-to-reference transform is not finite");
-  // glm is column-major: m[col][row]; the last row must be (0 0 0 1).
-  const double tol = 1e-9;
-  if (std::abs(m[0][3]) > tol || std::abs(m[1][3]) > tol || std::abs(m[2][3]) > tol || std::abs(m[3][3] - 1.0) > tol)
-    throw InputError(what + ": the image-to-reference transform is not affine (last row is not 0 0 0 1)");
-  const Vec3 ex(m[0]), ey(m[1]);
-  SlicePose p;
-  p.origin = Vec3(m[3]);
-  p.sx = glm::length(ex);
-  const Vec3 c = glm::cross(ex, ey);
-  const double cl = glm::length(c);
-  if (!(p.sx > 1e-12) || !(glm::length(ey) > 1e-12) || !(cl > 1e-12 * p.sx * glm::length(ey)))
-    throw InputError(what + ": the image-to-reference transform maps the image's x and y axes onto a line or a point");
-  p.u = ex / p.sx;
-  p.n = c / cl;
-  p.v = glm::cross(p.n, p.u);
-  p.eyu = glm::dot(ey, p.u);
-  p.syv = glm::dot(ey, p.v);
-  p.q = glm::normalize(glm::quat_cast(glm::dmat3(p.u, p.v, p.n)));
-  return p;
-}
-
-// Rotation angle between two slices' orientations, radians.
-double rotationAngle(const SlicePose& a, const SlicePose& b) {
-  const double d = std::min(1.0, std::abs(glm::dot(a.q, b.q)));
-  return 2.0 * std::acos(d);
-}
-
-// Translation of the image origin (pixel (0,0), on the transducer face for
-// MF images, so a rocking sweep about the face interpolates without cutting
-// chords) linear; rotation by slerp (the short way); pixel steps linear.
-SlicePose interpolatePose(const SlicePose& a, const SlicePose& b, double t) {
-  SlicePose p;
-  p.origin = a.origin + (b.origin - a.origin) * t;
-  const Quat qb = glm::dot(a.q, b.q) < 0.0 ? -b.q : b.q;
-  p.q = glm::normalize(glm::slerp(a.q, qb, t));
-  const glm::dmat3 r = glm::mat3_cast(p.q);
-  p.u = r[0];
-  p.v = r[1];
-  p.n = r[2];
-  p.sx = a.sx + (b.sx - a.sx) * t;
-  p.eyu = a.eyu + (b.eyu - a.eyu) * t;
-  p.syv = a.syv + (b.syv - a.syv) * t;
-  return p;
-}
-
-// ---------------------------------------------------------------- fill-in --
-//
-// Between two consecutive frames whose pixel rectangles' corners moved by up
-// to D mm, n = ceil(D / s_max) - 1 intermediate slices are splatted at
-// t = k/(n+1), so consecutive slices are at most s_max = he (the elevation
-// half-width) apart everywhere on the image (the displacement of an image
-// point is affine in the pixel position, so it is largest at a corner).
-//
-// Why he: tent kernels of half-width he placed every he along the normal sum
-// to exactly 1 at every point between them (the linear-interpolation hat
-// functions form a partition of unity). So with spacing <= he every point
-// between two slices is reached by both of them and is at most he/2 from the
-// nearer one (weight >= 1/2 from it): no holes, and the elevational weight is
-// even, with no ridges at the slices. A spacing between he and 2*he would
-// still reach every point, but the midplanes only with weights that fall to 0
-// as the spacing nears 2*he, and the total weight would ripple with the slice
-// positions (coarse holes in all but name); anything finer than
-// he only adds work, since at spacing he each point is already the linear
-// interpolation of its two bracketing slices. Fill-in starts exactly when
-// D > he. For a 1.5 mm half-width, frames 2 mm apart get one intermediate
-// slice (1 mm spacing; the default 3 mm needs none); the paper interpolated
-// about 3 points between slices 2 mm apart (0.5 mm spacing), which this rule
-// gives for a 0.5 mm elevation half-width: the density follows the kernel
-// rather than being fixed.
-int fillInCount(double maxCornerDisplacementMm, double elevationHalfWidthMm) {
-  if (!(maxCornerDisplacementMm > elevationHalfWidthMm)) return 0;
-  return static_cast<int>(std::ceil(maxCornerDisplacementMm / elevationHalfWidthMm)) - 1;
 }
 
 // ----------------------------------------------------------------- kernel --

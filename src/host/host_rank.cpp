@@ -12,12 +12,13 @@
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
-#include "comm/rank_stats.hpp"
-#include "comm/schedule.hpp"
+#include "parallel/rank_stats.hpp"
+#include "parallel/schedule.hpp"
 #include "core/error.hpp"
 #include "core/image_io.hpp"
 #include "core/io_util.hpp"
 #include "core/volume_io.hpp"
+#include "gp/slice_geometry.hpp"
 #include "host/outputs.hpp"
 
 namespace pp5::host {
@@ -25,6 +26,7 @@ namespace pp5::host {
 namespace {
 
 using namespace pp5::comm;
+using namespace pp5::parallel;
 using Clock = std::chrono::steady_clock;
 namespace fs = std::filesystem;
 
@@ -52,20 +54,14 @@ public:
     slab_ = j_.parallel.slab() && j_.pipeline.recon.methodEnum() == gp::Method::Tent;
     if (slab_) {
       slabs_ = SlabLayout(j_.grid, L_.gps, j_.parallel.split());
-      // What each GP's reconstruction depends on: its window, grown as the
-      // method needs (whole motion-vector cells).
-      for (int g = 0; g < L_.gps; ++g) {
-        const gp::Box3 w = slabs_.window(g, j_.parallel.ghostVoxels);
-        reach_.push_back(w.empty() ? w : gp::reconstructionReach(j_.grid, j_.pipeline.recon, w));
-      }
     }
     if (j_.verify) {
       // lockstep: every image; tick: the image once every frame is in (what
       // the GPs' batched updates must leave), then those after it.
-      PipelineSettings ps = j_.pipeline;
+      serial::PipelineSettings ps = j_.pipeline;
       ps.render.threads = j_.parallel.threads;
       ps.recon.threads = j_.parallel.threads;
-      ref_ = std::make_unique<SerialPipeline>(j_.grid, ps, j_.memoryLimitBytes);
+      ref_ = std::make_unique<serial::SerialPipeline>(j_.grid, ps, j_.memoryLimitBytes);
     }
   }
 
@@ -109,13 +105,12 @@ private:
 
   bool slab_ = false;
   SlabLayout slabs_;
-  std::vector<gp::Box3> reach_;            // per GP (slab): the voxels its reconstruction depends on
   std::vector<std::int64_t> lastPixels_;  // per GP: the last frame whose pixels it got
   AcquiredFrame prev_;
   bool hasPrev_ = false;
   std::uint64_t pixelMessages_ = 0, poseOnlyMessages_ = 0, previousMessages_ = 0;
 
-  std::unique_ptr<SerialPipeline> ref_;
+  std::unique_ptr<serial::SerialPipeline> ref_;
   std::unique_ptr<StatsCsv> stats_;
   std::unique_ptr<AnimatedGif> buildup_;
   std::int64_t lastBuildup_ = -1;
@@ -257,18 +252,6 @@ private:
     waitUntil([&] { return imageFrame_ >= frame; }, fmt::format("the image of frame {}", frame));
   }
 
-  // Whether some voxel of `voxels` has its position inside the world box.
-  bool touches(const gp::WorldBox& box, const gp::Box3& voxels) const {
-    if (voxels.empty() || box.empty()) return false;
-    const Grid& g = j_.grid;
-    for (int a = 0; a < 3; ++a) {
-      const double lo = std::ceil((box.lo[a] - g.origin[a]) / g.spacing[a] - 1e-9);
-      const double hi = std::floor((box.hi[a] - g.origin[a]) / g.spacing[a] + 1e-9);
-      if (hi < static_cast<double>(voxels.lo[a]) || lo > static_cast<double>(voxels.hi[a] - 1)) return false;
-    }
-    return true;
-  }
-
   // ---- frames and controls ---------------------------------------------
   void sendFrame(AcquiredFrame& a) {
     waitCredits();
@@ -278,10 +261,12 @@ private:
     std::vector<char> pixels(static_cast<std::size_t>(L_.gps), 1);
     if (slab_) {
       const bool fill = hasPrev_ && prev_.frame.width == f.width && prev_.frame.height == f.height;
-      const gp::WorldBox reach = fill ? fillInReach(prev_.imageToReference, a.imageToReference, f.width, f.height,
-                                                    j_.pipeline.recon)
-                                      : frameReach(a.imageToReference, f.width, f.height, j_.pipeline.recon);
-      for (int g = 0; g < L_.gps; ++g) pixels[static_cast<std::size_t>(g)] = touches(reach, reach_[static_cast<std::size_t>(g)]);
+      const gp::WorldBox reach = fill ? gp::fillInReach(prev_.imageToReference, a.imageToReference, f.width, f.height,
+                                                        j_.pipeline.recon)
+                                      : gp::frameReach(a.imageToReference, f.width, f.height, j_.pipeline.recon);
+      std::fill(pixels.begin(), pixels.end(), 0);
+      for (const int g : gpsTouched(slabs_, reach, j_.parallel.ghostVoxels, j_.pipeline.recon))
+        pixels[static_cast<std::size_t>(g)] = 1;
     }
     FrameMsg fm;
     fm.h = {kTagFrame, epoch_, k};
@@ -434,7 +419,7 @@ int HostRank::run() {
 
   // Every rank has allocated its grids and caches before the first frame is
   // acquired, so a live source does not queue behind the start-up.
-  MPI_Barrier(MPI_COMM_WORLD);
+  t_.barrier();
   Acquisition acq(j_.source, j_.preprocess, j_.queueFrames, j_.drop, j_.paceFps);
   Clock::time_point firstSent{}, lastLog = start;
   bool stopping = false;

@@ -11,10 +11,10 @@
 #include <vector>
 
 #include "comm/messages.hpp"
-#include "comm/parallel_settings.hpp"
+#include "parallel/parallel_settings.hpp"
 #include "comm/transport.hpp"
 #include "host/acquisition.hpp"
-#include "host/serial_pipeline.hpp"
+#include "serial/serial_pipeline.hpp"
 
 namespace pp5::host {
 
@@ -27,9 +27,9 @@ struct ScriptedControl {
 
 struct HostJob {
   Grid grid;
-  PipelineSettings pipeline;
-  comm::ParallelSettings parallel;
-  comm::RankLayout layout;
+  serial::PipelineSettings pipeline;
+  parallel::ParallelSettings parallel;
+  parallel::RankLayout layout;
   Source source;
   Preprocess preprocess;
   std::size_t queueFrames = 8;

@@ -58,18 +58,17 @@ ArmTable parseArmTable(const std::vector<std::string>& rows, int channel, const 
   return t;
 }
 
-ArmCalibration ArmCalibration::fromSim(const sim::ArmSettings& s, double probeZMm) {
+ArmCalibration ArmCalibration::linear(const ArmAdc& adc, const glm::dvec3& referenceToTrackerMm, double probeZMm) {
   // The converters are linear, so their two end points are the whole table.
-  const sim::ArmAdc adc(s);
-  constexpr double kMax = sim::ArmAdc::kMaxCount;
-  const sim::ArmPose lo = adc.calibrate({0.0, 0.0, 0.0});
-  const sim::ArmPose hi = adc.calibrate({kMax, kMax, kMax});
+  constexpr double kMax = ArmAdc::kMaxCount;
+  const ArmPose lo = adc.calibrate({0.0, 0.0, 0.0});
+  const ArmPose hi = adc.calibrate({kMax, kMax, kMax});
   ArmCalibration c;
   c.table[0] = {{0.0, lo.xMm}, {kMax, hi.xMm}};
   c.table[1] = {{0.0, lo.yMm}, {kMax, hi.yMm}};
   c.table[2] = {{0.0, lo.thetaDeg}, {kMax, hi.thetaDeg}};
   c.probeZMm = probeZMm;
-  c.referenceToTrackerMm = s.referenceToTrackerMm;
+  c.referenceToTrackerMm = referenceToTrackerMm;
   return c;
 }
 
@@ -93,16 +92,16 @@ double ArmCalibration::value(int channel, double count) const {
   return a.second + (count - a.first) * (b.second - a.second) / (b.first - a.first);
 }
 
-sim::ArmPose ArmCalibration::toArmPose(const std::array<double, 3>& counts) const {
+ArmPose ArmCalibration::toArmPose(const std::array<double, 3>& counts) const {
   return {value(0, counts[0]), value(1, counts[1]), value(2, counts[2])};
 }
 
-sim::ArmPose ArmCalibration::toArmPose(std::array<std::uint16_t, 3> counts) const {
+ArmPose ArmCalibration::toArmPose(std::array<std::uint16_t, 3> counts) const {
   return toArmPose(std::array<double, 3>{double(counts[0]), double(counts[1]), double(counts[2])});
 }
 
 Mat4 ArmCalibration::probeToTracker(std::array<std::uint16_t, 3> counts) const {
-  return sim::armProbeToTracker(toArmPose(counts), probeZMm);
+  return armProbeToTracker(toArmPose(counts), probeZMm);
 }
 
 Mat4 ArmCalibration::referenceToTracker() const { return translation(referenceToTrackerMm); }

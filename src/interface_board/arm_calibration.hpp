@@ -6,7 +6,7 @@
 // strictly increasing counts; a count outside the table extrapolates the end
 // segment. A real potentiometer is not quite linear, so a table of many
 // points measured on a jig corrects it; the simulator's converters are
-// exactly linear and fromSim() gives the equivalent two-point tables.
+// exactly linear and linear() gives the equivalent two-point tables.
 #include <array>
 #include <cstdint>
 #include <string>
@@ -15,9 +15,8 @@
 
 #include <glm/glm.hpp>
 
+#include "core/arm.hpp"
 #include "core/transform.hpp"
-#include "sim/probe_motion.hpp"
-#include "sim/sim_settings.hpp"
 
 namespace pp5::board {
 
@@ -32,10 +31,10 @@ struct ArmCalibration {
   double probeZMm = 0.0;                       // the probe mount's height in the Tracker frame
   glm::dvec3 referenceToTrackerMm{0.0};        // ReferenceToTracker is this translation
 
-  // The tables equal to the simulator's linear converters (sim::ArmAdc) for
-  // these settings; probeZMm as the simulator computes it (scan surface z +
+  // The two-point tables equal to linear converters (the simulator's,
+  // sim::armAdc); probeZMm as the simulator computes it (scan surface z +
   // reference_to_tracker_mm.z).
-  static ArmCalibration fromSim(const sim::ArmSettings& s, double probeZMm);
+  static ArmCalibration linear(const ArmAdc& adc, const glm::dvec3& referenceToTrackerMm, double probeZMm);
 
   // Throws InputError naming `what` and the channel when a table is unusable
   // (fewer than 2 points, counts not strictly increasing, a non-finite number)
@@ -44,9 +43,9 @@ struct ArmCalibration {
 
   // One channel's value at a (possibly fractional) count.
   double value(int channel, double count) const;
-  sim::ArmPose toArmPose(const std::array<double, 3>& counts) const;
-  sim::ArmPose toArmPose(std::array<std::uint16_t, 3> counts) const;
-  // The arm's kinematics (sim::armProbeToTracker) at the calibrated pose.
+  ArmPose toArmPose(const std::array<double, 3>& counts) const;
+  ArmPose toArmPose(std::array<std::uint16_t, 3> counts) const;
+  // The arm's kinematics (armProbeToTracker, core/arm.hpp) at the calibrated pose.
   Mat4 probeToTracker(std::array<std::uint16_t, 3> counts) const;
   Mat4 referenceToTracker() const;
 };

@@ -37,44 +37,7 @@ ArmPose lerp(const ArmPose& a, const ArmPose& b, double s) {
 
 // ---- kinematics and A/D ----------------------------------------------------------
 
-Mat4 probeMountRotation() {
-  Mat4 m(1.0);
-  m[0] = Vec4(0.0, -1.0, 0.0, 0.0);  // lateral
-  m[1] = Vec4(0.0, 0.0, -1.0, 0.0);  // axial: down into the tank
-  m[2] = Vec4(1.0, 0.0, 0.0, 0.0);   // elevation
-  return m;
-}
-
-Mat4 armProbeToTracker(const ArmPose& p, double probeZ) {
-  return translation(Vec3(p.xMm, p.yMm, probeZ)) * rotationAxisAngle(Vec3(0, 0, 1), p.thetaDeg * kDeg) *
-         probeMountRotation();
-}
-
-ArmAdc::ArmAdc(const ArmSettings& s) {
-  perCount_ = {s.xSpanMm / kMaxCount, s.ySpanMm / kMaxCount, s.thetaSpanDeg / kMaxCount};
-  // Theta's zero sits exactly on count 2048, so a straight probe reads straight.
-  origin_ = {0.0, 0.0, -0.5 * (kMaxCount + 1) * perCount_[2]};
-}
-
-std::array<double, 3> ArmAdc::idealCounts(const ArmPose& p) const {
-  const std::array<double, 3> v = {p.xMm, p.yMm, p.thetaDeg};
-  std::array<double, 3> c{};
-  for (std::size_t i = 0; i < 3; ++i) c[i] = (v[i] - origin_[i]) / perCount_[i];
-  return c;
-}
-
-std::array<int, 3> ArmAdc::read(const ArmPose& p, const std::array<double, 3>& noiseCounts) const {
-  const auto ideal = idealCounts(p);
-  std::array<int, 3> c{};
-  for (std::size_t i = 0; i < 3; ++i)
-    c[i] = static_cast<int>(std::clamp(std::lround(ideal[i] + noiseCounts[i]), 0L, static_cast<long>(kMaxCount)));
-  return c;
-}
-
-ArmPose ArmAdc::calibrate(const std::array<double, 3>& counts) const {
-  return {origin_[0] + counts[0] * perCount_[0], origin_[1] + counts[1] * perCount_[1],
-          origin_[2] + counts[2] * perCount_[2]};
-}
+ArmAdc armAdc(const ArmSettings& s) { return ArmAdc(s.xSpanMm, s.ySpanMm, s.thetaSpanDeg); }
 
 // ---- arm trajectory -------------------------------------------------------------------
 
@@ -234,7 +197,7 @@ std::array<double, 3> adcNoise(std::uint64_t key, std::int64_t sample, double si
 
 Sweep captureArmSweep(const SimSettings& s, const ArmTrajectory& traj, double probeZ, const Mat4& refToTracker,
                       const std::vector<Vec3>& corners) {
-  const ArmAdc adc(s.arm);
+  const ArmAdc adc = armAdc(s.arm);
   const std::uint64_t noiseKey = mixSeed(s.seed, 0xADC0u);
   const double rate = s.arm.sampleRateHz;
   auto reading = [&](std::int64_t n) {
@@ -347,7 +310,7 @@ Sweep planSweep(const SimSettings& s, const ScanSetup& scan, const std::vector<V
   if (sw.kind != "parallel" && sw.kind != "angled" && sw.kind != "back_and_forth")
     throw InputError("sim.sweep.kind: unknown sweep '" + sw.kind + "'");
 
-  const ArmAdc adc(s.arm);
+  const ArmAdc adc = armAdc(s.arm);
   auto toArm = [&](const Vec3& p) { return ArmPose{p.x + offset.x, p.y + offset.y, heading}; };
   ArmTrajectory traj;
   const std::uint64_t key = mixSeed(s.seed, 0xA53u);

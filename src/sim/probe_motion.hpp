@@ -22,39 +22,15 @@
 #include <cstdint>
 #include <vector>
 
+#include "core/arm.hpp"
 #include "core/transform.hpp"
 #include "sim/phantom.hpp"
 #include "sim/sim_settings.hpp"
 
 namespace pp5::sim {
 
-struct ArmPose {
-  double xMm = 0.0, yMm = 0.0, thetaDeg = 0.0;  // in the Tracker frame
-};
-
-// Probe axes in the Tracker frame at theta = 0 (rotation only).
-Mat4 probeMountRotation();
-// The arm's kinematics: translation (x, y, probeZ), then theta about +z.
-Mat4 armProbeToTracker(const ArmPose& p, double probeZ);
-
-// The arm's 12-bit A/D converters and their calibration (counts are linear
-// in position: x and y from 0, theta centred on 0).
-class ArmAdc {
-public:
-  static constexpr int kMaxCount = 4095;
-  explicit ArmAdc(const ArmSettings& s);
-  // Counts that a noise-free converter with infinite resolution would give.
-  std::array<double, 3> idealCounts(const ArmPose& p) const;
-  // One reading: ideal counts plus noise (in counts), rounded and clamped to 0..4095.
-  std::array<int, 3> read(const ArmPose& p, const std::array<double, 3>& noiseCounts) const;
-  // Calibration: counts (fractional after interpolation) -> mm and degrees.
-  ArmPose calibrate(const std::array<double, 3>& counts) const;
-  // mm (or degrees) per count of each channel.
-  double resolution(int channel) const { return perCount_[static_cast<std::size_t>(channel)]; }
-
-private:
-  std::array<double, 3> origin_{}, perCount_{};
-};
+// The arm's A/D converters for these settings (core/arm.hpp).
+ArmAdc armAdc(const ArmSettings& s);
 
 // A true arm trajectory: straight segments at a hand-cranked (slightly
 // uneven, seeded) speed, each with the operator's capture switch on or off.

@@ -1,11 +1,11 @@
 #pragma once
 // [parallel]: how `pp5echo run` under mpirun lays the pipeline out on ranks,
-// and ControlState conversions (the view, shading, transfer function and live
+// and comm::ControlState conversions (the view, shading, transfer function and live
 // composition mode a control change carries). No MPI here.
 #include <string>
 
 #include "comm/messages.hpp"
-#include "comm/schedule.hpp"
+#include "parallel/schedule.hpp"
 #include "core/camera.hpp"
 #include "core/render_settings.hpp"
 #include "core/transfer_function.hpp"
@@ -16,7 +16,7 @@ namespace pp5 {
 class ConfigSchema;
 }
 
-namespace pp5::comm {
+namespace pp5::parallel {
 
 struct ParallelSettings {
   int gps = 0;                            // graphics processors; 0 = from the world size
@@ -40,17 +40,17 @@ struct ParallelSettings {
 };
 void registerOptions(ConfigSchema& schema, ParallelSettings& s);
 
-ControlState makeControlState(const RenderSettings& render, const gp::ShadeSettings& shading,
+comm::ControlState makeControlState(const RenderSettings& render, const gp::ShadeSettings& shading,
                               const TransferFunctionSettings& tf);
 // Writes the state back into settings (the parts it carries); the live mode
 // becomes the first of render.compositing. InputError if the transfer
 // function has more points than a control message holds.
-void applyControlState(const ControlState& c, RenderSettings& render, gp::ShadeSettings& shading,
+void applyControlState(const comm::ControlState& c, RenderSettings& render, gp::ShadeSettings& shading,
                        TransferFunctionSettings& tf);
-pp::CompositeMode liveMode(const ControlState& c);
+pp::CompositeMode liveMode(const comm::ControlState& c);
 // The camera of a state: makeCamera of its view, then its orbit (if any).
-Camera controlCamera(const ControlState& c, const RenderSettings& base, const Grid& grid);
-// Which ControlMsg::Change bits differ between two states.
-std::uint32_t controlChanges(const ControlState& before, const ControlState& after);
+Camera controlCamera(const comm::ControlState& c, const RenderSettings& base, const Grid& grid);
+// Which comm::ControlMsg::Change bits differ between two states.
+std::uint32_t controlChanges(const comm::ControlState& before, const comm::ControlState& after);
 
-}  // namespace pp5::comm
+}  // namespace pp5::parallel

@@ -1,4 +1,4 @@
-#include "gp/gp_rank.hpp"
+#include "ranks/gp_rank.hpp"
 
 #include <algorithm>
 #include <chrono>
@@ -10,18 +10,20 @@
 
 #include <fmt/format.h>
 
-#include "comm/rank_stats.hpp"
+#include "parallel/rank_stats.hpp"
 #include "core/error.hpp"
 #include "gp/dbuffer.hpp"
 #include "gp/ray_sampler.hpp"
-#include "gp/sample_lattice.hpp"
+#include "core/sample_lattice.hpp"
 #include "gp/shade_buffer.hpp"
 
-namespace pp5::gp {
+namespace pp5::ranks {
 
 namespace {
 
 using namespace pp5::comm;
+using namespace pp5::gp;
+using namespace pp5::parallel;
 
 Box3 wholeGrid(const Grid& g) { return {Index3(0), g.dims}; }
 
@@ -171,7 +173,7 @@ private:
   bool slab_ = true;
   SlabLayout slabs_;
   Box3 owned_, window_, shadeRegion_;
-  std::vector<pp::TileRect> myRects_;
+  std::vector<TileRect> myRects_;
 
   // tile: whether a sample in one of this GP's tiles can read a voxel of `b`.
   bool visible(const Box3& b) const {
@@ -193,7 +195,7 @@ private:
     // Pixel x's ray passes through x + 0.5; one pixel of margin for rounding.
     const double px0 = std::ceil(x0 - 0.5) - 1, px1 = std::floor(x1 - 0.5) + 1;
     const double py0 = std::ceil(y0 - 0.5) - 1, py1 = std::floor(y1 - 0.5) + 1;
-    for (const pp::TileRect& r : myRects_)
+    for (const TileRect& r : myRects_)
       if (px1 >= r.x0 && px0 < r.x0 + r.width && py1 >= r.y0 && py0 < r.y0 + r.height) return true;
     return false;
   }
@@ -524,8 +526,8 @@ private:
 
 void runGpRank(comm::Transport& t, const GpRankConfig& c) {
   GpRank gp(t, c);
-  MPI_Barrier(MPI_COMM_WORLD);  // ready: the host starts acquiring once every rank is
+  t.barrier();  // ready: the host starts acquiring once every rank is
   gp.run();
 }
 
-}  // namespace pp5::gp
+}  // namespace pp5::ranks

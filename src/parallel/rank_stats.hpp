@@ -4,10 +4,10 @@
 #include <ctime>
 
 #include "comm/messages.hpp"
-#include "comm/schedule.hpp"
+#include "parallel/schedule.hpp"
 #include "comm/transport.hpp"
 
-namespace pp5::comm {
+namespace pp5::parallel {
 
 inline double processCpuSeconds() {
   timespec ts{};
@@ -20,7 +20,7 @@ class StageClock {
 public:
   using Clock = std::chrono::steady_clock;
   // Starts timing `stage` (ending the stage before, if any).
-  void start(Stage s) {
+  void start(comm::Stage s) {
     stop();
     stage_ = s;
     t0_ = Clock::now();
@@ -32,35 +32,35 @@ public:
     total_.ms[stage_] += ms;
     stage_ = -1;
   }
-  void add(Stage s, double ms) {
+  void add(comm::Stage s, double ms) {
     current_.ms[s] += static_cast<float>(ms);
     total_.ms[s] += static_cast<float>(ms);
   }
   // The times since the last take(), which starts a new update.
-  StageTimes take() {
+  comm::StageTimes take() {
     stop();
-    const StageTimes t = current_;
+    const comm::StageTimes t = current_;
     current_ = {};
     return t;
   }
-  const StageTimes& total() const { return total_; }
+  const comm::StageTimes& total() const { return total_; }
 
 private:
   int stage_ = -1;
   Clock::time_point t0_;
-  StageTimes current_, total_;
+  comm::StageTimes current_, total_;
 };
 
-inline ReportMsg makeReport(const Transport& t, Role role, const StageTimes& total, double wallS,
+inline comm::ReportMsg makeReport(const comm::Transport& t, Role role, const comm::StageTimes& total, double wallS,
                             std::uint64_t dropped, std::uint64_t memoryBytes) {
-  ReportMsg r;
-  r.h.tag = kTagReport;
+  comm::ReportMsg r;
+  r.h.tag = comm::kTagReport;
   r.rank = static_cast<std::uint32_t>(t.rank());
   r.role = static_cast<std::uint32_t>(role);
   r.total = total;
   r.cpuS = processCpuSeconds();
   r.wallS = wallS;
-  const PeerCounters c = t.totals();
+  const comm::PeerCounters c = t.totals();
   r.bytesSent = c.bytesSent;
   r.bytesReceived = c.bytesReceived;
   r.messagesSent = c.messagesSent;
@@ -70,4 +70,4 @@ inline ReportMsg makeReport(const Transport& t, Role role, const StageTimes& tot
   return r;
 }
 
-}  // namespace pp5::comm
+}  // namespace pp5::parallel

@@ -1,4 +1,4 @@
-#include "comm/parallel_settings.hpp"
+#include "parallel/parallel_settings.hpp"
 
 #include <cstring>
 
@@ -7,7 +7,7 @@
 #include "core/config.hpp"
 #include "core/error.hpp"
 
-namespace pp5::comm {
+namespace pp5::parallel {
 
 void registerOptions(ConfigSchema& schema, ParallelSettings& s) {
   schema.section("parallel", "The distributed pipeline under mpirun: ranks, partitionings, tiles and compositing.");
@@ -41,9 +41,9 @@ void registerOptions(ConfigSchema& schema, ParallelSettings& s) {
                 "Threads per rank for reconstruction, shading, sampling and compositing; 0 = every core.");
 }
 
-ControlState makeControlState(const RenderSettings& r, const gp::ShadeSettings& sh,
+comm::ControlState makeControlState(const RenderSettings& r, const gp::ShadeSettings& sh,
                               const TransferFunctionSettings& tf) {
-  ControlState c;
+  comm::ControlState c;
   c.projection = r.projectionEnum() == Projection::Orthographic ? 1 : 0;
   c.liveMode = static_cast<std::uint8_t>(pp::compositeModeFromName(r.compositing.front()));
   c.shadeMode = static_cast<std::uint8_t>(sh.modeEnum());
@@ -61,9 +61,9 @@ ControlState makeControlState(const RenderSettings& r, const gp::ShadeSettings& 
   c.flatGradient = sh.flatGradient;
   c.gradientOpacityLow = sh.gradientOpacityLow;
   c.gradientOpacityWidth = sh.gradientOpacityWidth;
-  if (tf.opacity.size() > ControlState::kMaxPoints || tf.colour.size() > ControlState::kMaxPoints)
+  if (tf.opacity.size() > comm::ControlState::kMaxPoints || tf.colour.size() > comm::ControlState::kMaxPoints)
     throw InputError(fmt::format("render.tf: at most {} opacity and {} colour points fit in a control message",
-                                 ControlState::kMaxPoints, ControlState::kMaxPoints));
+                                 comm::ControlState::kMaxPoints, comm::ControlState::kMaxPoints));
   c.opacityPoints = static_cast<std::int32_t>(tf.opacity.size());
   c.colourPoints = static_cast<std::int32_t>(tf.colour.size());
   for (std::size_t i = 0; i < tf.opacity.size(); ++i) {
@@ -75,7 +75,7 @@ ControlState makeControlState(const RenderSettings& r, const gp::ShadeSettings& 
   return c;
 }
 
-void applyControlState(const ControlState& c, RenderSettings& r, gp::ShadeSettings& sh, TransferFunctionSettings& tf) {
+void applyControlState(const comm::ControlState& c, RenderSettings& r, gp::ShadeSettings& sh, TransferFunctionSettings& tf) {
   r.projection = c.projection ? "orthographic" : "perspective";
   r.fovDeg = c.fovDeg;
   r.azimuthDeg = c.azimuthDeg;
@@ -102,9 +102,9 @@ void applyControlState(const ControlState& c, RenderSettings& r, gp::ShadeSettin
     tf.colour[i] = glm::dvec4(c.colour[i][0], c.colour[i][1], c.colour[i][2], c.colour[i][3]);
 }
 
-pp::CompositeMode liveMode(const ControlState& c) { return static_cast<pp::CompositeMode>(c.liveMode); }
+pp::CompositeMode liveMode(const comm::ControlState& c) { return static_cast<pp::CompositeMode>(c.liveMode); }
 
-Camera controlCamera(const ControlState& c, const RenderSettings& base, const Grid& grid) {
+Camera controlCamera(const comm::ControlState& c, const RenderSettings& base, const Grid& grid) {
   RenderSettings r = base;
   gp::ShadeSettings sh;
   TransferFunctionSettings tf;
@@ -114,24 +114,24 @@ Camera controlCamera(const ControlState& c, const RenderSettings& base, const Gr
   return cam;
 }
 
-std::uint32_t controlChanges(const ControlState& a, const ControlState& b) {
+std::uint32_t controlChanges(const comm::ControlState& a, const comm::ControlState& b) {
   std::uint32_t ch = 0;
   auto differs = [](const auto& x, const auto& y) { return std::memcmp(&x, &y, sizeof x) != 0; };
   if (a.projection != b.projection || differs(a.fovDeg, b.fovDeg) || differs(a.azimuthDeg, b.azimuthDeg) ||
       differs(a.elevationDeg, b.elevationDeg) || differs(a.distance, b.distance) || a.orbitValid != b.orbitValid ||
       differs(a.orbitAxis, b.orbitAxis) || differs(a.orbitDeg, b.orbitDeg))
-    ch |= ControlMsg::kView;
+    ch |= comm::ControlMsg::kView;
   if (a.shadeMode != b.shadeMode || a.light != b.light || a.gradientOpacity != b.gradientOpacity ||
       differs(a.ambient, b.ambient) || differs(a.diffuse, b.diffuse) || differs(a.specular, b.specular) ||
       differs(a.shininess, b.shininess) || differs(a.lightDirection, b.lightDirection) ||
       differs(a.flatGradient, b.flatGradient) || differs(a.gradientOpacityLow, b.gradientOpacityLow) ||
       differs(a.gradientOpacityWidth, b.gradientOpacityWidth))
-    ch |= ControlMsg::kShading;
+    ch |= comm::ControlMsg::kShading;
   if (a.opacityPoints != b.opacityPoints || a.colourPoints != b.colourPoints || differs(a.opacity, b.opacity) ||
       differs(a.colour, b.colour))
-    ch |= ControlMsg::kTransfer;
-  if (a.liveMode != b.liveMode) ch |= ControlMsg::kMode;
+    ch |= comm::ControlMsg::kTransfer;
+  if (a.liveMode != b.liveMode) ch |= comm::ControlMsg::kMode;
   return ch;
 }
 
-}  // namespace pp5::comm
+}  // namespace pp5::parallel

@@ -13,21 +13,21 @@
 //    gp::stencilCell) are cut into one box per GP, so every lattice sample has
 //    exactly one owner. A GP keeps the voxels of its window exact: its cells'
 //    voxels plus ghost layers for the gradient and the stencil.
-//  - frameReach / fillInReach / gpsTouched: which GPs a frame (and the fill-in
-//    between it and the previous frame) can change.
+//  - gpsTouched: which GPs a frame (and the fill-in between it and the
+//    previous frame) can change, from the reach gp/slice_geometry.hpp bounds.
 #include <cstdint>
 #include <span>
 #include <string>
 #include <vector>
 
 #include "core/grid.hpp"
+#include "core/tiles.hpp"
 #include "core/transform.hpp"
 #include "gp/dbuffer.hpp"
 #include "gp/dirty_region.hpp"
 #include "gp/reconstruction.hpp"
-#include "pp/ray_cache.hpp"
 
-namespace pp5::comm {
+namespace pp5::parallel {
 
 enum class Role { Host, Gp, Pp };
 const char* roleName(Role r);  // "host" | "GP" | "PP"
@@ -54,20 +54,6 @@ enum class TileOwnership { Contiguous, Interleaved };
 TileOwnership tileOwnershipFromName(const std::string& name);  // "contiguous" | "interleaved"; InputError otherwise
 const char* tileOwnershipName(TileOwnership o);
 
-// The image cut into tiles of tileSize x tileSize pixels, row-major, the last
-// column and row cut short.
-struct TileGrid {
-  int width = 0, height = 0, tileSize = 128;
-
-  TileGrid() = default;
-  TileGrid(int width, int height, int tileSize);  // InputError for sizes < 1
-  int cols() const { return (width + tileSize - 1) / tileSize; }
-  int rows() const { return (height + tileSize - 1) / tileSize; }
-  int count() const { return cols() * rows(); }
-  pp::TileRect rect(int tile) const;
-  int tileOfPixel(std::uint32_t pixel) const;  // pixel = y * width + x
-};
-
 // The owner (0..owners-1) of tile `tile` of `count`:
 //  contiguous:  floor(tile * owners / count), so each owner holds one run of
 //               tiles (row-major) and the run lengths differ by at most one;
@@ -75,10 +61,6 @@ struct TileGrid {
 int tileOwner(int tile, int count, int owners, TileOwnership o);
 // The tiles of `owner`, ascending.
 std::vector<int> tilesOwnedBy(int owner, int count, int owners, TileOwnership o);
-
-// The lattice samples of each tile: the sum of its pixels' sample counts
-// (SampleLattice::counts(), row-major over the image), the size of its ray cache.
-std::vector<std::uint64_t> samplesPerTile(const TileGrid& tiles, std::span<const std::uint16_t> counts);
 
 enum class SlabSplit {
   Longest,  // G slabs along the grid's longest axis
@@ -110,6 +92,10 @@ public:
   // grown by `ghostVoxels` on every side, clipped to the grid. Empty when it
   // owns no cell.
   gp::Box3 window(int g, int ghostVoxels) const;
+  // The voxels GP g's reconstruction depends on: its window grown as the
+  // method needs (gp::reconstructionReach: whole motion-vector cells, the
+  // hole filler's reach). Empty when it owns no cell.
+  gp::Box3 reach(int g, int ghostVoxels, const gp::ReconSettings& recon) const;
   // The parts per axis (Longest: G along one axis, 1 along the others).
   Index3 parts() const { return parts_; }
 
@@ -120,22 +106,10 @@ private:
   std::vector<gp::Box3> cells_;
 };
 
-// The world box around every voxel that inserting a frame of width x height
-// pixels at `imageToReference` can change with the tent kernel of `recon`:
-// the clip rectangle's pixel centres (the whole frame when none is set)
-// grown by the kernel's half-widths along the slice's own axes, then boxed in
-// world axes.
-gp::WorldBox frameReach(const Mat4& imageToReference, int width, int height, const gp::ReconSettings& recon);
-// The same for the fill-in slices between two consecutive frames (poses
-// interpolated by slerp), whatever their number, with both frames' reaches:
-// the union of the reaches of both frames and of interpolated slices at most
-// 1 degree of rotation apart, grown by the sagitta of the rotation between
-// neighbours over the frame's largest radius. Just the two frames' union when
-// recon.fillIn is off or the rotation exceeds recon.fillInMaxAngleDeg (a jump:
-// nothing is filled in).
-gp::WorldBox fillInReach(const Mat4& previous, const Mat4& current, int width, int height,
-                         const gp::ReconSettings& recon);
-// The GPs whose windows (ghostVoxels) a world box touches, ascending.
-std::vector<int> gpsTouched(const SlabLayout& slabs, const gp::WorldBox& box, int ghostVoxels);
+// The GPs whose reconstruction a world box (gp::frameReach, gp::fillInReach)
+// can change, ascending: those with a voxel of their reach (SlabLayout::reach)
+// inside the box.
+std::vector<int> gpsTouched(const SlabLayout& slabs, const gp::WorldBox& box, int ghostVoxels,
+                            const gp::ReconSettings& recon);
 
-}  // namespace pp5::comm
+}  // namespace pp5::parallel

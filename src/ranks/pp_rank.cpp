@@ -1,4 +1,4 @@
-#include "pp/pp_rank.hpp"
+#include "ranks/pp_rank.hpp"
 
 #include <algorithm>
 #include <chrono>
@@ -9,15 +9,17 @@
 
 #include <fmt/format.h>
 
-#include "comm/rank_stats.hpp"
+#include "parallel/rank_stats.hpp"
 #include "core/error.hpp"
-#include "gp/sample_lattice.hpp"
+#include "core/sample_lattice.hpp"
 
-namespace pp5::pp {
+namespace pp5::ranks {
 
 namespace {
 
 using namespace pp5::comm;
+using namespace pp5::pp;
+using namespace pp5::parallel;
 using Clock = std::chrono::steady_clock;
 
 class PpRank {
@@ -154,7 +156,7 @@ private:
   // (applyPending), and put in place at once when it is applied.
   void prepare(const ControlState& state) {
     const Camera cam = controlCamera(state, c_.render, c_.grid);
-    const gp::SampleLattice lattice(cam, c_.grid, render_.step(c_.grid), render_.maxSamples, render_.threads);
+    const SampleLattice lattice(cam, c_.grid, render_.step(c_.grid), render_.maxSamples, render_.threads);
     const CompositeMode mode = liveMode(state);
     for (std::size_t i = 0; i < mine_.size(); ++i) {
       const TileRect r = tiles_.rect(mine_[i]);
@@ -408,8 +410,8 @@ private:
 
 void runPpRank(comm::Transport& t, const PpRankConfig& c) {
   PpRank pp(t, c);
-  MPI_Barrier(MPI_COMM_WORLD);  // ready: the host starts acquiring once every rank is
+  t.barrier();  // ready: the host starts acquiring once every rank is
   pp.run();
 }
 
-}  // namespace pp5::pp
+}  // namespace pp5::ranks

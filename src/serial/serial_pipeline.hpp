@@ -17,12 +17,12 @@
 #include "core/transfer_function.hpp"
 #include "gp/ray_sampler.hpp"
 #include "gp/reconstruction.hpp"
-#include "gp/sample_lattice.hpp"
+#include "core/sample_lattice.hpp"
 #include "gp/shade_buffer.hpp"
 #include "gp/shading.hpp"
 #include "pp/ray_cache.hpp"
 
-namespace pp5::host {
+namespace pp5::serial {
 
 struct PipelineSettings {
   gp::ReconSettings recon;
@@ -86,7 +86,7 @@ private:
   std::unique_ptr<gp::Reconstructor> recon_;
   TransferFunction tf_;
   Camera camera_;
-  gp::SampleLattice lattice_;
+  SampleLattice lattice_;
   gp::ShadeBuffer shade_;
   gp::EmptySpaceMap space_;
   gp::EmptySpaceMap spaceBefore_;  // space_ before the frame being inserted
@@ -103,4 +103,4 @@ private:
   void resample(bool cleared);
 };
 
-}  // namespace pp5::host
+}  // namespace pp5::serial

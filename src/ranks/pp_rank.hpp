@@ -13,27 +13,27 @@
 // A control change from the host is applied at once: messages from older
 // epochs still in flight are dropped (counted), and those from the new epoch
 // that overtook the control wait for it.
-#include "comm/parallel_settings.hpp"
-#include "comm/schedule.hpp"
+#include "parallel/parallel_settings.hpp"
+#include "parallel/schedule.hpp"
 #include "comm/transport.hpp"
 #include "core/grid.hpp"
 #include "core/render_settings.hpp"
 #include "gp/shading.hpp"
 #include "pp/ray_cache.hpp"
 
-namespace pp5::pp {
+namespace pp5::ranks {
 
 struct PpRankConfig {
   Grid grid;
   RenderSettings render;
   gp::ShadeSettings shading;
   TransferFunctionSettings tf;
-  RayCacheSettings cache;
-  comm::ParallelSettings parallel;
-  comm::RankLayout layout;
+  pp::RayCacheSettings cache;
+  parallel::ParallelSettings parallel;
+  pp5::parallel::RankLayout layout;
 };
 
 // Runs until the host says quit; throws on any error (the caller ends the job).
 void runPpRank(comm::Transport& t, const PpRankConfig& c);
 
-}  // namespace pp5::pp
+}  // namespace pp5::ranks

@@ -1,4 +1,4 @@
-#include "gp/sample_lattice.hpp"
+#include "core/sample_lattice.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -12,7 +12,7 @@
 
 #include "core/error.hpp"
 
-namespace pp5::gp {
+namespace pp5 {
 
 PixelRays::PixelRays(const Camera& camera) : cam_(camera) {
   PP5_CHECK_GT(cam_.width, 0);
@@ -186,4 +186,4 @@ VoxelRay SampleLattice::voxelRay(std::uint32_t pixel, const Ray& r) const {
   return {glm::vec3(o + d * static_cast<double>(t0_[pixel])), glm::vec3(d * step_)};
 }
 
-}  // namespace pp5::gp
+}  // namespace pp5

@@ -1,4 +1,4 @@
-#include "host/serial_pipeline.hpp"
+#include "serial/serial_pipeline.hpp"
 
 #include <chrono>
 #include <functional>
@@ -7,7 +7,7 @@
 
 #include "core/error.hpp"
 
-namespace pp5::host {
+namespace pp5::serial {
 
 namespace {
 
@@ -64,8 +64,8 @@ void SerialPipeline::setCamera(const Camera& camera) {
 
 void SerialPipeline::useCamera(const Camera& camera) {
   camera_ = camera;
-  lattice_ = gp::SampleLattice(camera_, grid_, s_.render.step(grid_), s_.render.maxSamples, s_.render.threads);
-  const pp::TileRect tile{0, 0, camera_.width, camera_.height};
+  lattice_ = SampleLattice(camera_, grid_, s_.render.step(grid_), s_.render.maxSamples, s_.render.threads);
+  const TileRect tile{0, 0, camera_.width, camera_.height};
   if (cache_ && cache_->tile().width == tile.width && cache_->tile().height == tile.height) {
     cache_->reset(lattice_.counts());
   } else {
@@ -154,7 +154,7 @@ pp::TileImage SerialPipeline::renderFromScratch(pp::CompositeMode mode) const {
   gp::ShadeBuffer shade(grid_);
   gp::shade(recon_->output(), tf_, s_.shading, camera_, wholeGrid(grid_), shade);
   const gp::EmptySpaceMap space(shade, s_.render.threads);
-  pp::RayCache cache(pp::TileRect{0, 0, camera_.width, camera_.height}, camera_.width, lattice_.counts(), s_.cache, mode,
+  pp::RayCache cache(TileRect{0, 0, camera_.width, camera_.height}, camera_.width, lattice_.counts(), s_.cache, mode,
                      s_.render.threads);
   CacheSink sink(cache);
   gp::sampleAll(shade, lattice_, s_.render, sink, &space);
@@ -162,4 +162,4 @@ pp::TileImage SerialPipeline::renderFromScratch(pp::CompositeMode mode) const {
   return cache.image();
 }
 
-}  // namespace pp5::host
+}  // namespace pp5::serial

@@ -26,7 +26,7 @@
 #include "core/grid.hpp"
 #include "core/render_settings.hpp"
 
-namespace pp5::gp {
+namespace pp5 {
 
 // The ray of every pixel of a camera's image, from a basis computed once.
 // ray() repeats Camera::ray's arithmetic step for step, so its rays are
@@ -128,4 +128,4 @@ private:
   std::vector<std::uint16_t> count_;
 };
 
-}  // namespace pp5::gp
+}  // namespace pp5

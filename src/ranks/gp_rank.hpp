@@ -1,7 +1,7 @@
 #pragma once
 // The graphics-processor rank: frames in from the host, ray samples out to the
 // pixel processors. It calls the same stages as the serial pipeline
-// (host/serial_pipeline.hpp), restricted to its share of the work:
+// (serial/serial_pipeline.hpp), restricted to its share of the work:
 //  - slab: it reconstructs only its window of the grid (its cells plus ghost
 //    layers), shades the voxels its cells' samples read, and samples only the
 //    lattice points of its cells;
@@ -10,8 +10,8 @@
 // Either way every sample it sends has the bits the serial pipeline computes.
 #include <cstdint>
 
-#include "comm/parallel_settings.hpp"
-#include "comm/schedule.hpp"
+#include "parallel/parallel_settings.hpp"
+#include "parallel/schedule.hpp"
 #include "comm/transport.hpp"
 #include "core/grid.hpp"
 #include "core/render_settings.hpp"
@@ -19,20 +19,20 @@
 #include "gp/reconstruction.hpp"
 #include "gp/shading.hpp"
 
-namespace pp5::gp {
+namespace pp5::ranks {
 
 struct GpRankConfig {
   Grid grid;
-  ReconSettings recon;
+  gp::ReconSettings recon;
   RenderSettings render;
-  ShadeSettings shading;
+  gp::ShadeSettings shading;
   TransferFunctionSettings tf;
-  comm::ParallelSettings parallel;
-  comm::RankLayout layout;
+  parallel::ParallelSettings parallel;
+  pp5::parallel::RankLayout layout;
   std::uint64_t memoryLimitBytes = 0;
 };
 
 // Runs until the host says quit; throws on any error (the caller ends the job).
 void runGpRank(comm::Transport& t, const GpRankConfig& c);
 
-}  // namespace pp5::gp
+}  // namespace pp5::ranks

@@ -1,0 +1,69 @@
+#pragma once
+#include <cstddef>
+#include <cstdint>
+#include <cstring>
+
+namespace pp5::pp {
+
+// IEEE binary16 conversions used by the half format, bit-identical to GCC's
+// _Float16 conversions (round to nearest even; subnormals, inf and NaN kept).
+// Written out because without F16C the compiler calls libgcc for each value;
+// branch-free, since zero and subnormal values are common in sample data and
+// a branch on them mispredicts.
+inline std::uint16_t floatToHalf(float f) {
+  std::uint32_t u;
+  std::memcpy(&u, &f, 4);
+  const std::uint32_t sign = (u >> 16) & 0x8000u;
+  u &= 0x7fffffffu;
+  // Normal: rebias the exponent (-112 << 23, mod 2^32), round to nearest even.
+  const std::uint32_t normal = (u + 0xc8000fffu + ((u >> 13) & 1u)) >> 13;
+  // Below half's smallest normal: adding 0.5 (ulp 2^-24, half's subnormal
+  // step) makes the FPU round to the subnormal grid.
+  float a;
+  std::memcpy(&a, &u, 4);
+  a += 0.5f;
+  std::uint32_t v;
+  std::memcpy(&v, &a, 4);
+  const std::uint32_t sub = v - 0x3f000000u;
+  // 65520 and above round to inf; NaN stays NaN, quiet.
+  const std::uint32_t big = u > 0x7f800000u ? (0x7e00u | ((u >> 13) & 0x3ffu)) : 0x7c00u;
+  const std::uint32_t h = u >= 0x47800000u ? big : u < 0x38800000u ? sub : normal;
+  return static_cast<std::uint16_t>(h | sign);
+}
+
+inline float halfToFloat(std::uint16_t h) {
+  const std::uint32_t m = static_cast<std::uint32_t>(h & 0x7fffu) << 13;
+  const std::uint32_t e = m & 0x0f800000u;
+  const std::uint32_t isSub = 0u - static_cast<std::uint32_t>(e == 0);
+  const std::uint32_t isInf = 0u - static_cast<std::uint32_t>(e == 0x0f800000u);
+  const std::uint32_t normal = m + (112u << 23) + (isInf & (112u << 23));
+  // Zero and subnormals through a normal float, never a subnormal one (slow on x86).
+  const std::uint32_t v = m + (113u << 23), magicBits = 113u << 23;
+  float fv, magic;
+  std::memcpy(&fv, &v, 4);
+  std::memcpy(&magic, &magicBits, 4);
+  const float sub = fv - magic;
+  std::uint32_t subBits;
+  std::memcpy(&subBits, &sub, 4);
+  const std::uint32_t u = (isSub & subBits) | (~isSub & normal) | (static_cast<std::uint32_t>(h & 0x8000u) << 16);
+  float f;
+  std::memcpy(&f, &u, 4);
+  return f;
+}
+
+// n values at once: F16C instructions where the CPU has them (checked once),
+// else the functions above; the same bits either way.
+void halfToFloatN(const std::uint16_t* src, std::size_t n, float* dst);
+void floatToHalfN(const float* src, std::size_t n, std::uint16_t* dst);
+// Whether the CPU converts with F16C (and AVX), which the N-value conversions
+// and the cache's half put loop then use. A function-local static, so that it
+// is set even when called during another file's static initialisation.
+inline bool halfConversionUsesF16c() {
+  static const bool has = [] {
+    __builtin_cpu_init();
+    return __builtin_cpu_supports("f16c") && __builtin_cpu_supports("avx");
+  }();
+  return has;
+}
+
+}  // namespace pp5::pp
