@@ -35,12 +35,10 @@ std::vector<std::string> allConfigs() {
   return out;
 }
 
-// A probe-calibration config (fCal's): its ImageToProbe is what the
-// calibration finds, so the file has none.
+// A spatial-calibration config (fCal's, named so by PLUS): its ImageToProbe
+// is what the calibration finds, so the file has none.
 bool isCalibrationConfig(const std::string& path) {
-  std::ifstream in(path);
-  const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  return text.find("<vtkPlusProbeCalibrationAlgo") != std::string::npos;
+  return fs::path(path).filename().string().find("_SpatialCalibration_") != std::string::npos;
 }
 
 // The text of an InputError thrown by f (fails the test when none is thrown).

@@ -10,7 +10,7 @@
 #include "core/error.hpp"
 #include "core/sample_lattice.hpp"
 #include "gp/shade_buffer.hpp"
-#include "gp/simd.hpp"
+#include "core/simd.hpp"
 
 namespace pp5::gp {
 

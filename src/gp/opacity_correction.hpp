@@ -2,11 +2,13 @@
 // The opacity correction for the sampling step: a' = 1 - (1 - a)^e, four
 // samples at a time, as a polynomial log2/exp2 in float (relative error
 // about 1e-6), the same bits on any machine, unlike libm's powf.
-#include "gp/simd.hpp"
+#include "core/simd.hpp"
 
 namespace pp5::gp {
 
-namespace simd {
+namespace opacity {
+
+using namespace pp5::simd;
 
 // a' = 1 - (1 - a)^e for a in [0, 1], e > 0, e != 1.
 // log2(1 - a) by the atanh series on the mantissa m: where m is 1 - a itself
@@ -52,10 +54,10 @@ inline F4 correctLanes(F4 a, float e) {
   return correct4(a, e);
 }
 
-}  // namespace simd
+}  // namespace opacity
 
 // 1 - (1 - a)^e for a in [0, 1], e > 0: the opacity correction, as the
 // sampler computes it.
-inline float correctOpacity(float a, float e) { return simd::correctLanes(simd::F4{a, 0.0f, 0.0f, 0.0f}, e)[0]; }
+inline float correctOpacity(float a, float e) { return opacity::correctLanes(simd::F4{a, 0.0f, 0.0f, 0.0f}, e)[0]; }
 
 }  // namespace pp5::gp

@@ -11,6 +11,7 @@
 #endif
 
 #include "core/error.hpp"
+#include "core/simd.hpp"
 
 namespace pp5::gp::pixel {
 
@@ -461,8 +462,8 @@ void nearestPlus(const Job& job, PlusCell* cells, const Slab& slab, bool split, 
 // the corners' PLUS state is carried in registers through the group (plus).
 // As for nearest neighbour the groups do not depend on the slab cut.
 
-using v4f = float __attribute__((vector_size(16)));
-using v4i = std::int32_t __attribute__((vector_size(16)));
+using simd::F4;
+using simd::I4;
 
 // Float: corner k = 4*bx + 2*by + bz; lanes 0..3 of the "lo" vectors are
 // bx = 0 (by, bz = 00, 01, 10, 11), of the "hi" vectors bx = 1.
@@ -482,8 +483,8 @@ void trilinearFloat(const Job& job, FloatCell* cells, const Slab& slab, bool spl
     range[a] = static_cast<std::uint64_t>(bd.hi[a] - bd.lo[a] + 1);
   }
   std::uint64_t inserted = 0;
-  const v4f eighth = {kMinWeightFloat, kMinWeightFloat, kMinWeightFloat, kMinWeightFloat};
-  const v4f zero = {0, 0, 0, 0};
+  const F4 eighth = {kMinWeightFloat, kMinWeightFloat, kMinWeightFloat, kMinWeightFloat};
+  const F4 zero = {0, 0, 0, 0};
 
   for (const PixelRun& r : *job.runs) {
     const Pix* row = rowPtr<Pix>(job, r.y);
@@ -503,7 +504,7 @@ void trilinearFloat(const Job& job, FloatCell* cells, const Slab& slab, bool spl
       // Corner k = 4*bx + 2*by + bz; lanes 0..3 of the "lo" vectors hold
       // bx = 0 (by bz = 00, 01, 10, 11), the "hi" vectors bx = 1. MEAN keeps
       // weighted sums, LATEST / MAXIMUM values.
-      v4f slo = zero, shi = zero, wlo = zero, whi = zero;
+      F4 slo = zero, shi = zero, wlo = zero, whi = zero;
       // The fractions at the segment's first pixel, from the row in double
       // (the segment decides n0; clamped against rounding), then stepped in
       // float from pixel to pixel: y and z as the vectors (1-fy, 1-fy, fy, fy)
@@ -514,14 +515,14 @@ void trilinearFloat(const Job& job, FloatCell* cells, const Slab& slab, bool spl
       const float f0 = static_cast<float>(std::min(std::max(b0 + di * X0 - double(mx), 0.0), 1.0));
       const float f1 = static_cast<float>(std::min(std::max(b1 + di * X1 - double(my), 0.0), 1.0));
       const float f2 = static_cast<float>(std::min(std::max(b2 + di * X2 - double(mz), 0.0), 1.0));
-      v4f Y = {1.0f - f1, 1.0f - f1, f1, f1}, Z = {1.0f - f2, f2, 1.0f - f2, f2};
-      v4f XL = zero + (1.0f - f0), XH = zero + f0;
-      const v4f dY = {-x1f, -x1f, x1f, x1f}, dZ = {-x2f, x2f, -x2f, x2f}, dX = zero + x0f;
+      F4 Y = {1.0f - f1, 1.0f - f1, f1, f1}, Z = {1.0f - f2, f2, 1.0f - f2, f2};
+      F4 XL = zero + (1.0f - f0), XH = zero + f0;
+      const F4 dY = {-x1f, -x1f, x1f, x1f}, dZ = {-x2f, x2f, -x2f, x2f}, dX = zero + x0f;
       std::uint32_t n = 0;
       for (int k = i; k < e; ++k) {
         const int inI = row[k];
-        const v4f yz = Y * Z;
-        v4f lo = yz * XL, hi = yz * XH;
+        const F4 yz = Y * Z;
+        F4 lo = yz * XL, hi = yz * XH;
         Y += dY;
         Z += dZ;
         XL -= dX;
@@ -538,8 +539,8 @@ void trilinearFloat(const Job& job, FloatCell* cells, const Slab& slab, bool spl
           whi += hi;
         } else {
           // Only where the weight is at least 1/8 (PLUS's rule).
-          const v4i mlo = lo >= eighth, mhi = hi >= eighth;
-          const v4f vin = {in, in, in, in};
+          const I4 mlo = lo >= eighth, mhi = hi >= eighth;
+          const F4 vin = {in, in, in, in};
           if constexpr (C == Compounding::Latest) {
             slo = mlo ? vin : slo;
             shi = mhi ? vin : shi;

@@ -17,11 +17,12 @@
 #include "core/error.hpp"
 #include "gp/interpolator.hpp"
 #include "gp/opacity_correction.hpp"
-#include "gp/simd.hpp"
+#include "core/simd.hpp"
 
 namespace pp5::gp {
 
 using namespace simd;
+using opacity::correctLanes;
 
 namespace {
 

@@ -13,6 +13,7 @@
 #include <spdlog/spdlog.h>
 
 #include "parallel/rank_stats.hpp"
+#include "parallel/partition.hpp"
 #include "parallel/schedule.hpp"
 #include "core/error.hpp"
 #include "core/image_io.hpp"
@@ -51,10 +52,8 @@ public:
     fb_.assign(static_cast<std::size_t>(w_) * h_ * 4, 0.0f);
     requestFb_ = fb_;
     nextFb_ = fb_;
-    slab_ = j_.parallel.slab() && j_.pipeline.recon.methodEnum() == gp::Method::Tent;
-    if (slab_) {
-      slabs_ = SlabLayout(j_.grid, L_.gps, j_.parallel.split());
-    }
+    partition_ = makePartition(j_.parallel, L_, j_.grid, j_.pipeline.recon,
+                               TileGrid(w_, h_, j_.parallel.tileSize));
     if (j_.verify) {
       // lockstep: every image; tick: the image once every frame is in (what
       // the GPs' batched updates must leave), then those after it.
@@ -103,8 +102,7 @@ private:
   std::uint32_t maxBatch_ = 0;
   StageClock clock_;
 
-  bool slab_ = false;
-  SlabLayout slabs_;
+  std::unique_ptr<Partition> partition_;
   std::vector<std::int64_t> lastPixels_;  // per GP: the last frame whose pixels it got
   AcquiredFrame prev_;
   bool hasPrev_ = false;
@@ -259,14 +257,13 @@ private:
     const std::uint64_t k = sent_;
     const Frame& f = a.frame;
     std::vector<char> pixels(static_cast<std::size_t>(L_.gps), 1);
-    if (slab_) {
+    if (partition_->placesFrames()) {
       const bool fill = hasPrev_ && prev_.frame.width == f.width && prev_.frame.height == f.height;
       const gp::WorldBox reach = fill ? gp::fillInReach(prev_.imageToReference, a.imageToReference, f.width, f.height,
                                                         j_.pipeline.recon)
                                       : gp::frameReach(a.imageToReference, f.width, f.height, j_.pipeline.recon);
       std::fill(pixels.begin(), pixels.end(), 0);
-      for (const int g : gpsTouched(slabs_, reach, j_.parallel.ghostVoxels, j_.pipeline.recon))
-        pixels[static_cast<std::size_t>(g)] = 1;
+      for (const int g : partition_->gpsReached(reach)) pixels[static_cast<std::size_t>(g)] = 1;
     }
     FrameMsg fm;
     fm.h = {kTagFrame, epoch_, k};

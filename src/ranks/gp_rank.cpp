@@ -10,12 +10,11 @@
 
 #include <fmt/format.h>
 
-#include "parallel/rank_stats.hpp"
 #include "core/error.hpp"
-#include "gp/dbuffer.hpp"
+#include "gp/gp_update.hpp"
 #include "gp/ray_sampler.hpp"
-#include "core/sample_lattice.hpp"
-#include "gp/shade_buffer.hpp"
+#include "parallel/partition.hpp"
+#include "parallel/rank_stats.hpp"
 
 namespace pp5::ranks {
 
@@ -24,8 +23,6 @@ namespace {
 using namespace pp5::comm;
 using namespace pp5::gp;
 using namespace pp5::parallel;
-
-Box3 wholeGrid(const Grid& g) { return {Index3(0), g.dims}; }
 
 // Buckets the sampler's batches by PP tile, one set of buckets per sampling
 // thread (consume() is called concurrently), to be sent once sampling is done.
@@ -65,58 +62,30 @@ class GpRank {
 public:
   GpRank(Transport& t, const GpRankConfig& c)
       : t_(t), c_(c), g_(c.layout.gpIndex(t.rank())), start_(std::chrono::steady_clock::now()) {
-    const Grid& grid = c_.grid;
-    ReconSettings rs = c_.recon;
-    rs.threads = c_.parallel.threads;
-    render_ = c_.render;
-    render_.threads = c_.parallel.threads;
-    shading_ = c_.shading;
-    shading_.threads = render_.threads;
-    tf_ = TransferFunction(c_.tf);
-    state_ = makeControlState(render_, shading_, c_.tf);
-    recon_ = makeReconstructor(grid, rs, c_.memoryLimitBytes, "reconstruction grid ([grid])");
-    checkGridFits(grid, 4, "shade buffer ([grid])", c_.memoryLimitBytes);
-    shade_ = ShadeBuffer(grid);
+    gp::GpUpdateSettings us;
+    us.recon = c_.recon;
+    us.recon.threads = c_.parallel.threads;
+    us.render = c_.render;
+    us.render.threads = c_.parallel.threads;
+    us.shading = c_.shading;
+    us.shading.threads = us.render.threads;
+    us.tf = c_.tf;
+    us.memoryLimitBytes = c_.memoryLimitBytes;
+    state_ = makeControlState(us.render, us.shading, c_.tf);
 
-    tiles_ = TileGrid(render_.width, render_.height, c_.parallel.tileSize);
+    tiles_ = TileGrid(us.render.width, us.render.height, c_.parallel.tileSize);
     const TileOwnership own = c_.parallel.ownership();
     ppOfTile_.resize(static_cast<std::size_t>(tiles_.count()));
     for (int i = 0; i < tiles_.count(); ++i)
       ppOfTile_[static_cast<std::size_t>(i)] = c_.layout.ppRank(tileOwner(i, tiles_.count(), c_.layout.pps, own));
-    workTile_ = std::gcd(32, c_.parallel.tileSize);
-    const int wcols = (render_.width + workTile_ - 1) / workTile_, wrows = (render_.height + workTile_ - 1) / workTile_;
-    std::vector<std::uint32_t> workToTile(static_cast<std::size_t>(wcols) * static_cast<std::size_t>(wrows));
-    for (int wy = 0; wy < wrows; ++wy)
-      for (int wx = 0; wx < wcols; ++wx)
-        workToTile[static_cast<std::size_t>(wy * wcols + wx)] = static_cast<std::uint32_t>(
-            tiles_.tileOfPixel(static_cast<std::uint32_t>(wy * workTile_ * render_.width + wx * workTile_)));
-
-    slab_ = c_.parallel.slab();
-    if (slab_) {
-      slabs_ = SlabLayout(grid, c_.layout.gps, c_.parallel.split());
-      owned_ = slabs_.ownedCells(g_);
-      if (!owned_.empty()) {
-        window_ = slabs_.window(g_, c_.parallel.ghostVoxels);
-        shadeRegion_ = Box3{owned_.lo, owned_.hi + Index3(1)}.intersect(wholeGrid(grid));
-      }
-      recon_->setWindow(window_);
-      options_.ownedCells = owned_;
-    } else {
-      for (int i : tilesOwnedBy(g_, tiles_.count(), c_.layout.gps, own)) myRects_.push_back(tiles_.rect(i));
-      options_.workTiles.assign(workToTile.size(), 0);
-      for (std::size_t w = 0; w < workToTile.size(); ++w)
-        options_.workTiles[w] = tileOwner(static_cast<int>(workToTile[w]), tiles_.count(), c_.layout.gps, own) == g_;
-    }
-    options_.tileSize = workTile_;
-    const int threads = std::max<int>(render_.threads, static_cast<int>(std::thread::hardware_concurrency())) + 1;
-    buckets_ = std::make_unique<TileBuckets>(std::move(workToTile), tiles_.count(), threads);
-
-    camera_ = controlCamera(state_, c_.render, grid);
-    lattice_ = SampleLattice(camera_, grid, render_.step(grid), render_.maxSamples, render_.threads);
+    partition_ = makePartition(c_.parallel, c_.layout, c_.grid, us.recon, tiles_);
     // As the serial pipeline starts: the empty grid shaded (and nothing to
     // sample: every sample of an empty grid is transparent).
-    shadeAll();
-    space_ = EmptySpaceMap(shade_, render_.threads);
+    update_ = std::make_unique<gp::GpUpdate>(c_.grid, us, controlCamera(state_, c_.render, c_.grid),
+                                             partition_->share(g_));
+    if (const auto w = partition_->window(g_)) update_->reconstructor().setWindow(*w);
+    const int threads = std::max<int>(us.render.threads, static_cast<int>(std::thread::hardware_concurrency())) + 1;
+    buckets_ = std::make_unique<TileBuckets>(workTileOwners(tiles_), tiles_.count(), threads);
   }
 
   void run() {
@@ -131,7 +100,8 @@ public:
         case kTagVolumeRequest: sendVolume(h); break;
         case kTagQuit: {
           const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
-          const std::uint64_t mem = recon_->output().bytes.size() * 2 + shade_.memoryBytes();
+          const std::uint64_t mem =
+              update_->reconstructor().output().bytes.size() * 2 + update_->shadeBuffer().memoryBytes();
           t_.send(0, makeReport(t_, Role::Gp, clock_.total(), wall, 0, mem));
           t_.flush();
           return;
@@ -153,93 +123,12 @@ private:
   std::uint32_t epoch_ = 0;
   std::uint64_t lastFrame_ = 0;
 
-  std::unique_ptr<Reconstructor> recon_;
-  RenderSettings render_;
-  ShadeSettings shading_;
-  TransferFunction tf_;
   ControlState state_;
-  Camera camera_;
-  SampleLattice lattice_;
-  ShadeBuffer shade_;
-  EmptySpaceMap space_, spaceBefore_;
-  DBuffer dbuf_;
-
   TileGrid tiles_;
   std::vector<int> ppOfTile_;
-  int workTile_ = 32;
-  SamplerOptions options_;
+  std::unique_ptr<Partition> partition_;
+  std::unique_ptr<gp::GpUpdate> update_;
   std::unique_ptr<TileBuckets> buckets_;
-
-  bool slab_ = true;
-  SlabLayout slabs_;
-  Box3 owned_, window_, shadeRegion_;
-  std::vector<TileRect> myRects_;
-
-  // tile: whether a sample in one of this GP's tiles can read a voxel of `b`.
-  bool visible(const Box3& b) const {
-    const Grid& g = c_.grid;
-    // The samples that read voxels of b lie in the cells [lo - 1, hi), i.e.
-    // at voxel positions [lo - 1, hi] (clamped to the sampling box).
-    const Vec3 lo = glm::max(Vec3(b.lo) - 1.0, Vec3(0.0)) - kStencilSlackVoxels;
-    const Vec3 hi = glm::min(Vec3(b.hi), Vec3(g.dims - Index3(1))) + kStencilSlackVoxels;
-    double x0 = 1e300, y0 = 1e300, x1 = -1e300, y1 = -1e300;
-    for (int a = 0; a < 8; ++a) {
-      const Vec3 v((a & 1) ? hi.x : lo.x, (a & 2) ? hi.y : lo.y, (a & 4) ? hi.z : lo.z);
-      const auto p = camera_.project(g.voxelToWorld(v));
-      if (!p) return true;  // reaches behind the eye: keep it
-      x0 = std::min(x0, p->px);
-      x1 = std::max(x1, p->px);
-      y0 = std::min(y0, p->py);
-      y1 = std::max(y1, p->py);
-    }
-    // Pixel x's ray passes through x + 0.5; one pixel of margin for rounding.
-    const double px0 = std::ceil(x0 - 0.5) - 1, px1 = std::floor(x1 - 0.5) + 1;
-    const double py0 = std::ceil(y0 - 0.5) - 1, py1 = std::floor(y1 - 0.5) + 1;
-    for (const TileRect& r : myRects_)
-      if (px1 >= r.x0 && px0 < r.x0 + r.width && py1 >= r.y0 && py0 < r.y0 + r.height) return true;
-    return false;
-  }
-
-  // The part of the serial pipeline's shading boxes this GP shades.
-  std::vector<Box3> myShare(const std::vector<Box3>& boxes) const {
-    std::vector<Box3> out;
-    for (const Box3& b : boxes) {
-      if (slab_) {
-        const Box3 c = b.intersect(shadeRegion_);
-        if (!c.empty()) out.push_back(c);
-      } else {
-        // A frame's shading boxes span the whole slice; cut them into bricks
-        // so that what this GP's tiles do not see is really skipped.
-        constexpr std::int64_t B = 16;
-        const Box3 c = b.intersect(wholeGrid(c_.grid));
-        for (std::int64_t k = c.lo.z; k < c.hi.z; k += B)
-          for (std::int64_t j = c.lo.y; j < c.hi.y; j += B)
-            for (std::int64_t i = c.lo.x; i < c.hi.x; i += B) {
-              const Box3 brick{Index3(i, j, k), glm::min(Index3(i, j, k) + Index3(B), c.hi)};
-              if (visible(brick)) out.push_back(brick);
-            }
-      }
-    }
-    return out;
-  }
-
-  void shadeAll() {
-    if (slab_) {
-      if (!shadeRegion_.empty()) shade(recon_->output(), tf_, shading_, camera_, shadeRegion_, shade_);
-      return;
-    }
-    // Bricks, so that what none of this GP's tiles sees is skipped.
-    constexpr std::int64_t B = 32;
-    const Index3 d = c_.grid.dims;
-    std::vector<Box3> seen;
-    for (std::int64_t k = 0; k < d.z; k += B)
-      for (std::int64_t j = 0; j < d.y; j += B)
-        for (std::int64_t i = 0; i < d.x; i += B) {
-          const Box3 b{Index3(i, j, k), glm::min(Index3(i, j, k) + Index3(B), d)};
-          if (visible(b)) seen.push_back(b);
-        }
-    shade(recon_->output(), tf_, shading_, camera_, seen, shade_);
-  }
 
   Frame unpackFrame(const Message& m, int width, int height, std::uint8_t type, std::uint64_t index, double timeS,
                     std::span<const std::byte> payload) {
@@ -321,22 +210,14 @@ private:
     const Header& last = frames.back();
 
     std::uint64_t samples = 0;
-    std::vector<Box3> all, mine;
+    bool shaded = false;
     if (anyDirty) {
       clock_.start(kShade);
-      all = shadingBoxes(dirty);
-      mine = myShare(all);
-      shade(recon_->output(), tf_, shading_, camera_, mine, shade_);
-      spaceBefore_ = space_;
-      space_.update(shade_, mine);
+      shaded = update_->shadeChanged(dirty);
     }
-    if (!mine.empty()) {
+    if (shaded) {
       clock_.start(kSample);
-      // slab: only this GP's cells' samples can change; tile: the serial
-      // pipeline's few merged boxes (the work-tile mask keeps the rays to this
-      // GP's tiles, whose samples read only voxels of visible bricks).
-      dbuf_.build(camera_, stencilBoxes(c_.grid, slab_ ? mine : all));
-      sampleRegion(shade_, lattice_, dbuf_, render_, *buckets_, &space_, options_, &spaceBefore_);
+      update_->sampleChanged(*buckets_);
     }
     const std::uint64_t bytes0 = t_.totals().bytesSent;
     clock_.start(kSend);
@@ -363,11 +244,11 @@ private:
     if (fm.poseOnly) {
       if (!m.payload<FrameMsg>().empty()) throw CommError("a pose-only frame message carries pixels");
       clock_.start(kReconstruct);
-      r = recon_->advance(fm.width, fm.height, pose, fm.timeS);
+      r = update_->reconstructor().advance(fm.width, fm.height, pose, fm.timeS);
     } else {
       const Frame f = unpackFrame(m, fm.width, fm.height, fm.pixelType, fm.sourceIndex, fm.timeS, m.payload<FrameMsg>());
       clock_.start(kReconstruct);
-      r = recon_->insert(f, pose, fm.timeS);
+      r = update_->reconstructor().insert(f, pose, fm.timeS);
     }
     clock_.stop();
     return r;
@@ -378,7 +259,7 @@ private:
     const PreviousMsg& pm = m.as<PreviousMsg>();
     const Frame f = unpackFrame(m, pm.width, pm.height, pm.pixelType, pm.h.frame, 0.0, m.payload<PreviousMsg>());
     clock_.start(kReconstruct);
-    recon_->restorePrevious(f);
+    update_->reconstructor().restorePrevious(f);
     clock_.stop();
   }
 
@@ -387,37 +268,26 @@ private:
     epoch_ = cm.h.epoch;
     const std::uint32_t ch = cm.changes;
     state_ = cm.state;
-    RenderSettings r = render_;
+    // The parts of the settings a control state does not carry stay as they were.
+    RenderSettings r = update_->settings().render;
+    ShadeSettings shading = update_->settings().shading;
     TransferFunctionSettings tfs;
-    applyControlState(state_, r, shading_, tfs);
-    shading_.threads = render_.threads;
-    if (ch & (ControlMsg::kShading | ControlMsg::kTransfer)) tf_ = TransferFunction(tfs);
-    if (ch & ControlMsg::kView) {
-      camera_ = controlCamera(state_, c_.render, c_.grid);
-      lattice_ = SampleLattice(camera_, c_.grid, render_.step(c_.grid), render_.maxSamples, render_.threads);
-    }
+    applyControlState(state_, r, shading, tfs);
+    if (ch & (ControlMsg::kShading | ControlMsg::kTransfer)) update_->setStyle(shading, tfs);
+    if (ch & ControlMsg::kView) update_->setCamera(controlCamera(state_, c_.render, c_.grid));
     if (ch & ControlMsg::kFinish) {
       clock_.start(kReconstruct);
-      recon_->finish();
+      update_->reconstructor().finish();
     }
     std::uint64_t samples = 0;
     const std::uint64_t bytes0 = t_.totals().bytesSent;
     if (ch & ControlMsg::kResample) {
-      // What the serial pipeline's setCamera or resampleAll does, for this
-      // GP's share.
+      // What the serial pipeline's setCamera or setStyle does, for this GP's
+      // share: a view change alone re-lights where the share allows.
       clock_.start(kShade);
-      if (slab_ && !(ch & ControlMsg::kReshade)) {
-        // Only the view changed, so every voxel's opacity is as it was: the
-        // visible voxels of this GP's region get new light, and the
-        // empty-space map stays. (A tile GP has shaded only what its tiles
-        // saw under the old view, so it shades the new view's bricks anew.)
-        shade(recon_->output(), tf_, shading_, camera_, space_.visibleVoxelBoxes(shadeRegion_), shade_);
-      } else {
-        shadeAll();
-        space_ = EmptySpaceMap(shade_, render_.threads);
-      }
+      update_->reshadeAll(!(ch & ControlMsg::kReshade));
       clock_.start(kSample);
-      sampleAll(shade_, lattice_, render_, *buckets_, &space_, options_);
+      update_->sampleAll(*buckets_);
       clock_.start(kSend);
       samples = sendSamples(cm.h, true);
     }
@@ -479,19 +349,8 @@ private:
   // This GP's part of the reconstructed volume, in runs of z planes.
   void sendVolume(const Header& h) {
     const Grid& g = c_.grid;
-    Box3 box;
-    if (slab_) {
-      if (!owned_.empty()) {
-        // Cells [lo, hi) own voxels [lo, hi); the grid's last voxel plane
-        // goes with the last cell.
-        box = owned_;
-        for (int a = 0; a < 3; ++a)
-          if (box.hi[a] == g.dims[a] - 1) box.hi[a] = g.dims[a];
-      }
-    } else if (g_ == 0) {
-      box = wholeGrid(g);
-    }
-    const Volume& v = recon_->output();
+    const Box3 box = partition_->volumePart(g_);
+    const Volume& v = update_->reconstructor().output();
     const auto bpv = static_cast<std::size_t>(scalarBytes(v.type));
     const std::int64_t nx = box.hi.x - box.lo.x, ny = box.hi.y - box.lo.y;
     const std::size_t planeBytes = static_cast<std::size_t>(std::max<std::int64_t>(0, nx * ny)) * bpv;

@@ -12,6 +12,7 @@
 #include "parallel/rank_stats.hpp"
 #include "core/error.hpp"
 #include "core/sample_lattice.hpp"
+#include "pp/tile_caches.hpp"
 
 namespace pp5::ranks {
 
@@ -33,7 +34,13 @@ public:
     tiles_ = TileGrid(render_.width, render_.height, c_.parallel.tileSize);
     mine_ = tilesOwnedBy(p_, tiles_.count(), c_.layout.pps, c_.parallel.ownership());
     slot_.assign(static_cast<std::size_t>(tiles_.count()), -1);
-    for (std::size_t i = 0; i < mine_.size(); ++i) slot_[static_cast<std::size_t>(mine_[i])] = static_cast<int>(i);
+    std::vector<TileRect> rects;
+    for (std::size_t i = 0; i < mine_.size(); ++i) {
+      slot_[static_cast<std::size_t>(mine_[i])] = static_cast<int>(i);
+      rects.push_back(tiles_.rect(mine_[i]));
+    }
+    caches_ = std::make_unique<TileCaches>(rects, render_.width, c_.cache, render_.threads);
+    spare_ = std::make_unique<TileCaches>(rects, render_.width, c_.cache, render_.threads);
     prepare(state_);
     swapCaches();
   }
@@ -78,9 +85,7 @@ public:
           case kTagRequest: onRequest(m->as<RequestMsg>()); break;
           case kTagQuit: {
             const double wall = std::chrono::duration<double>(Clock::now() - start_).count();
-            std::uint64_t mem = 0;
-            for (const auto& cache : caches_) mem += cache->memoryBytes();
-            for (const auto& cache : spare_) mem += cache->memoryBytes();
+            const std::uint64_t mem = caches_->memoryBytes() + spare_->memoryBytes();
             t_.send(0, makeReport(t_, Role::Pp, clock_.total(), wall, dropped_, mem));
             t_.flush();
             return;
@@ -126,8 +131,8 @@ private:
   TileGrid tiles_;
   std::vector<int> mine_;   // tiles owned, ascending
   std::vector<int> slot_;   // tile -> index in caches_, -1 when not owned
-  std::vector<std::unique_ptr<RayCache>> caches_;
-  std::vector<std::unique_ptr<RayCache>> spare_;  // the other half of a double buffer (prepare)
+  std::unique_ptr<TileCaches> caches_;
+  std::unique_ptr<TileCaches> spare_;  // the other half of a double buffer (prepare)
   bool prepared_ = false;                         // spare_ holds the caches of pending_.front()
   std::vector<std::deque<Message>> queues_;  // per GP, in arrival order
   std::vector<std::int64_t> lastDone_;       // per GP: last frame complete in this epoch (-1: none)
@@ -157,25 +162,13 @@ private:
   void prepare(const ControlState& state) {
     const Camera cam = controlCamera(state, c_.render, c_.grid);
     const SampleLattice lattice(cam, c_.grid, render_.step(c_.grid), render_.maxSamples, render_.threads);
-    const CompositeMode mode = liveMode(state);
-    for (std::size_t i = 0; i < mine_.size(); ++i) {
-      const TileRect r = tiles_.rect(mine_[i]);
-      std::vector<std::uint16_t> counts(static_cast<std::size_t>(r.width) * static_cast<std::size_t>(r.height));
-      for (int y = 0; y < r.height; ++y)
-        std::copy_n(lattice.counts().data() + static_cast<std::size_t>(r.y0 + y) * render_.width + r.x0, r.width,
-                    counts.data() + static_cast<std::size_t>(y) * r.width);
-      if (i < spare_.size()) {
-        spare_[i]->reset(counts, mode);
-      } else {
-        spare_.push_back(std::make_unique<RayCache>(r, render_.width, counts, c_.cache, mode, render_.threads));
-      }
-    }
+    spare_->reset(lattice.counts(), liveMode(state));
     prepared_ = true;
   }
 
   // The prepared caches in place; the old ones become the spare set.
   void swapCaches() {
-    caches_.swap(spare_);
+    std::swap(caches_, spare_);
     prepared_ = false;
   }
 
@@ -193,7 +186,7 @@ private:
     scratch_.resize(sm.count);
     if (sm.count) std::memcpy(scratch_.data(), payload.data(), payload.size());
     clock_.start(kComposite);
-    caches_[static_cast<std::size_t>(slot_[sm.tile])]->put(scratch_.data(), scratch_.size());
+    (*caches_)[static_cast<std::size_t>(slot_[sm.tile])].put(scratch_.data(), scratch_.size());
     clock_.stop();
     samplesPut_ += sm.count;
   }
@@ -292,9 +285,7 @@ private:
     if (awaitingFull_) return;  // half a view is worse than the old one
     const std::int64_t complete = *std::min_element(lastDone_.begin(), lastDone_.end());
     bool dirty = complete > lastSent_;
-    if (!dirty)
-      for (const auto& c : caches_)
-        if (c->counters().samplesPut) dirty = true;
+    if (!dirty) dirty = caches_->anyPut();
     if (!dirty) return;
     compositeAndSend(static_cast<std::uint64_t>(std::max<std::int64_t>(complete, 0)), false);
     lastSent_ = complete;
@@ -305,8 +296,8 @@ private:
     sendAll_ = false;
     clock_.start(kComposite);
     std::vector<std::pair<int, CompositeStats>> changed;
-    for (std::size_t i = 0; i < caches_.size(); ++i) {
-      RayCache& cache = *caches_[i];
+    for (std::size_t i = 0; i < caches_->size(); ++i) {
+      RayCache& cache = (*caches_)[i];
       const CompositeStats cs = cache.composite();
       rays_ += cs.rays;
       blocks_ += cs.blocks;
@@ -316,7 +307,7 @@ private:
     clock_.start(kSend);
     std::uint32_t sent = 0;
     for (const auto& [i, cs] : changed) {
-      const RayCache& cache = *caches_[static_cast<std::size_t>(i)];
+      const RayCache& cache = (*caches_)[static_cast<std::size_t>(i)];
       const TileRect tr = cache.tile();
       const TileRect r = all ? TileRect{0, 0, tr.width, tr.height} : cs.changed;
       sendTile(cache.image(), tr, r, live());
@@ -374,8 +365,7 @@ private:
       awaitingFull_ = !c_.parallel.lockstep();  // lockstep waits for whole updates anyway
       fullDone_ = 0;
     } else {
-      if (ch & ControlMsg::kMode)
-        for (auto& c : caches_) c->setLiveMode(live());
+      if (ch & ControlMsg::kMode) caches_->setLiveMode(live());
       // A new live mode only: the same samples, composited again. In lockstep
       // every frame up to the change is in. In tick mode samples of earlier
       // frames may still be on their way (they are kept, see samplesEpoch_),
@@ -396,13 +386,13 @@ private:
     const auto mode = static_cast<CompositeMode>(rm.mode);
     clock_.start(kComposite);
     std::vector<TileImage> ims;
-    for (const auto& c : caches_) ims.push_back(c->compositeFull(mode));
+    for (std::size_t i = 0; i < caches_->size(); ++i) ims.push_back((*caches_)[i].compositeFull(mode));
     clock_.start(kSend);
-    for (std::size_t i = 0; i < caches_.size(); ++i) {
-      const TileRect tr = caches_[i]->tile();
+    for (std::size_t i = 0; i < caches_->size(); ++i) {
+      const TileRect tr = (*caches_)[i].tile();
       sendTile(ims[i], tr, TileRect{0, 0, tr.width, tr.height}, mode, true);
     }
-    done(rm.h.frame, static_cast<std::uint32_t>(caches_.size()), true);
+    done(rm.h.frame, static_cast<std::uint32_t>(caches_->size()), true);
   }
 };
 

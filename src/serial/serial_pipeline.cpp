@@ -40,65 +40,58 @@ private:
 }  // namespace
 
 SerialPipeline::SerialPipeline(const Grid& grid, const PipelineSettings& s, std::uint64_t memoryLimitBytes)
-    : s_(s), grid_(grid), tf_(s.tf) {
+    : s_(s), grid_(grid) {
   if (s_.render.compositing.empty()) throw InputError("render.compositing: no composition mode given");
   live_ = pp::compositeModeFromName(s_.render.compositing.front());
   s_.shading.threads = s_.render.threads;
   s_.cache.validate();
-  // The reconstruction, then the shade buffer (4 bytes a voxel) on top of it.
-  recon_ = gp::makeReconstructor(grid_, s_.recon, memoryLimitBytes, "reconstruction grid ([grid])");
-  checkGridFits(grid_, 4, "shade buffer ([grid])", memoryLimitBytes);
-  shade_ = gp::ShadeBuffer(grid_);
-  useCamera(makeCamera(s_.render, grid_));
-  resampleAll(true);
-}
-
-void SerialPipeline::setCamera(const Camera& camera) {
-  useCamera(camera);
-  // The values and the style are as they were, so every voxel's opacity is
-  // too: only the voxels that were visible need new light, and the
-  // empty-space map (opacity only) stays as it is.
-  gp::shade(recon_->output(), tf_, s_.shading, camera_, space_.visibleVoxelBoxes(wholeGrid(grid_)), shade_);
+  gp::GpUpdateSettings us;
+  us.recon = s_.recon;
+  us.render = s_.render;
+  us.shading = s_.shading;
+  us.tf = s_.tf;
+  us.memoryLimitBytes = memoryLimitBytes;
+  gp_ = std::make_unique<gp::GpUpdate>(grid_, us, makeCamera(s_.render, grid_), std::make_unique<gp::WholeShare>(grid_));
+  resetCaches();
   resample(true);
 }
 
-void SerialPipeline::useCamera(const Camera& camera) {
-  camera_ = camera;
-  lattice_ = SampleLattice(camera_, grid_, s_.render.step(grid_), s_.render.maxSamples, s_.render.threads);
-  const TileRect tile{0, 0, camera_.width, camera_.height};
-  if (cache_ && cache_->tile().width == tile.width && cache_->tile().height == tile.height) {
-    cache_->reset(lattice_.counts());
-  } else {
-    cache_ = std::make_unique<pp::RayCache>(tile, camera_.width, lattice_.counts(), s_.cache, live_, 1);
-    cache_->setThreads(s_.render.threads);
-  }
+void SerialPipeline::setCamera(const Camera& camera) {
+  gp_->setCamera(camera);
+  resetCaches();
+  gp_->reshadeAll(true);
+  resample(true);
+}
+
+void SerialPipeline::resetCaches() {
+  const Camera& c = gp_->camera();
+  if (!caches_ || caches_->rects()[0].width != c.width || caches_->rects()[0].height != c.height)
+    caches_ = std::make_unique<pp::TileCaches>(std::vector<TileRect>{TileRect{0, 0, c.width, c.height}}, c.width,
+                                               s_.cache, s_.render.threads);
+  caches_->reset(gp_->lattice().counts(), live_);
 }
 
 void SerialPipeline::setStyle(const gp::ShadeSettings& shading, const TransferFunctionSettings& tf) {
   s_.shading = shading;
   s_.shading.threads = s_.render.threads;
   s_.tf = tf;
-  tf_ = TransferFunction(tf);
-  resampleAll();
+  gp_->setStyle(shading, tf);
+  gp_->reshadeAll(false);
+  resample(false);
 }
 
 void SerialPipeline::setLiveMode(pp::CompositeMode m) {
   live_ = m;
-  cache_->setLiveMode(m);
-  cache_->composite();
-}
-
-void SerialPipeline::resampleAll(bool cleared) {
-  gp::shade(recon_->output(), tf_, s_.shading, camera_, wholeGrid(grid_), shade_);
-  space_ = gp::EmptySpaceMap(shade_, s_.render.threads);
-  resample(cleared);
+  caches_->setLiveMode(m);
+  (*caches_)[0].composite();
 }
 
 void SerialPipeline::resample(bool cleared) {
-  if (!cleared) cache_->clear();
-  CacheSink sink(*cache_);
-  gp::sampleAll(shade_, lattice_, s_.render, sink, &space_);
-  cache_->composite();
+  pp::RayCache& cache = (*caches_)[0];
+  if (!cleared) cache.clear();
+  CacheSink sink(cache);
+  gp_->sampleAll(sink);
+  cache.composite();
 }
 
 FrameStats SerialPipeline::insert(const Frame& f, const Mat4& pose, double timeS) {
@@ -107,7 +100,7 @@ FrameStats SerialPipeline::insert(const Frame& f, const Mat4& pose, double timeS
   st.index = frames_++;
 
   auto t = Clock::now();
-  const gp::InsertResult r = recon_->insert(f, pose, timeS);
+  const gp::InsertResult r = gp_->reconstructor().insert(f, pose, timeS);
   st.reconMs = msSince(t);
   st.fillInSlices = r.fillInSlices;
   st.dirtyBricks = r.dirty.bricks().size();
@@ -115,30 +108,24 @@ FrameStats SerialPipeline::insert(const Frame& f, const Mat4& pose, double timeS
   if (r.dirty.empty()) return st;
 
   t = Clock::now();
-  // The dirty bricks and their gradient margin (what shade(dirty) shades),
-  // worked out once for shading, the empty-space map and the D-buffer.
-  const std::vector<gp::Box3> shaded = gp::shadingBoxes(r.dirty);
-  gp::shade(recon_->output(), tf_, s_.shading, camera_, shaded, shade_);
-  for (const gp::Box3& b : shaded) st.shadedVoxels += b.intersect(wholeGrid(grid_)).voxelCount();
-  spaceBefore_ = space_;  // a few kB (a byte per 8^3 cells); assigning keeps the storage
-  space_.update(shade_, shaded);
+  gp_->shadeChanged(r.dirty);
+  for (const gp::Box3& b : gp_->lastShaded()) st.shadedVoxels += b.intersect(wholeGrid(grid_)).voxelCount();
   st.shadeMs = msSince(t);
 
   t = Clock::now();
-  const std::vector<gp::WorldBox> boxes = gp::stencilBoxes(grid_, shaded);
-  dbuf_.build(camera_, boxes);
-  st.dbufferPixels = dbuf_.touched().size();
+  pp::RayCache& cache = (*caches_)[0];
   // Sampling and putting overlap; the time of the puts is counted as compositing.
   double putMs = 0.0;
-  CacheSink sink(*cache_, [&](std::size_t n, double ms) {
+  CacheSink sink(cache, [&](std::size_t n, double ms) {
     st.samples += n;
     putMs += ms;
   });
-  gp::sampleRegion(shade_, lattice_, dbuf_, s_.render, sink, &space_, {}, &spaceBefore_);
+  gp_->sampleChanged(sink);
+  st.dbufferPixels = gp_->dbuffer().touched().size();
   st.sampleMs = msSince(t) - putMs;
 
   t = Clock::now();
-  const pp::CompositeStats cs = cache_->composite();
+  const pp::CompositeStats cs = cache.composite();
   st.compositeMs = msSince(t) + putMs;
   st.raysComposited = cs.rays;
   st.blocksComposited = cs.blocks;
@@ -146,18 +133,21 @@ FrameStats SerialPipeline::insert(const Frame& f, const Mat4& pose, double timeS
 }
 
 void SerialPipeline::finish() {
-  recon_->finish();
-  resampleAll();
+  gp_->reconstructor().finish();
+  gp_->reshadeAll(false);
+  resample(false);
 }
 
 pp::TileImage SerialPipeline::renderFromScratch(pp::CompositeMode mode) const {
+  const Camera& camera = gp_->camera();
   gp::ShadeBuffer shade(grid_);
-  gp::shade(recon_->output(), tf_, s_.shading, camera_, wholeGrid(grid_), shade);
+  gp::shade(gp_->reconstructor().output(), gp_->transferFunction(), gp_->settings().shading, camera, wholeGrid(grid_),
+            shade);
   const gp::EmptySpaceMap space(shade, s_.render.threads);
-  pp::RayCache cache(TileRect{0, 0, camera_.width, camera_.height}, camera_.width, lattice_.counts(), s_.cache, mode,
+  pp::RayCache cache(TileRect{0, 0, camera.width, camera.height}, camera.width, gp_->lattice().counts(), s_.cache, mode,
                      s_.render.threads);
   CacheSink sink(cache);
-  gp::sampleAll(shade, lattice_, s_.render, sink, &space);
+  gp::sampleAll(shade, gp_->lattice(), s_.render, sink, &space);
   cache.composite();
   return cache.image();
 }

@@ -1,7 +1,10 @@
 #pragma once
-// The single-process pipeline: every stage of a graphics processor and a
-// pixel processor called in order, frame by frame. It is the reference that
-// every distributed run is held to (design.md, "one serial reference").
+// The single-process pipeline: one graphics processor's update
+// (gp/gp_update.hpp) on the whole grid and screen, feeding one pixel
+// processor's caches (pp/tile_caches.hpp) that hold the whole image, frame by
+// frame. The GP and PP ranks run the same two objects on their shares, so
+// this is the reference that every distributed run is held to (design.md,
+// "one serial reference").
 //
 // Per frame: reconstruct -> dirty bricks -> re-shade them (with the gradient
 // margin) -> D-buffer of the boxes whose samples the new shades can change ->
@@ -15,12 +18,12 @@
 #include "core/frame.hpp"
 #include "core/render_settings.hpp"
 #include "core/transfer_function.hpp"
-#include "gp/ray_sampler.hpp"
+#include "gp/gp_update.hpp"
 #include "gp/reconstruction.hpp"
-#include "core/sample_lattice.hpp"
 #include "gp/shade_buffer.hpp"
 #include "gp/shading.hpp"
 #include "pp/ray_cache.hpp"
+#include "pp/tile_caches.hpp"
 
 namespace pp5::serial {
 
@@ -58,24 +61,24 @@ public:
   // A new view: the lattice is rebuilt, everything re-shaded (a light at the
   // viewer moves with it) and re-sampled, and the live image recomposited.
   void setCamera(const Camera& camera);
-  const Camera& camera() const { return camera_; }
+  const Camera& camera() const { return gp_->camera(); }
   // New shading or transfer function: everything re-shaded and re-sampled.
   void setStyle(const gp::ShadeSettings& shading, const TransferFunctionSettings& tf);
   // A new live composition mode: the cache recomposited in it.
   void setLiveMode(pp::CompositeMode m);
 
   // The live image (the first composition mode), maintained incrementally.
-  const pp::TileImage& image() const { return cache_->image(); }
+  const pp::TileImage& image() const { return cache().image(); }
   // A from-scratch render of the current grid in `mode`: shade everything,
   // sample every ray, composite in full. The reference the incremental image
   // must equal.
   pp::TileImage renderFromScratch(pp::CompositeMode mode) const;
   // The current cache composited in full in another mode.
-  pp::TileImage compositeFull(pp::CompositeMode mode) const { return cache_->compositeFull(mode); }
+  pp::TileImage compositeFull(pp::CompositeMode mode) const { return cache().compositeFull(mode); }
 
-  const gp::Reconstructor& reconstructor() const { return *recon_; }
-  const gp::ShadeBuffer& shadeBuffer() const { return shade_; }
-  const pp::RayCache& cache() const { return *cache_; }
+  const gp::Reconstructor& reconstructor() const { return gp_->reconstructor(); }
+  const gp::ShadeBuffer& shadeBuffer() const { return gp_->shadeBuffer(); }
+  const pp::RayCache& cache() const { return (*caches_)[0]; }
   const PipelineSettings& settings() const { return s_; }
   pp::CompositeMode liveMode() const { return live_; }
 
@@ -83,22 +86,12 @@ private:
   PipelineSettings s_;
   Grid grid_;
   pp::CompositeMode live_ = pp::CompositeMode::Over;
-  std::unique_ptr<gp::Reconstructor> recon_;
-  TransferFunction tf_;
-  Camera camera_;
-  SampleLattice lattice_;
-  gp::ShadeBuffer shade_;
-  gp::EmptySpaceMap space_;
-  gp::EmptySpaceMap spaceBefore_;  // space_ before the frame being inserted
-  gp::DBuffer dbuf_;
-  std::unique_ptr<pp::RayCache> cache_;
+  std::unique_ptr<gp::GpUpdate> gp_;
+  std::unique_ptr<pp::TileCaches> caches_;  // one tile: the whole image
   std::uint64_t frames_ = 0;
 
-  // The camera, its lattice, and the cache reset for it (every sample transparent).
-  void useCamera(const Camera& camera);
-  // Re-shades every voxel and rebuilds the empty-space map, then resample().
-  // cleared: the cache holds no sample yet (just reset), so it need not be cleared again.
-  void resampleAll(bool cleared = false);
+  // The caches reset for the current camera's lattice (every sample transparent).
+  void resetCaches();
   // Samples the whole shade buffer into the cache and composites.
   void resample(bool cleared);
 };

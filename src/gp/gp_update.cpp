@@ -1,0 +1,64 @@
+#include "gp/gp_update.hpp"
+
+#include "gp/stencil.hpp"
+
+namespace pp5::gp {
+
+GpUpdate::GpUpdate(const Grid& grid, const GpUpdateSettings& settings, const Camera& camera,
+                   std::unique_ptr<GpShare> share)
+    : grid_(grid), s_(settings), share_(std::move(share)), tf_(settings.tf), camera_(camera) {
+  s_.shading.threads = s_.render.threads;
+  // The reconstruction, then the shade buffer (4 bytes a voxel) on top of it.
+  recon_ = makeReconstructor(grid_, s_.recon, s_.memoryLimitBytes, "reconstruction grid ([grid])");
+  checkGridFits(grid_, 4, "shade buffer ([grid])", s_.memoryLimitBytes);
+  shade_ = ShadeBuffer(grid_);
+  lattice_ = SampleLattice(camera_, grid_, s_.render.step(grid_), s_.render.maxSamples, s_.render.threads);
+  reshadeAll(false);
+}
+
+bool GpUpdate::shadeChanged(const DirtyRegion& dirty) {
+  // The dirty bricks and their gradient margin (what shade(dirty) shades),
+  // worked out once for shading, the empty-space map and the D-buffer.
+  needed_ = shadingBoxes(dirty);
+  shaded_ = share_->shadeShare(needed_, camera_);
+  shade(recon_->output(), tf_, s_.shading, camera_, shaded_, shade_);
+  spaceBefore_ = space_;  // a few kB (a byte per 8^3 cells); assigning keeps the storage
+  space_.update(shade_, shaded_);
+  return !shaded_.empty();
+}
+
+void GpUpdate::sampleChanged(SampleSink& sink) {
+  dbuf_.build(camera_, stencilBoxes(grid_, share_->dbufferFromOwnShades() ? shaded_ : needed_));
+  sampleRegion(shade_, lattice_, dbuf_, s_.render, sink, &space_, share_->sampler(), &spaceBefore_);
+}
+
+void GpUpdate::setCamera(const Camera& camera) {
+  camera_ = camera;
+  lattice_ = SampleLattice(camera_, grid_, s_.render.step(grid_), s_.render.maxSamples, s_.render.threads);
+}
+
+void GpUpdate::setStyle(const ShadeSettings& shading, const TransferFunctionSettings& tf) {
+  s_.shading = shading;
+  s_.shading.threads = s_.render.threads;
+  s_.tf = tf;
+  tf_ = TransferFunction(tf);
+}
+
+void GpUpdate::reshadeAll(bool viewOnly) {
+  const std::optional<Box3> relight = viewOnly ? share_->relightRegion() : std::nullopt;
+  if (relight) {
+    // The values and the style are as they were, so every voxel's opacity is
+    // too: only the voxels that were visible need new light, and the
+    // empty-space map (opacity only) stays as it is.
+    shade(recon_->output(), tf_, s_.shading, camera_, space_.visibleVoxelBoxes(*relight), shade_);
+    return;
+  }
+  shade(recon_->output(), tf_, s_.shading, camera_, share_->shadeAll(camera_), shade_);
+  space_ = EmptySpaceMap(shade_, s_.render.threads);
+}
+
+void GpUpdate::sampleAll(SampleSink& sink) {
+  gp::sampleAll(shade_, lattice_, s_.render, sink, &space_, share_->sampler());
+}
+
+}  // namespace pp5::gp

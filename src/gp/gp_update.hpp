@@ -1,0 +1,138 @@
+#pragma once
+// One graphics processor's work, the per-frame sequence written once:
+// reconstruct the frames, re-shade the voxels their changes reach (with the
+// gradient margin), update the empty-space map, scan-convert into the
+// D-buffer what the new shades can change, and ray-sample exactly that into a
+// sink. A view or style change re-lights or re-shades and samples everything.
+//
+// The serial pipeline (serial/) runs it on the whole grid and screen; a GP
+// rank (ranks/) runs it on its share, which a GpShare describes: the slab and
+// tile partitionings (parallel/) each give one. Whatever the share, every
+// sample it emits has the bits the whole-grid update computes.
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <span>
+#include <vector>
+
+#include "core/camera.hpp"
+#include "core/grid.hpp"
+#include "core/render_settings.hpp"
+#include "core/sample_lattice.hpp"
+#include "core/transfer_function.hpp"
+#include "gp/dbuffer.hpp"
+#include "gp/dirty_region.hpp"
+#include "gp/empty_space.hpp"
+#include "gp/ray_sampler.hpp"
+#include "gp/reconstruction.hpp"
+#include "gp/shade_buffer.hpp"
+#include "gp/shading.hpp"
+
+namespace pp5::gp {
+
+// Which part of the shading and sampling one GP does.
+class GpShare {
+public:
+  virtual ~GpShare() = default;
+  // Of the voxels whose shade a change needs (shadingBoxes of the dirty
+  // region), those this GP shades, under `camera`.
+  virtual std::vector<Box3> shadeShare(const std::vector<Box3>& needed, const Camera& camera) const = 0;
+  // What a full re-shade shades under `camera`.
+  virtual std::vector<Box3> shadeAll(const Camera& camera) const = 0;
+  // After a view change alone (every opacity as it was): the region whose
+  // visible voxels get new light, the empty-space map kept. nullopt: shade
+  // everything anew (shadeAll) and rebuild the map.
+  virtual std::optional<Box3> relightRegion() const = 0;
+  // Whether the D-buffer scan-converts only this GP's own new shades (only
+  // its samples can read them) rather than every shade the change needed.
+  virtual bool dbufferFromOwnShades() const = 0;
+  // The samples this GP takes.
+  virtual const SamplerOptions& sampler() const = 0;
+};
+
+// The whole grid and screen: the serial pipeline's share.
+class WholeShare final : public GpShare {
+public:
+  explicit WholeShare(const Grid& grid) : whole_{Index3(0), grid.dims} {}
+  std::vector<Box3> shadeShare(const std::vector<Box3>& needed, const Camera&) const override { return needed; }
+  std::vector<Box3> shadeAll(const Camera&) const override { return {whole_}; }
+  std::optional<Box3> relightRegion() const override { return whole_; }
+  bool dbufferFromOwnShades() const override { return true; }
+  const SamplerOptions& sampler() const override { return options_; }
+
+private:
+  Box3 whole_;
+  SamplerOptions options_;
+};
+
+struct GpUpdateSettings {
+  ReconSettings recon;
+  RenderSettings render;  // render.threads: the shading and sampling threads
+  ShadeSettings shading;  // its threads are render.threads
+  TransferFunctionSettings tf;
+  std::uint64_t memoryLimitBytes = 0;  // 0: what the machine has
+};
+
+class GpUpdate {
+public:
+  // The empty grid, shaded under `camera` (nothing to sample yet: every
+  // sample of an empty grid is transparent). InputError when the
+  // reconstruction and the shade buffer do not fit in memory.
+  GpUpdate(const Grid& grid, const GpUpdateSettings& settings, const Camera& camera, std::unique_ptr<GpShare> share);
+
+  Reconstructor& reconstructor() { return *recon_; }
+  const Reconstructor& reconstructor() const { return *recon_; }
+
+  // Shades this GP's share of what `dirty` changed and updates the
+  // empty-space map; false when the share is empty (nothing to sample).
+  bool shadeChanged(const DirtyRegion& dirty);
+  // Every lattice sample the last shadeChanged() can have changed, into
+  // `sink` (transparent ones too, but those both maps know were and stay 0).
+  void sampleChanged(SampleSink& sink);
+  // The boxes the last shadeChanged() shaded, and the D-buffer of the last
+  // sampleChanged() (for statistics).
+  const std::vector<Box3>& lastShaded() const { return shaded_; }
+  const DBuffer& dbuffer() const { return dbuf_; }
+
+  // A new camera: the lattice is rebuilt. Call resampleAll() after it.
+  void setCamera(const Camera& camera);
+  // New shading or transfer function. Call resampleAll() after it.
+  void setStyle(const ShadeSettings& shading, const TransferFunctionSettings& tf);
+  // Re-shades everything this GP shades and rebuilds the empty-space map;
+  // viewOnly: only the view changed, so where the share allows, only the
+  // visible voxels get new light and the map stays.
+  void reshadeAll(bool viewOnly);
+  // Every visible sample of this GP's share into `sink` (a receiving cache
+  // was cleared: transparent samples are not sent).
+  void sampleAll(SampleSink& sink);
+  // reshadeAll(viewOnly), then sampleAll(sink).
+  void resampleAll(bool viewOnly, SampleSink& sink) {
+    reshadeAll(viewOnly);
+    sampleAll(sink);
+  }
+
+  const Grid& grid() const { return grid_; }
+  const Camera& camera() const { return camera_; }
+  const SampleLattice& lattice() const { return lattice_; }
+  const ShadeBuffer& shadeBuffer() const { return shade_; }
+  const EmptySpaceMap& emptySpace() const { return space_; }
+  const TransferFunction& transferFunction() const { return tf_; }
+  const GpUpdateSettings& settings() const { return s_; }
+  const GpShare& share() const { return *share_; }
+
+private:
+  Grid grid_;
+  GpUpdateSettings s_;
+  std::unique_ptr<GpShare> share_;
+  std::unique_ptr<Reconstructor> recon_;
+  TransferFunction tf_;
+  Camera camera_;
+  SampleLattice lattice_;
+  ShadeBuffer shade_;
+  EmptySpaceMap space_;
+  EmptySpaceMap spaceBefore_;  // space_ before the last shadeChanged()
+  std::vector<Box3> needed_, shaded_;
+  DBuffer dbuf_;
+};
+
+}  // namespace pp5::gp

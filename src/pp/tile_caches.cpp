@@ -1,0 +1,52 @@
+#include "pp/tile_caches.hpp"
+
+#include <algorithm>
+
+#include "core/error.hpp"
+
+namespace pp5::pp {
+
+TileCaches::TileCaches(std::vector<TileRect> rects, int imageWidth, const RayCacheSettings& settings, int threads)
+    : rects_(std::move(rects)), imageWidth_(imageWidth), settings_(settings), threads_(threads) {}
+
+void TileCaches::reset(std::span<const std::uint16_t> imageCounts, CompositeMode live) {
+  for (std::size_t i = 0; i < rects_.size(); ++i) {
+    const TileRect& r = rects_[i];
+    PP5_CHECK_LE(static_cast<std::size_t>(r.y0 + r.height) * static_cast<std::size_t>(imageWidth_),
+                 imageCounts.size());
+    std::span<const std::uint16_t> counts;
+    if (r.x0 == 0 && r.width == imageWidth_) {
+      // Whole rows: the image's counts are the tile's.
+      counts = imageCounts.subspan(static_cast<std::size_t>(r.y0) * static_cast<std::size_t>(imageWidth_),
+                                   static_cast<std::size_t>(r.width) * static_cast<std::size_t>(r.height));
+    } else {
+      counts_.resize(static_cast<std::size_t>(r.width) * static_cast<std::size_t>(r.height));
+      for (int y = 0; y < r.height; ++y)
+        std::copy_n(imageCounts.data() + static_cast<std::size_t>(r.y0 + y) * static_cast<std::size_t>(imageWidth_) +
+                        static_cast<std::size_t>(r.x0),
+                    r.width, counts_.data() + static_cast<std::size_t>(y) * static_cast<std::size_t>(r.width));
+      counts = counts_;
+    }
+    if (i < caches_.size()) {
+      caches_[i]->reset(counts, live);
+    } else {
+      caches_.push_back(std::make_unique<RayCache>(r, imageWidth_, counts, settings_, live, threads_));
+    }
+  }
+}
+
+void TileCaches::setLiveMode(CompositeMode m) {
+  for (auto& c : caches_) c->setLiveMode(m);
+}
+
+bool TileCaches::anyPut() const {
+  return std::any_of(caches_.begin(), caches_.end(), [](const auto& c) { return c->counters().samplesPut != 0; });
+}
+
+std::uint64_t TileCaches::memoryBytes() const {
+  std::uint64_t n = 0;
+  for (const auto& c : caches_) n += c->memoryBytes();
+  return n;
+}
+
+}  // namespace pp5::pp
