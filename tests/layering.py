@@ -28,6 +28,7 @@ LAYERS = {
     "serial": 2,           # the single-process reference pipeline
     "ranks": 3,            # the GP and PP rank loops
     "host": 4,             # acquisition, outputs, the host rank loop
+    "harness": 5,          # the partitioning benchmark's harness
     "app": 6,              # the command line
 }
 

@@ -129,13 +129,13 @@ private:
           if (b > 1) ++framesBatched_;
           maxBatch_ = std::max(maxBatch_, b);
         }
-        row(c.h, m.source, Role::Gp, c.times, c.samples, c.bytesSent, c.dirtyVoxels, -1.0);
+        row(c.h, m.source, Role::Gp, c.times, c.samples, c.bytesSent, c.dirtyVoxels, -1.0, c.isControl != 0);
         break;
       }
       case kTagTile: onTile(m); break;
       case kTagPpDone: {
         const PpDoneMsg& d = m.as<PpDoneMsg>();
-        row(d.h, m.source, Role::Pp, d.times, d.samplesPut, 0, 0, -1.0);
+        row(d.h, m.source, Role::Pp, d.times, d.samplesPut, 0, 0, -1.0, d.request != 0);
         if (d.request) {
           ++requestsDone_;
         } else if (d.h.epoch == epoch_) {
@@ -182,7 +182,7 @@ private:
         const double ms = msBetween(arrival_[static_cast<std::size_t>(i)], now);
         latencyMs_[static_cast<std::size_t>(i)] = ms;
         const StageTimes none;
-        row(Header{0, shownEpoch_, static_cast<std::uint64_t>(i)}, 0, Role::Host, none, 0, 0, 0, ms);
+        row(Header{0, shownEpoch_, static_cast<std::uint64_t>(i)}, 0, Role::Host, none, 0, 0, 0, ms, false);
       }
     }
   }
@@ -216,7 +216,7 @@ private:
   }
 
   void row(const Header& h, int rank, Role role, const StageTimes& st, std::uint64_t samples, std::uint64_t bytes,
-           std::uint64_t dirty, double latency) {
+           std::uint64_t dirty, double latency, bool control) {
     if (!stats_) return;
     std::vector<double> v = {static_cast<double>(h.frame), static_cast<double>(h.epoch), static_cast<double>(rank),
                              static_cast<double>(role)};
@@ -225,6 +225,7 @@ private:
     v.push_back(static_cast<double>(bytes));
     v.push_back(static_cast<double>(dirty));
     v.push_back(latency);
+    v.push_back(control ? 1.0 : 0.0);
     stats_->row(v);
   }
 
@@ -402,7 +403,10 @@ int HostRank::run() {
   {
     std::vector<std::string> cols = {"frame", "epoch", "rank", "role"};
     for (int s = 0; s < kStageCount; ++s) cols.push_back(std::string(stageName(s)) + "_ms");
-    for (const char* c : {"samples", "bytes_sent", "dirty_voxels", "latency_ms"}) cols.push_back(c);
+    // control: 1 for the update of a control change (a GP's full re-shade and
+    // re-sample after a view, shading or final-pass change) or a PP's answer
+    // to a request, 0 for a frame's update, so that readers need not guess.
+    for (const char* c : {"samples", "bytes_sent", "dirty_voxels", "latency_ms", "control"}) cols.push_back(c);
     stats_ = std::make_unique<StatsCsv>((dir / "stats.csv").string(), cols);
   }
   buildup_ = std::make_unique<AnimatedGif>((dir / "buildup.gif").string(), w_, h_, j_.buildupFps);
