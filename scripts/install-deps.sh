@@ -41,5 +41,8 @@ echo "install-deps: installing ${missing[*]}"
 SUDO=""
 if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
 export DEBIAN_FRONTEND=noninteractive
-$SUDO apt-get update -qq
-$SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"
+echo "install-deps: apt-get update" >&2
+$SUDO apt-get update -q
+# -q, not -qq: one line per package as it is unpacked and set up, so a long
+# install shows that it is moving.
+$SUDO apt-get install -y -q --no-install-recommends "${missing[@]}"

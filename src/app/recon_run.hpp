@@ -9,25 +9,14 @@
 #include <vector>
 
 #include "core/plus_config.hpp"
+#include "core/posed_sequence.hpp"
 #include "core/sequence_io.hpp"
 #include "gp/reconstruction.hpp"
 
 namespace pp5::app {
 
-struct PosedSequence {
-  std::string path;
-  std::unique_ptr<SequenceReader> reader;
-  PlusConfig config;
-  // Per frame: ImageToReference, or nullopt when the frame cannot be placed
-  // (an INVALID image or transform status, or a non-finite pose).
-  std::vector<std::optional<Mat4>> poses;
-  std::uint64_t invalidStatus = 0;  // frames whose image or transform status is not OK
-  std::uint64_t nonFinite = 0;      // frames whose pose has a NaN or infinity
-};
-
-// Opens the sequence and computes every frame's pose from the header alone.
-// Empty sequences and sequences with no placeable frame are InputErrors.
-PosedSequence openPosedSequence(const std::string& sequencePath, const std::string& plusConfigPath);
+using pp5::PosedSequence;
+using pp5::openPosedSequence;
 
 struct ReconRunStats {
   std::uint64_t frames = 0;    // in the file

@@ -1,9 +1,8 @@
 #pragma once
-// The sources `pp5echo run` streams: the simulator, a PLUS sequence file, the
-// USB interface board and an OpenIGTLink server (run.source). Each becomes a
-// host::Source that the host's acquisition thread runs. With run.record set,
-// every frame a source produces is also written, as it arrives and before
-// any queue can drop it, to a PLUS sequence file.
+// The source `pp5echo run` streams (run.source), made from the settings: the
+// simulator, a PLUS sequence file, the USB interface board or an OpenIGTLink
+// server, each a host::Source (host/sources.hpp). With run.record set, every
+// frame a source produces is also written to a PLUS sequence file.
 #include "app/settings.hpp"
 #include "host/acquisition.hpp"
 #include "interface_board/arm_calibration.hpp"

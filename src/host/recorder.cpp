@@ -1,0 +1,54 @@
+#include "host/recorder.hpp"
+
+#include <spdlog/spdlog.h>
+
+#include "host/sources.hpp"
+
+namespace pp5::host {
+
+Recorder::~Recorder() {
+  try {
+    close();
+  } catch (const std::exception& e) {
+    spdlog::error("run.record: {}: {}", path_, e.what());
+  }
+}
+
+void Recorder::write(const Frame& f) {
+  if (path_.empty()) return;
+  if (!w_) w_ = SequenceWriter::create(path_);
+  w_->write(f);
+  ++frames_;
+}
+
+void Recorder::close() {
+  if (!w_) return;
+  auto w = std::move(w_);
+  w->close();
+  spdlog::info("run.record: {} frames written to {}", frames_, path_);
+}
+
+std::optional<Mat4> Placer::place(const Frame& f) {
+  auto pose = f.imageValid ? imageToReference(cfg, f) : std::nullopt;
+  if (pose && !isFinite(*pose)) pose.reset();
+  if (!pose && unplaced++ == 0)
+    spdlog::warn("live frame {} cannot be placed (invalid status or no ImageToReference chain); such frames are "
+                 "skipped and counted",
+                 f.index);
+  return pose;
+}
+
+Source recorded(Source src, const std::string& path) {
+  if (path.empty()) return src;
+  auto inner = src.run;
+  src.run = [inner, path](const FrameSink& sink) {
+    Recorder rec(path);
+    inner([&](const Frame& f, const Mat4& pose, double t) {
+      rec.write(f);
+      sink(f, pose, t);
+    });
+  };
+  return src;
+}
+
+}  // namespace pp5::host
