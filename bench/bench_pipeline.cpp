@@ -29,7 +29,7 @@ struct Workload {
 const Workload& workload() {
   static const Workload w = [] {
     sim::SimSettings ss;
-    ss.phantom = "doll";
+    ss.phantom = pp5::sim::PhantomKind::Doll;
     ss.probe.widthPx = 256;
     ss.probe.heightPx = 256;
     ss.sweep.captureIntervalMm = 2.0;

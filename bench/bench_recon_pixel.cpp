@@ -50,9 +50,9 @@ void BM_PixelInsert(benchmark::State& state) {
     return;
   }
   gp::ReconSettings s = gp::fromPlus(*rec.cfg.volumeReconstruction);
-  s.method = state.range(0) == 0 ? "nearest" : "trilinear";
-  s.arithmetic = state.range(1) == 0 ? "float" : "plus";
-  s.compounding = "mean";
+  s.method = state.range(0) == 0 ? gp::Method::Nearest : gp::Method::Trilinear;
+  s.arithmetic = state.range(1) == 0 ? gp::Arithmetic::Float : gp::Arithmetic::Plus;
+  s.compounding = pp5::gp::Compounding::Mean;
   s.fillHoles = false;
   s.threads = 1;
   const Grid g = gp::plusOutputGrid(rec.poses, rec.frames[0].width, rec.frames[0].height, s, Vec3(0.5));
@@ -71,7 +71,7 @@ void BM_PixelInsert(benchmark::State& state) {
     pixels += r->insert(rec.frames[f], rec.poses[f], 0.0).pixelsInserted;
   }
   state.SetItemsProcessed(static_cast<std::int64_t>(pixels));
-  state.SetLabel(s.method + " " + s.arithmetic);
+  state.SetLabel(std::string(pp5::enumName(s.method)) + " " + std::string(pp5::enumName(s.arithmetic)));
 }
 BENCHMARK(BM_PixelInsert)
     ->ArgNames({"trilinear", "plus"})

@@ -68,7 +68,7 @@ void tentInsert(benchmark::State& state, pp5::gp::ReconSettings s) {
   g.dims = pp5::Index3(256);
   g.spacing = Vec3(0.8);
   g.origin = Vec3(-0.5 * 255 * 0.8);
-  s.method = "tent";
+  s.method = pp5::gp::Method::Tent;
   s.threads = static_cast<int>(state.range(0));
   const double yaw = static_cast<double>(state.range(1)), tilt = static_cast<double>(state.range(2));
   auto rec = pp5::gp::makeTentReconstructor(g, s);

@@ -121,7 +121,7 @@ TEST(Probe, PresetsMatchThePaperAndAModernProbe) {
   EXPECT_NEAR(last.y, 404 * 195.0 / 405, 1e-9);
 
   ProbeSettings s;
-  s.preset = "linear75";
+  s.preset = pp5::sim::ProbePreset::Linear75;
   s.widthPx = 100;
   s.depthMm = 30.0;
   const ProbeModel o = makeProbe(s);
@@ -452,7 +452,7 @@ struct ProfileError {
 };
 ProfileError expectedImageProfile(const Vec3& normal, bool lateral) {
   BModeSettings bs;
-  bs.medium = "ideal";
+  bs.medium = pp5::sim::Medium::Ideal;
   const ProbeModel probe = shallowPaper35();
   const Phantom ph = block(Tissue::Muscle, 40.0, normal);
   const Mat4 pose = poseAt(0.0, 0.0, kSurface);
@@ -532,7 +532,7 @@ TEST(BMode, ExpectedImageIsAPointValueWhateverTheGrid) {
   // offset from an interface it equals what a 0.05 mm grid gives at the same
   // points (which on a 1 mm grid a 0.2 mm pulse would not survive).
   BModeSettings bs;
-  bs.medium = "ideal";
+  bs.medium = pp5::sim::Medium::Ideal;
   const ProbeModel probe = shallowPaper35();
   const Mat4 pose = poseAt(0.0, 0.0, kSurface);
   for (const bool lateral : {false, true}) {
@@ -590,7 +590,7 @@ TEST(BMode, ExpectedImageFollowsTheFramesAcrossTheElevation) {
   // from a wall across the elevation shows the tissue on its own side: the
   // expected image has no blur along the elevation.
   BModeSettings bs;
-  bs.medium = "ideal";
+  bs.medium = pp5::sim::Medium::Ideal;
   const ProbeModel probe = shallowPaper35();
   const Phantom ph = block(Tissue::Muscle, 40.0, {1, 0, 0.0001});  // tissue where x < 0; the elevation is +x
   const BModeSimulator ref(ph, probe, bs, 1);
@@ -622,7 +622,7 @@ TEST(BMode, ExpectedImageFollowsTheFramesAcrossTheElevation) {
 TEST(BMode, ExpectedImageNeedsTheProbeAlongTheGrid) {
   const Phantom ph = block(Tissue::Muscle, 40.0);
   BModeSettings bs;
-  bs.medium = "ideal";
+  bs.medium = pp5::sim::Medium::Ideal;
   const BModeSimulator sim(ph, shallowPaper35(), bs, 1);
   Grid g;
   g.spacing = Vec3(1.0);

@@ -196,7 +196,7 @@ TEST(Evaluation, HoleFilledVoxelsHaveAValueButAreNotCovered) {
   for (auto& px : f.pixels) px = 90;
   for (bool fill : {false, true}) {
     ReconSettings s;
-    s.method = "nearest";
+    s.method = pp5::gp::Method::Nearest;
     s.fillHoles = fill;
     auto r = makeReconstructor(g, s);
     r->insert(f, pose(2.0), 0.0);

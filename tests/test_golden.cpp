@@ -32,8 +32,8 @@ struct GoldenCase {
 
 std::vector<std::uint8_t> render(const GoldenCase& c, const std::string& mode, int& w, int& h) {
   sim::SimSettings ss;
-  ss.phantom = c.phantom;
-  ss.probe.preset = c.probe;
+  ss.phantom = pp5::enumFromName<pp5::sim::PhantomKind>(c.phantom);
+  ss.probe.preset = pp5::enumFromName<pp5::sim::ProbePreset>(c.probe);
   ss.probe.widthPx = 128;
   ss.probe.heightPx = 160;
   ss.sweep.captureIntervalMm = c.intervalMm;

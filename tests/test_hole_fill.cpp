@@ -323,9 +323,9 @@ TEST(HoleFill, IncrementalEqualsFinalPassAfterEveryFrame) {
     for (const char* m : {"nearest", "trilinear"})
       for (const auto& ks : kernelSets(std::string(ar) == "float" && std::string(m) == "trilinear")) {
         ReconSettings st;
-        st.arithmetic = ar;
-        st.method = m;
-        st.compounding = "mean";
+        st.arithmetic = pp5::enumFromName<pp5::gp::Arithmetic>(ar);
+        st.method = pp5::enumFromName<pp5::gp::Method>(m);
+        st.compounding = pp5::gp::Compounding::Mean;
         st.threads = 1 + (ks.size() % 2);
         st.fillHoles = true;
         st.fillHolesIncremental = true;
@@ -366,8 +366,8 @@ TEST(HoleFill, InsertAfterFinish) {
   const Sweep s = sweep();
   for (const char* ar : {"plus", "float"}) {
     ReconSettings st;
-    st.arithmetic = ar;
-    st.method = "nearest";
+    st.arithmetic = pp5::enumFromName<pp5::gp::Arithmetic>(ar);
+    st.method = pp5::gp::Method::Nearest;
     st.fillHoles = true;
     auto r = makePixelReconstructor(s.grid, st);
     for (std::size_t k = 0; k < 3; ++k) r->insert(s.frames[k], s.poses[k], 0);
@@ -384,8 +384,8 @@ TEST(HoleFill, InsertAfterFinish) {
 TEST(HoleFill, DefaultKernel) {
   const Sweep s = sweep();
   ReconSettings st;
-  st.arithmetic = "plus";
-  st.method = "trilinear";
+  st.arithmetic = pp5::gp::Arithmetic::Plus;
+  st.method = pp5::gp::Method::Trilinear;
   st.fillHoles = true;
   const Volume byDefault = finalPass(s, st, s.frames.size());
   st.holeFilling = {stick(9, 1)};

@@ -32,7 +32,7 @@ class IncrementalEqualsFull : public ::testing::TestWithParam<Case> {};
 TEST_P(IncrementalEqualsFull, AfterEveryFrame) {
   const Case c = GetParam();
   sim::SimSettings ss;
-  ss.phantom = "doll";
+  ss.phantom = pp5::sim::PhantomKind::Doll;
   ss.probe.widthPx = 64;
   ss.probe.heightPx = 100;
   ss.sweep.captureIntervalMm = 4.0;
@@ -47,10 +47,10 @@ TEST_P(IncrementalEqualsFull, AfterEveryFrame) {
   serial::PipelineSettings ps;
   ps.render.width = 96;
   ps.render.height = 80;
-  ps.render.projection = c.projection;
+  ps.render.projection = pp5::enumFromName<pp5::Projection>(c.projection);
   ps.render.compositing = {c.mode};
   ps.render.threads = 2;
-  ps.shading.mode = c.shading;
+  ps.shading.mode = pp5::enumFromName<gp::ShadeMode>(c.shading);
   serial::SerialPipeline pipe(g, ps);
   const pp::CompositeMode mode = pp::compositeModeFromName(c.mode);
 
@@ -137,10 +137,10 @@ TEST(AnalyticImage, MipOfABrightSphereHasItsValueAndRadius) {
   tfs.colour = {{0, 0, 0, 0}, {255, 1, 1, 1}};
   const TransferFunction tf(tfs);
   gp::ShadeSettings ss;
-  ss.mode = "value";
+  ss.mode = gp::ShadeMode::Value;
   RenderSettings rs;
   rs.width = rs.height = 128;
-  rs.projection = "orthographic";
+  rs.projection = pp5::Projection::Orthographic;
   rs.compositing = {"mip"};
   rs.stepMm = 0.5;
   rs.opacityUnitMm = 1.0;

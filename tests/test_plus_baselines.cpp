@@ -74,7 +74,7 @@ Case prepare(const Baseline& b) {
 
 Volume reconstruct(const Case& c, const std::string& arithmetic, int threads) {
   ReconSettings s = c.settings;
-  s.arithmetic = arithmetic;
+  s.arithmetic = pp5::enumFromName<pp5::gp::Arithmetic>(arithmetic);
   s.threads = threads;
   auto r = makeReconstructor(c.grid, s);
   const auto& fr = frames();
@@ -167,13 +167,13 @@ TEST(PlusBaselineFloat, AgreementRecorded) {
                 a.within1, a.equal, a.meanDiff);
     RecordProperty(std::string(b.name) + "_float_within1", std::to_string(a.within1));
     RecordProperty(std::string(b.name) + "_float_mean_diff", std::to_string(a.meanDiff));
-    const std::string mode = c.settings.compounding;
-    if (mode == "mean" && c.settings.method == "nearest") {
+    const pp5::gp::Compounding mode = c.settings.compounding;
+    if (mode == pp5::gp::Compounding::Mean && c.settings.method == pp5::gp::Method::Nearest) {
       // PLUS truncates its running mean at every step, so its values sink
       // below the exact mean as hits accumulate.
       EXPECT_GT(a.meanDiff, 0.5) << b.name;
       EXPECT_GE(a.within1, 0.70) << b.name;
-    } else if (mode == "mean") {
+    } else if (mode == pp5::gp::Compounding::Mean) {
       // PLUS rounds each trilinear update, which drops small updates (the
       // value sticks to its first hits) but has no sign: no bias either way.
       EXPECT_LT(std::abs(a.meanDiff), 0.5) << b.name;

@@ -25,7 +25,7 @@ double angleBetween(const Mat4& a, const Mat4& b) {
 }
 
 Sweep plan(const SimSettings& s) {
-  const Phantom ph = makePhantom(s.phantom);
+  const Phantom ph = makePhantom(std::string(pp5::enumName(s.phantom)));
   return planSweep(s, ph.scan, imageCornersInProbe(makeProbe(s.probe)));
 }
 
@@ -120,7 +120,7 @@ TEST(Sweep, OtherIntervalsAndEveryFrame) {
     EXPECT_NEAR(static_cast<double>(sw.frames.size()), 190.0 / interval, 190.0 / interval * 0.15);
   }
   SimSettings s;
-  s.sweep.capture = "every_frame";
+  s.sweep.capture = pp5::sim::Capture::EveryFrame;
   const Sweep all = plan(s);
   EXPECT_EQ(all.frames.size(), all.videoFrames);
   s.sweep.maxFrames = 7;
@@ -169,7 +169,7 @@ TEST(Sweep, ParallelPassesSideBySide) {
 
 TEST(Sweep, AngledSweepTurnsTheImagePlane) {
   SimSettings s;
-  s.sweep.kind = "angled";
+  s.sweep.kind = pp5::sim::SweepKind::Angled;
   s.sweep.angleDeg = 30.0;
   s.sweep.lengthMm = 100.0;
   const Sweep sw = plan(s);
@@ -185,7 +185,7 @@ TEST(Sweep, AngledSweepTurnsTheImagePlane) {
 
 TEST(Sweep, BackAndForthRescansTheSameRegion) {
   SimSettings s;
-  s.sweep.kind = "back_and_forth";
+  s.sweep.kind = pp5::sim::SweepKind::BackAndForth;
   s.sweep.repeats = 3;
   s.sweep.lengthMm = 60.0;
   const Sweep sw = plan(s);
@@ -246,7 +246,7 @@ TEST(Freehand, PathIsSmoothAndSixDof) {
 
 TEST(Freehand, TrackerNoiseAndCapture) {
   SimSettings s;
-  s.sweep.kind = "freehand";
+  s.sweep.kind = pp5::sim::SweepKind::Freehand;
   const Sweep sw = plan(s);
   ASSERT_GT(sw.frames.size(), 50u);
   double maxErr = 0;

@@ -28,7 +28,7 @@ using pp5::TileRect;
 
 RayCacheSettings settingsFor(SampleFormat f, int blockSize = 32, bool termination = true) {
   RayCacheSettings s;
-  s.format = pp5::pp::sampleFormatName(f);
+  s.format = f;
   s.blockSize = blockSize;
   s.earlyTermination = termination;
   return s;
@@ -700,7 +700,7 @@ TEST(FormatChoice, HalfIsWithinATenthOfALevelRgba8IsNot) {
         EXPECT_GT(rgba8.maxLevels, 5.0) << "rgba8 would do: reconsider the default";
       }
     }
-  EXPECT_EQ(RayCacheSettings{}.format, "half");
+  EXPECT_EQ(RayCacheSettings{}.format, SampleFormat::Half);
 }
 
 // ---------------------------------------------------------------------------
@@ -712,13 +712,13 @@ TEST(Options, RegisteredWithDefaultsAndRanges) {
   s.blockSize = 3;
   pp5::pp::registerOptions(schema, s);
   EXPECT_EQ(s.blockSize, 32);
-  EXPECT_EQ(s.format, "half");
+  EXPECT_EQ(s.format, SampleFormat::Half);
   EXPECT_TRUE(s.earlyTermination);
   EXPECT_DOUBLE_EQ(s.terminationAlpha, 1.0 - 1.0 / 512.0);
   for (const auto& e : schema.entries()) EXPECT_FALSE(e.doc.empty()) << e.key;
   schema.loadString("[render.cache]\nblock_size = 16\nformat = \"float\"\nadditive_scale = 0.5\n", "cfg.toml");
   EXPECT_EQ(s.blockSize, 16);
-  EXPECT_EQ(s.formatEnum(), SampleFormat::Float);
+  EXPECT_EQ(s.format, SampleFormat::Float);
   EXPECT_NO_THROW(s.validate());
   EXPECT_THROW(schema.loadString("[render.cache]\nformat = \"int8\"\n", "cfg.toml"), pp5::InputError);
   EXPECT_THROW(schema.loadString("[render.cache]\ntermination_alpha = 0.2\n", "cfg.toml"), pp5::InputError);

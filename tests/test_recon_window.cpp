@@ -115,7 +115,7 @@ ReconSettings tentSettings(const std::string& replacement) {
   s.kernelElevationMm = 1.5;
   s.fillIn = true;
   s.fillInMaxGapMm = 8.0;
-  s.replacement = replacement;
+  s.replacement = pp5::enumFromName<pp5::gp::Replacement>(replacement);
   s.motionVectorBrick = 5;  // does not divide the grid: the last cells are partial
   s.decayTauS = 0.3;
   return s;
@@ -419,7 +419,7 @@ TEST(TentWindow, InputsAreCheckedAsInsertChecksThem) {
   for (const char* method : {"tent", "nearest"}) {
     SCOPED_TRACE(method);
     ReconSettings s = tentSettings("accumulate");
-    s.method = method;
+    s.method = pp5::enumFromName<pp5::gp::Method>(method);
     const Sweep sw = makeSweep(2);
     auto rec = makeReconstructor(g, s);
     rec->setWindow({Index3(4), Index3(20)});
@@ -501,8 +501,8 @@ TEST_P(PixelWindow, WindowEqualsTheUnrestrictedReconstruction) {
   const Grid g = testGrid();
   ReconSettings s;
   s.threads = 1;
-  s.method = c.method;
-  s.compounding = c.compounding;
+  s.method = pp5::enumFromName<pp5::gp::Method>(c.method);
+  s.compounding = pp5::enumFromName<pp5::gp::Compounding>(c.compounding);
   s.fillHoles = c.fillHoles;
   s.fillHolesIncremental = c.fillHoles;
   const Sweep sw = makeSweep(13);
@@ -529,7 +529,7 @@ INSTANTIATE_TEST_SUITE_P(Methods, PixelWindow,
 TEST(PixelWindow, HoleFillingGrowsTheReach) {
   const Grid g = testGrid();
   ReconSettings s;
-  s.method = "nearest";
+  s.method = pp5::gp::Method::Nearest;
   const Box3 w{Index3(10), Index3(12)};
   EXPECT_EQ(reconstructionReach(g, s, w), w);
   s.fillHoles = true;  // the default STICK kernel of length 9

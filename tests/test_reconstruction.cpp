@@ -60,8 +60,8 @@ std::vector<Case> cases() {
   std::vector<Case> out;
   for (const char* rep : {"accumulate", "motion_vector", "decay"}) {
     pp5::gp::ReconSettings s;
-    s.method = "tent";
-    s.replacement = rep;
+    s.method = pp5::gp::Method::Tent;
+    s.replacement = pp5::enumFromName<pp5::gp::Replacement>(rep);
     s.decayTauS = 0.5;
     out.push_back({std::string("tent_") + rep, s});
   }
@@ -69,13 +69,13 @@ std::vector<Case> cases() {
     for (const char* c : {"mean", "latest", "maximum"})
       for (const char* a : {"float", "plus"}) {
         pp5::gp::ReconSettings s;
-        s.method = m;
-        s.compounding = c;
-        s.arithmetic = a;
+        s.method = pp5::enumFromName<pp5::gp::Method>(m);
+        s.compounding = pp5::enumFromName<pp5::gp::Compounding>(c);
+        s.arithmetic = pp5::enumFromName<pp5::gp::Arithmetic>(a);
         out.push_back({std::string(m) + "_" + c + "_" + a, s});
       }
   pp5::gp::ReconSettings holes;
-  holes.method = "nearest";
+  holes.method = pp5::gp::Method::Nearest;
   holes.fillHoles = true;
   holes.fillHolesIncremental = true;
   out.push_back({"nearest_mean_holes_incremental", holes});

@@ -280,7 +280,7 @@ std::vector<pp5::SampleLattice> smallLattices(const Grid& g) {
     pp5::RenderSettings s;
     s.width = 37;
     s.height = 29;
-    s.projection = v.projection;
+    s.projection = pp5::enumFromName<pp5::Projection>(v.projection);
     s.azimuthDeg = v.az;
     s.elevationDeg = v.el;
     s.distance = v.dist;
@@ -570,7 +570,7 @@ TEST(GpsTouched, MatchesABruteForceVoxelLoop) {
     boxes.push_back({g.maxCorner() + Vec3(1.0), g.maxCorner() + Vec3(2.0)});
     // The tent's windows as they are, and grown to whole motion-vector cells.
     ReconSettings plain, motion;
-    motion.replacement = "motion_vector";
+    motion.replacement = pp5::gp::Replacement::MotionVector;
     motion.motionVectorBrick = 4;
     for (const ReconSettings* recon : {&plain, &motion})
       for (int G = 1; G <= 16; ++G)
@@ -583,7 +583,7 @@ TEST(GpsTouched, MatchesABruteForceVoxelLoop) {
                 ASSERT_EQ(pp5::parallel::gpsTouched(L, boxes[b], ghost, *recon), expect)
                     << "dims " << dims.x << "x" << dims.y << "x" << dims.z << ", " << G << " GPs, "
                     << pp5::parallel::slabSplitName(split) << ", ghost " << ghost << ", box " << b << ", "
-                    << recon->replacement;
+                    << pp5::enumName(recon->replacement);
                 ++checks;
                 if (!expect.empty() && static_cast<int>(expect.size()) < G) ++nonTrivial;
               }

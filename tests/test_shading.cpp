@@ -126,7 +126,7 @@ TEST(Shading, ConstantVolumeShadesToTheTransferFunction) {
     for (const std::string mode : {"value", "phong"}) {
       // A flat region is lit by ambient + diffuse, which is 1 by default.
       ShadeSettings s;
-      s.mode = mode;
+      s.mode = pp5::enumFromName<pp5::gp::ShadeMode>(mode);
       const ShadeBuffer out = shadeFull(vol, tf, s, cam);
       const ShadeVoxel want = expected({t.r, t.g, t.b}, t.a, 1.0, 0.0);
       for (std::uint64_t n = 0; n < g.voxelCount(); ++n)
@@ -148,7 +148,7 @@ TEST(Shading, ClassificationIsContinuousInTheGreyValue) {
   ts.colour = {{0, 1, 1, 1}, {255, 1, 1, 1}};
   const TransferFunction tf(ts);
   ShadeSettings s;
-  s.mode = "value";
+  s.mode = pp5::gp::ShadeMode::Value;
   const Grid g = makeGrid({1, 1, 1});
   const Camera cam;
   for (const double v : {100.25, 100.5, 100.75}) {
@@ -251,7 +251,7 @@ TEST(Shading, PhongDirectionalLightOnARamp) {
     const glm::dvec3 L = std::cos(glm::radians(20.0)) * N + std::sin(glm::radians(20.0)) * side;
     const Camera cam = orthoCamera({0, 0, 0}, N);
     ShadeSettings s = phong(0.1, 0.6, 0.5, 8.0);
-    s.light = "direction";
+    s.light = pp5::gp::LightKind::Direction;
     s.lightDirection = -L;
     const glm::dvec3 H = glm::normalize(L + N);
     const double hl = highlight(s, N, L, H);
@@ -308,7 +308,7 @@ TEST(Shading, PhongLightAtTheViewerFollowsEachVoxelInPerspective) {
   Camera ortho = persp;
   ortho.projection = pp5::Projection::Orthographic;
   ShadeSettings dir = s;
-  dir.light = "direction";
+  dir.light = pp5::gp::LightKind::Direction;
   dir.lightDirection = ortho.forward();
   const ShadeBuffer a = shadeFull(vol, tf, s, ortho), b = shadeFull(vol, tf, dir, ortho);
   const ShadeVoxel want = expected(kColour, kAlpha, intensity(s, N, -ortho.forward()),
@@ -327,7 +327,7 @@ TEST(Shading, PhongDirectionalLightInPerspectiveUsesTheViewPerVoxel) {
   const Vec3 centre = ramp.g.voxelToWorld(Vec3(ramp.g.dims - Index3(1)) * 0.5);
   const Camera persp = perspectiveCamera(centre + 15.0 * N, centre);
   ShadeSettings s = phong(0.1, 0.5, 0.6, 6.0);
-  s.light = "direction";
+  s.light = pp5::gp::LightKind::Direction;
   const glm::dvec3 L = glm::normalize(N + glm::dvec3(0.2, 0.3, -0.1));
   s.lightDirection = -L;
   const ShadeBuffer out = shadeFull(vol, tf, s, persp);
@@ -347,7 +347,7 @@ TEST(Shading, WeakGradientsFadeToAmbientPlusDiffuse) {
   const glm::dvec3 N = glm::normalize(ramp.grad);
   const Camera cam = orthoCamera({0, 0, 0}, Vec3(0, 0, 1));
   ShadeSettings s = phong(0.1, 0.6, 0.5, 2.0);
-  s.light = "direction";
+  s.light = pp5::gp::LightKind::Direction;
   s.lightDirection = Vec3(0, 0, -1);
   const glm::dvec3 L(0, 0, 1);
   s.flatGradient = 14.0;  // w = 0.5
@@ -364,7 +364,7 @@ TEST(Shading, GradientOpacityScalesOpacityByARampOfTheMagnitude) {
   const Camera cam;
   for (const std::string mode : {"value", "phong"}) {
     ShadeSettings s;
-    s.mode = mode;
+    s.mode = pp5::enumFromName<pp5::gp::ShadeMode>(mode);
     s.gradientOpacity = true;
     s.gradientOpacityLow = 3.0;
     s.gradientOpacityWidth = 10.0;  // factor (7 - 3) / 10
@@ -388,12 +388,12 @@ std::vector<ShadeSettings> variants() {
   std::vector<ShadeSettings> v;
   ShadeSettings s;
   v.push_back(s);  // phong, light at the viewer
-  s.light = "direction";
+  s.light = pp5::gp::LightKind::Direction;
   s.gradientOpacity = true;
   s.gradientOpacityWidth = 500.0;
   v.push_back(s);
   s = ShadeSettings{};
-  s.mode = "value";
+  s.mode = pp5::gp::ShadeMode::Value;
   v.push_back(s);
   s.gradientOpacity = true;
   s.gradientOpacityWidth = 500.0;
@@ -428,11 +428,11 @@ TEST(Shading, ReshadingAChangedBoxGrownByOneEqualsAFullReshade) {
         ShadeBuffer noMargin = inc;
         pp5::gp::shade(vol, tf, s, cam, change.grown(1), inc);
         const ShadeBuffer full = shadeFull(vol, tf, s, cam);
-        EXPECT_TRUE(sameBits(inc, full)) << s.mode << " " << s.light;
+        EXPECT_TRUE(sameBits(inc, full)) << pp5::enumName(s.mode) << " " << pp5::enumName(s.light);
         // Without the margin the neighbours' gradients go stale.
         pp5::gp::shade(vol, tf, s, cam, change, noMargin);
-        if (s.mode == "phong" || s.gradientOpacity) {
-          EXPECT_FALSE(sameBits(noMargin, full)) << s.mode;
+        if (s.mode == pp5::gp::ShadeMode::Phong || s.gradientOpacity) {
+          EXPECT_FALSE(sameBits(noMargin, full)) << pp5::enumName(s.mode);
         }
       }
 }
@@ -457,7 +457,7 @@ TEST(Shading, ReshadingADirtyRegionEqualsAFullReshade) {
           for (std::int64_t i = 0; i < g.dims.x; ++i)
             if (dirty.containsVoxel(i, j, k)) vol.setValue(g.linear(i, j, k), u(rng));
       pp5::gp::shade(vol, tf, s, cam, dirty, inc);
-      EXPECT_TRUE(sameBits(inc, shadeFull(vol, tf, s, cam))) << "brick " << brick << " " << s.mode;
+      EXPECT_TRUE(sameBits(inc, shadeFull(vol, tf, s, cam))) << "brick " << brick << " " << pp5::enumName(s.mode);
     }
 }
 
@@ -512,7 +512,7 @@ TEST(Shading, AnyThreadCountGivesTheSameBits) {
       pp5::gp::shade(vol, tf, s, cam, dirty, refDirty);
       for (const int t : {2, 3}) {
         s.threads = t;
-        EXPECT_TRUE(sameBits(shadeFull(vol, tf, s, cam), ref)) << t << " threads, " << s.mode << " " << s.light;
+        EXPECT_TRUE(sameBits(shadeFull(vol, tf, s, cam), ref)) << t << " threads, " << pp5::enumName(s.mode) << " " << pp5::enumName(s.light);
         ShadeBuffer d(g);
         pp5::gp::shade(vol, tf, s, cam, dirty, d);
         EXPECT_TRUE(sameBits(d, refDirty)) << t << " threads, dirty region";
@@ -540,12 +540,12 @@ TEST(Shading, PremultipliedColourNeverExceedsOpacity) {
     }
     const TransferFunction tf(ts);
     ShadeSettings s;
-    s.mode = trial % 4 == 3 ? "value" : "phong";
+    s.mode = trial % 4 == 3 ? pp5::gp::ShadeMode::Value : pp5::gp::ShadeMode::Phong;
     s.ambient = u(rng);
     s.diffuse = u(rng);
     s.specular = u(rng);
     s.shininess = 1.0 + 255.0 * u(rng);
-    s.light = trial % 2 ? "viewer" : "direction";
+    s.light = trial % 2 ? pp5::gp::LightKind::Viewer : pp5::gp::LightKind::Direction;
     s.lightDirection = {u(rng) - 0.5, u(rng) - 0.5, u(rng) - 0.5};
     s.gradientOpacity = trial % 3 == 0;
     std::mt19937 vr(static_cast<unsigned>(trial));
@@ -620,11 +620,11 @@ TEST(Shading, RefusesMismatchedGridsAndAZeroLightDirection) {
   EXPECT_THROW(pp5::gp::shade(vol, tf, ShadeSettings{}, Camera{}, Box3{Index3(0), g.dims}, wrong),
                pp5::InvariantError);
   ShadeSettings s;
-  s.light = "direction";
+  s.light = pp5::gp::LightKind::Direction;
   s.lightDirection = Vec3(0.0);
   ShadeBuffer out(g);
   EXPECT_THROW(pp5::gp::shade(vol, tf, s, Camera{}, Box3{Index3(0), g.dims}, out), pp5::InputError);
-  s.light = "sun";
+  s.light = static_cast<pp5::gp::LightKind>(9);  // not a light: settings built in code are checked
   EXPECT_THROW(pp5::gp::shade(vol, tf, s, Camera{}, Box3{Index3(0), g.dims}, out), pp5::InputError);
   // Settings built in code meet the schema's ranges too: a shininess of 0 or
   // a NaN would otherwise reach the voxel loop.
@@ -632,7 +632,7 @@ TEST(Shading, RefusesMismatchedGridsAndAZeroLightDirection) {
            [](ShadeSettings& x) { x.shininess = 0.0; },
            [](ShadeSettings& x) { x.ambient = std::numeric_limits<double>::quiet_NaN(); },
            [](ShadeSettings& x) { x.gradientOpacityWidth = 0.0; },
-           [](ShadeSettings& x) { x.mode = "toon"; }}) {
+           [](ShadeSettings& x) { x.mode = static_cast<pp5::gp::ShadeMode>(7); }}) {
     ShadeSettings x;
     bad(x);
     EXPECT_THROW(pp5::gp::shade(vol, tf, x, Camera{}, Box3{Index3(0), g.dims}, out), pp5::InputError);
@@ -675,7 +675,7 @@ TEST(Shading, OptionsLoadWithDefaultsAndRefuseOutOfRangeValues) {
       "[render.shading]\nmode = \"value\"\nlight = \"direction\"\nlight_direction = [0, 0, -1]\n"
       "shininess = 64\ngradient_opacity = true\n",
       "shade.toml");
-  EXPECT_EQ(s.mode, "value");
+  EXPECT_EQ(s.mode, pp5::gp::ShadeMode::Value);
   EXPECT_EQ(s.lightDirection, glm::dvec3(0, 0, -1));
   EXPECT_EQ(s.shininess, 64.0);
   EXPECT_TRUE(s.gradientOpacity);

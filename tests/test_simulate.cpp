@@ -87,7 +87,7 @@ double localMean(const Frame& f, int c, int r, int half) {
 
 SimSettings settingsFor(const std::string& phantom) {
   SimSettings s;
-  s.phantom = phantom;
+  s.phantom = pp5::enumFromName<pp5::sim::PhantomKind>(phantom);
   s.threads = 1;
   return s;
 }

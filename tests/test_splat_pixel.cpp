@@ -76,9 +76,9 @@ Mat4 randomPose(std::mt19937& rng, int w, int h, double pixelMm, const Vec3& cen
 ReconSettings settingsFor(const std::string& arithmetic, const std::string& method, const std::string& compounding,
                           int threads = 1) {
   ReconSettings s;
-  s.arithmetic = arithmetic;
-  s.method = method;
-  s.compounding = compounding;
+  s.arithmetic = pp5::enumFromName<pp5::gp::Arithmetic>(arithmetic);
+  s.method = pp5::enumFromName<pp5::gp::Method>(method);
+  s.compounding = pp5::enumFromName<pp5::gp::Compounding>(compounding);
   s.threads = threads;
   return s;
 }
@@ -559,7 +559,9 @@ TEST(SplatPixel, InvalidInputThrowsAndChangesNothing) {
                          imagePose(Vec3(1, 0, 0), Vec3(0, 1, 0), 1.0, Vec3(2e5, 0, 0)), 0),
                InputError);
   // Settings.
-  ReconSettings bad = settingsFor("float", "nearest", "median");
+  EXPECT_THROW(settingsFor("float", "nearest", "median"), InputError);  // refused where the name is read
+  ReconSettings bad = settingsFor("float", "nearest", "mean");
+  bad.compounding = static_cast<pp5::gp::Compounding>(7);  // and settings built in code are checked too
   EXPECT_THROW(makePixelReconstructor(g, bad), InputError);
   bad = settingsFor("float", "nearest", "mean");
   bad.fillHoles = true;

@@ -697,7 +697,7 @@ TEST(TentReplacement, MotionVectorsLetTheReverseSweepDominate) {
   const Sweep sw;
   ReconSettings acc = baseSettings();
   ReconSettings mv = baseSettings();
-  mv.replacement = "motion_vector";
+  mv.replacement = pp5::gp::Replacement::MotionVector;
   mv.motionVectorNewWeight = 0.8;
   const double a = 50.0, b = 200.0;
   auto ra = forwardThenBack(sw, acc, a, b, true);
@@ -717,7 +717,7 @@ TEST(TentReplacement, SameDirectionRescanAccumulatesEvenWithMotionVectors) {
   const Sweep sw;
   ReconSettings acc = baseSettings();
   ReconSettings mv = baseSettings();
-  mv.replacement = "motion_vector";
+  mv.replacement = pp5::gp::Replacement::MotionVector;
   auto ra = forwardThenBack(sw, acc, 50.0, 200.0, false);
   auto rm = forwardThenBack(sw, mv, 50.0, 200.0, false);
   EXPECT_EQ(ra->output().bytes, rm->output().bytes);
@@ -728,7 +728,7 @@ TEST(TentReplacement, SameDirectionRescanAccumulatesEvenWithMotionVectors) {
 TEST(TentReplacement, DecayFadesOldDataWhenNewDataArrives) {
   const Sweep sw;
   ReconSettings s = baseSettings();
-  s.replacement = "decay";
+  s.replacement = pp5::gp::Replacement::Decay;
   s.decayTauS = 2.0;
   const double a = 50.0, b = 200.0;
   const Frame fa = constantFrame(sw.w, sw.h, a), fb = constantFrame(sw.w, sw.h, b);
@@ -762,7 +762,7 @@ TEST(TentReplacement, DecayFadesOldDataWhenNewDataArrives) {
 TEST(TentReplacement, DecayedSweepRescanIsDominatedByTheNewSweep) {
   const Sweep sw;
   ReconSettings s = baseSettings();
-  s.replacement = "decay";
+  s.replacement = pp5::gp::Replacement::Decay;
   s.decayTauS = 0.5;
   auto rec = makeTentReconstructor(sw.grid, s);
   const Frame fa = constantFrame(sw.w, sw.h, 50), fb = constantFrame(sw.w, sw.h, 200);
@@ -816,7 +816,7 @@ TEST(TentDeterminism, IncrementalEqualsBatchForAnyThreadCountAndDirtyCoversEvery
   for (const char* mode : {"accumulate", "motion_vector", "decay"}) {
     SCOPED_TRACE(mode);
     ReconSettings s = baseSettings();
-    s.replacement = mode;
+    s.replacement = pp5::enumFromName<pp5::gp::Replacement>(mode);
     // Dark pixels left out, except for accumulate (whose voxels then take
     // the shortcut for windows with every pixel selected).
     s.pixelRejectionThreshold = std::string(mode) == "accumulate" ? -1.0 : 20.0;
@@ -954,16 +954,16 @@ TEST(TentInput, RefusesBadFramesAndPosesWithoutChangingAnything) {
   EXPECT_EQ(rec->output().bytes, fresh->output().bytes);
 
   ReconSettings bad = baseSettings();
-  bad.replacement = "forget";
+  bad.replacement = static_cast<Replacement>(7);  // not a policy: settings built in code are checked
   EXPECT_THROW(makeTentReconstructor(g, bad), InputError);
 }
 
 TEST(TentInput, BytesPerVoxel) {
   ReconSettings s;
   EXPECT_EQ(tentBytesPerVoxel(s), 12u);
-  s.replacement = "decay";
+  s.replacement = pp5::gp::Replacement::Decay;
   EXPECT_EQ(tentBytesPerVoxel(s), 16u);
-  s.replacement = "motion_vector";
+  s.replacement = pp5::gp::Replacement::MotionVector;
   s.motionVectorBrick = 8;
   EXPECT_EQ(tentBytesPerVoxel(s), 21u);
 }
@@ -998,7 +998,7 @@ double correlation(const std::vector<double>& x, const std::vector<double>& y) {
 // check only asks for a clear positive correlation.
 TEST(TentSimulated, DollSweepAgreesWithNearestVoxelAndFollowsTheTruth) {
   sim::SimSettings ss;
-  ss.phantom = "doll";
+  ss.phantom = pp5::sim::PhantomKind::Doll;
   ss.threads = 2;
   ss.probe.widthPx = 48;
   ss.probe.heightPx = 72;
@@ -1014,7 +1014,7 @@ TEST(TentSimulated, DollSweepAgreesWithNearestVoxelAndFollowsTheTruth) {
 
   ReconSettings s = baseSettings();
   s.threads = 2;
-  s.replacement = "motion_vector";
+  s.replacement = pp5::gp::Replacement::MotionVector;
   s.kernelLateralMm = 2.0;  // this small probe's pixels are about 2 x 2.7 mm
   s.kernelAxialMm = 2.0;
   auto rec = makeTentReconstructor(g, s);

@@ -104,9 +104,9 @@ Sequence simulateSequence(const Settings& s, const std::string& dir) {
   if (n == 0) throw InputError("sim.sweep: the sweep captured no frames; lengthen it or lower sim.sweep.capture_interval_mm");
   makeOutputDir(dir);
   Sequence out;
-  out.sequencePath = fs::absolute(fs::path(dir) / (s.sim.phantom + "_sweep.igs.mha")).string();
-  out.configPath = fs::absolute(fs::path(dir) / (s.sim.phantom + "_config.xml")).string();
-  out.firstPath = fs::absolute(fs::path(dir) / (s.sim.phantom + "_first_frame.igs.mha")).string();
+  out.sequencePath = fs::absolute(fs::path(dir) / (std::string(enumName(s.sim.phantom)) + "_sweep.igs.mha")).string();
+  out.configPath = fs::absolute(fs::path(dir) / (std::string(enumName(s.sim.phantom)) + "_config.xml")).string();
+  out.firstPath = fs::absolute(fs::path(dir) / (std::string(enumName(s.sim.phantom)) + "_first_frame.igs.mha")).string();
   out.frames = n;
   struct Expected {
     std::uint64_t index;
@@ -128,8 +128,8 @@ Sequence simulateSequence(const Settings& s, const std::string& dir) {
   writer->close();
   first->close();
   writePlusConfig(out.configPath, {{"Image", "Probe", sim.imageToProbe()}}, reconstructionElement(sweepGrid(s, sim)),
-                  fmt::format("pp5echo bench: {} phantom, {} probe, {} sweep, seed {}", s.sim.phantom,
-                              sim.probe().name, s.sim.sweep.kind, s.sim.seed));
+                  fmt::format("pp5echo bench: {} phantom, {} probe, {} sweep, seed {}", enumName(s.sim.phantom),
+                              sim.probe().name, enumName(s.sim.sweep.kind), s.sim.seed));
 
   PosedSequence seq = openPosedSequence(out.sequencePath, out.configPath);
   if (seq.poses.size() != n)

@@ -67,11 +67,11 @@ void emitJson(const std::string& where, const nlohmann::ordered_json& j) {
 }
 
 std::string describe(const gp::ReconSettings& rs) {
-  std::string d = rs.method;
-  if (rs.method != "tent") d += "/" + rs.compounding;
-  if (rs.method == "tent" && rs.fillIn) d += "+fill-in";
+  std::string d(enumName(rs.method));
+  if (rs.method != gp::Method::Tent) d += "/" + std::string(enumName(rs.compounding));
+  if (rs.method == gp::Method::Tent && rs.fillIn) d += "+fill-in";
   if (rs.fillHoles) d += "+holes";
-  return d + " (" + rs.arithmetic + ")";
+  return d + " (" + std::string(enumName(rs.arithmetic)) + ")";
 }
 
 }  // namespace

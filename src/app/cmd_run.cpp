@@ -301,7 +301,7 @@ int runDistributed(const RunOptions& o) {
         j.source = std::move(src);
         j.preprocess = preprocessOf(s);
         j.queueFrames = static_cast<std::size_t>(s.run.queueFrames);
-        j.drop = host::dropPolicyFromName(s.run.drop);
+        j.drop = s.run.drop;
         j.paceFps = s.run.paceFps;
         j.script = parseScript(s);
         j.outDir = dir;
@@ -317,8 +317,8 @@ int runDistributed(const RunOptions& o) {
         spdlog::info("run: {}; grid {}x{}x{} of {} mm; {}x{} image; {} ranks: 1 host, {} GP ({} partition), {} PP "
                      "({} tiles of {} px), compositing on {}",
                      j.source.description, grid.dims.x, grid.dims.y, grid.dims.z, grid.spacing.x, s.render.width,
-                     s.render.height, size, layout.gps, s.parallel.gpPartition, layout.pps, s.parallel.tileOwner,
-                     s.parallel.tileSize, s.parallel.compositeOn);
+                     s.render.height, size, layout.gps, enumName(s.parallel.gpPartition), layout.pps,
+                     enumName(s.parallel.tileOwner), s.parallel.tileSize, enumName(s.parallel.compositeOn));
         {
           io::AtomicFile settingsFile((fs::path(dir) / "settings.toml").string());
           settingsFile.write(schema.toToml());

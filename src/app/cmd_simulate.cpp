@@ -93,11 +93,11 @@ int runSimulate(const SimulateOptions& opts) {
 
   // Refuse a truth grid that cannot fit before spending time on the frames.
   const Grid grid = sweepGrid(s, sim);
-  const ScalarType truthType = s.sim.truthType == "uint8" ? ScalarType::U8 : ScalarType::F32;
+  const ScalarType truthType = s.sim.truthType == sim::TruthType::Uint8 ? ScalarType::U8 : ScalarType::F32;
   checkGridFits(grid, 8 + static_cast<std::uint64_t>(scalarBytes(truthType)), "truth volume ([grid])",
                 s.grid.memoryLimitBytes());
 
-  const std::string stem = s.sim.phantom;
+  const std::string stem(enumName(s.sim.phantom));
   const std::string seqPath = (fs::path(dir) / (stem + "_sweep.igs.mha")).string();
   const std::string cfgPath = (fs::path(dir) / (stem + "_config.xml")).string();
   const std::string truthPath = (fs::path(dir) / (stem + "_truth.mha")).string();
@@ -105,7 +105,7 @@ int runSimulate(const SimulateOptions& opts) {
   const std::string settingsPath = (fs::path(dir) / "settings.toml").string();
 
   log->info("simulate: {} phantom, {} probe ({}x{} px, {} x {} mm), {} sweep: {} frames", stem, sim.probe().name,
-            sim.probe().width, sim.probe().height, sim.probe().widthMm, sim.probe().depthMm, s.sim.sweep.kind, n);
+            sim.probe().width, sim.probe().height, sim.probe().widthMm, sim.probe().depthMm, enumName(s.sim.sweep.kind), n);
 
   SequenceWriteOptions wo;
   wo.compress = true;
@@ -131,7 +131,7 @@ int runSimulate(const SimulateOptions& opts) {
 
   const std::string description =
       fmt::format("pp5echo simulate: {} phantom, {} probe, {} sweep, seed {}", stem, sim.probe().name,
-                  s.sim.sweep.kind, s.sim.seed);
+                  enumName(s.sim.sweep.kind), s.sim.seed);
   // ReferenceToTracker is fixed, so the configuration holds it too: a live
   // source (the board, OpenIGTLink) that sends only ProbeToTracker is then
   // placed by this file alone.

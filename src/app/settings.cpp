@@ -38,7 +38,7 @@ void registerAll(ConfigSchema& schema, Settings& s) {
   schema.option("board.transfers", &s.board.transfers, 8, 1, 256, "Bulk transfers kept in flight (the ring).");
   schema.option("board.queue_frames", &s.board.queueFrames, 32, 1, 100000,
                 "Decoded frames the driver holds for the acquisition thread; beyond that it drops (`board.drop`).");
-  schema.choice("board.drop", &s.board.drop, "oldest", {"oldest", "newest"},
+  enumOption(schema, "board.drop", &s.board.drop, host::DropPolicy::Oldest,
                 "The driver's queue is full: drop its oldest frame, or the new one. Drops are counted.");
   schema.option("board.frame_rate", &s.board.frameRate, 0.0, 0.0, 655.0,
                 "Ask the board for this frame rate (SetFrameRate); 0 = leave the board's own rate.");
@@ -50,7 +50,7 @@ void registerAll(ConfigSchema& schema, Settings& s) {
                 "Wait this long for the board to appear when the run starts.");
   schema.option("board.transfer_timeout_s", &s.board.transferTimeoutS, 2.0, 0.05, 3600.0,
                 "A bulk transfer with no data for this long counts as a timeout (and is resubmitted).");
-  schema.choice("board.on_unplug", &s.board.onUnplug, "end", {"end", "wait"},
+  enumOption(schema, "board.on_unplug", &s.board.onUnplug, OnUnplug::End,
                 "The board is unplugged: end the stream cleanly, or wait `board.reconnect_timeout_s` for it to come "
                 "back (at any address) and go on.");
   schema.option("board.reconnect_timeout_s", &s.board.reconnectTimeoutS, 10.0, 0.0, 86400.0,
@@ -70,7 +70,7 @@ void registerAll(ConfigSchema& schema, Settings& s) {
                 std::uint64_t{1u << 30}, "Largest frame payload believed; a header claiming more is rejected.");
 
   schema.section("run", "`pp5echo run`: the source it streams and the outputs it writes.");
-  schema.choice("run.source", &s.run.source, "simulator", {"simulator", "sequence", "board", "igtl"},
+  enumOption(schema, "run.source", &s.run.source, SourceKind::Simulator,
                 "`simulator`: the [sim] sweep, frame by frame as it is simulated; `sequence`: a PLUS sequence file "
                 "(`run.sequence`, with `run.plus_config` for the calibration); `board`: the USB interface board "
                 "([board]); `igtl`: an OpenIGTLink server (`run.igtl_url`). The live sources need "
@@ -110,7 +110,7 @@ void registerAll(ConfigSchema& schema, Settings& s) {
                 "takes them); a paced source that falls behind drops frames (`run.drop`).");
   schema.option("run.queue_frames", &s.run.queueFrames, 8, 1, 100000,
                 "Frames the acquisition thread may queue ahead of the pipeline.");
-  schema.choice("run.drop", &s.run.drop, "oldest", {"oldest", "newest"},
+  enumOption(schema, "run.drop", &s.run.drop, host::DropPolicy::Oldest,
                 "A live source's queue is full: drop the oldest queued frame, or the new one. Drops are counted.");
 
   parallel::registerOptions(schema, s.parallel);

@@ -5,12 +5,14 @@
 #include <string>
 
 #include "core/config.hpp"
+#include "core/enum_names.hpp"
 #include "core/grid.hpp"
-#include "parallel/parallel_settings.hpp"
 #include "core/render_settings.hpp"
 #include "core/transfer_function.hpp"
 #include "gp/reconstruction.hpp"
 #include "gp/shading.hpp"
+#include "host/acquisition.hpp"
+#include "parallel/parallel_settings.hpp"
 #include "pp/ray_cache.hpp"
 #include "sim/sim_settings.hpp"
 
@@ -42,19 +44,24 @@ struct OutputSettings {
   int previewFrames = 4;         // frames written as PNG by `simulate`
 };
 
+// What the board's stream does when the board is unplugged.
+enum class OnUnplug { End, Wait };
+// What `pp5echo run` streams.
+enum class SourceKind { Simulator, Sequence, Board, Igtl };
+
 // [board]: the USB interface board (run.source = "board").
 struct BoardSettings {
   int vendorId = 0x1209, productId = 0x0001;
   int transferKiB = 256;
   int transfers = 8;
   int queueFrames = 32;
-  std::string drop = "oldest";
+  host::DropPolicy drop = host::DropPolicy::Oldest;
   double frameRate = 0.0;           // > 0: ask the board for this rate
   glm::ivec2 windowOrigin{0, 0};    // capture window; size 0 0 = the whole frame
   glm::ivec2 windowSize{0, 0};
   double openTimeoutS = 5.0;
   double transferTimeoutS = 2.0;
-  std::string onUnplug = "end";     // end | wait
+  OnUnplug onUnplug = OnUnplug::End;
   double reconnectTimeoutS = 10.0;
   std::string transform = "ProbeToTracker";  // the per-frame transform the pose becomes
   // The arm's calibration: rows "COUNT VALUE"; empty = the simulator's linear converters ([sim.arm]).
@@ -65,7 +72,7 @@ struct BoardSettings {
 
 // [run]: what `pp5echo run` streams and which outputs it writes.
 struct RunSettings {
-  std::string source = "simulator";  // simulator | sequence | board | igtl
+  SourceKind source = SourceKind::Simulator;
   std::string igtlUrl = "igtl://127.0.0.1:18944";  // run.source = "igtl"
   double igtlReconnectS = 10.0;      // the server went away: wait this long for it (0 = end at once)
   std::string record;                // write every acquired frame to this PLUS sequence
@@ -87,7 +94,7 @@ struct RunSettings {
   // dropping by `drop` when the pipeline falls behind.
   double paceFps = 0.0;
   int queueFrames = 8;
-  std::string drop = "oldest";
+  host::DropPolicy drop = host::DropPolicy::Oldest;
 };
 
 struct Settings {
@@ -120,3 +127,25 @@ void loadSettings(ConfigSchema& schema, const std::string& file, const std::vect
 Settings readSettings(const std::string& file, const std::vector<std::string>& overrides);
 
 }  // namespace pp5::app
+
+namespace pp5 {
+
+template <>
+struct EnumNames<app::OnUnplug> {
+  static constexpr std::string_view key = "board.on_unplug";
+  static constexpr std::array<std::pair<app::OnUnplug, std::string_view>, 2> names{{
+      {app::OnUnplug::End, "end"},
+      {app::OnUnplug::Wait, "wait"}}};
+};
+
+template <>
+struct EnumNames<app::SourceKind> {
+  static constexpr std::string_view key = "run.source";
+  static constexpr std::array<std::pair<app::SourceKind, std::string_view>, 4> names{{
+      {app::SourceKind::Simulator, "simulator"},
+      {app::SourceKind::Sequence, "sequence"},
+      {app::SourceKind::Board, "board"},
+      {app::SourceKind::Igtl, "igtl"}}};
+};
+
+}  // namespace pp5

@@ -37,16 +37,16 @@ host::LiveSetup liveSetup(const Settings& s, const std::string& what) {
 }  // namespace
 
 host::Source makeSource(const Settings& s) {
-  if (s.run.source == "board")
+  if (s.run.source == SourceKind::Board)
     return host::boardSource(driverOptions(s), armCalibration(s), s.board.transform, liveSetup(s, "board"));
-  if (s.run.source == "igtl") {
+  if (s.run.source == SourceKind::Igtl) {
     igtl::ClientOptions opt;
     opt.endpoint = igtl::parseIgtlUrl(s.run.igtlUrl);
     opt.reconnect = s.run.igtlReconnectS > 0.0;
     opt.reconnectTimeoutS = s.run.igtlReconnectS;
     return host::igtlSource(opt, liveSetup(s, "igtl"));
   }
-  if (s.run.source == "sequence") {
+  if (s.run.source == SourceKind::Sequence) {
     if (s.run.sequence.empty() || s.run.plusConfig.empty())
       throw InputError("run.source = \"sequence\" needs run.sequence and run.plus_config");
     auto seq = std::make_shared<PosedSequence>(openPosedSequence(s.run.sequence, s.run.plusConfig));
@@ -65,7 +65,7 @@ board::DriverOptions driverOptions(const Settings& s) {
   o.transferBytes = s.board.transferKiB * 1024;
   o.transfers = s.board.transfers;
   o.queueFrames = static_cast<std::size_t>(s.board.queueFrames);
-  o.dropOldest = s.board.drop == "oldest";
+  o.dropOldest = s.board.drop == host::DropPolicy::Oldest;
   o.frameRate = s.board.frameRate;
   o.window[0] = s.board.windowOrigin.x;
   o.window[1] = s.board.windowOrigin.y;
@@ -73,7 +73,7 @@ board::DriverOptions driverOptions(const Settings& s) {
   o.window[3] = s.board.windowSize.y;
   o.openTimeoutS = s.board.openTimeoutS;
   o.transferTimeoutS = s.board.transferTimeoutS;
-  o.waitForReconnect = s.board.onUnplug == "wait";
+  o.waitForReconnect = s.board.onUnplug == OnUnplug::Wait;
   o.reconnectTimeoutS = s.board.reconnectTimeoutS;
   o.limits.maxPayloadBytes = static_cast<std::uint32_t>(s.board.maxFrameBytes);
   return o;

@@ -5,6 +5,7 @@
 #include <optional>
 
 #include "core/transform.hpp"
+#include "core/enum_names.hpp"
 
 namespace pp5 {
 
@@ -42,6 +43,18 @@ struct Camera {
 
   // Orbit: the eye rotated about the target by `degrees` around `axis`.
   Camera orbited(const Vec3& axis, double degrees) const;
+};
+
+}  // namespace pp5
+
+namespace pp5 {
+
+template <>
+struct EnumNames<Projection> {
+  static constexpr std::string_view key = "render.projection";
+  static constexpr std::array<std::pair<Projection, std::string_view>, 2> names{{
+      {Projection::Perspective, "perspective"},
+      {Projection::Orthographic, "orthographic"}}};
 };
 
 }  // namespace pp5

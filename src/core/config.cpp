@@ -149,19 +149,35 @@ void ConfigSchema::option(const std::string& key, std::string* field, const std:
 
 void ConfigSchema::choice(const std::string& key, std::string* field, const std::string& def,
                           const std::vector<std::string>& choices, const std::string& doc) {
-  PP5_CHECK(std::find(choices.begin(), choices.end(), def) != choices.end());
+  const auto it = std::find(choices.begin(), choices.end(), def);
+  PP5_CHECK(it != choices.end());
+  choiceIndex(
+      key, choices, static_cast<std::size_t>(it - choices.begin()), [=](std::size_t i) { *field = choices[i]; },
+      [=] {
+        return static_cast<std::size_t>(std::find(choices.begin(), choices.end(), *field) - choices.begin());
+      },
+      doc);
+}
+
+void ConfigSchema::choiceIndex(const std::string& key, const std::vector<std::string>& choices, std::size_t def,
+                               std::function<void(std::size_t)> set, std::function<std::size_t()> get,
+                               const std::string& doc) {
+  PP5_CHECK_LT(def, choices.size());
   std::string list;
   for (const auto& c : choices) list += (list.empty() ? "" : ", ") + c;
-  add({key, "string", quote(def), "one of: " + list, doc, [=] { *field = def; },
+  add({key, "string", quote(choices[def]), "one of: " + list, doc, [=] { set(def); },
        [=](const toml::node& n) -> std::string {
          const auto* s = n.as_string();
          if (!s) return "must be a string";
-         if (std::find(choices.begin(), choices.end(), s->get()) == choices.end())
-           return fmt::format("= \"{}\" is not one of: {}", s->get(), list);
-         *field = s->get();
+         const auto it = std::find(choices.begin(), choices.end(), s->get());
+         if (it == choices.end()) return fmt::format("= \"{}\" is not one of: {}", s->get(), list);
+         set(static_cast<std::size_t>(it - choices.begin()));
          return "";
        },
-       [=] { return quote(*field); }});
+       [=] {
+         const std::size_t i = get();
+         return quote(i < choices.size() ? choices[i] : std::string("?"));
+       }});
 }
 
 void ConfigSchema::option(const std::string& key, glm::dvec3* field, glm::dvec3 def, double lo, double hi,

@@ -36,6 +36,10 @@ public:
   // A string restricted to `choices`.
   void choice(const std::string& key, std::string* field, const std::string& def,
               const std::vector<std::string>& choices, const std::string& doc);
+  // A string restricted to `choices`, stored as its index (enum options:
+  // core/enum_names.hpp's enumOption).
+  void choiceIndex(const std::string& key, const std::vector<std::string>& choices, std::size_t def,
+                   std::function<void(std::size_t)> set, std::function<std::size_t()> get, const std::string& doc);
   // Fixed-length number arrays, each element within [lo, hi].
   void option(const std::string& key, glm::dvec3* field, glm::dvec3 def, double lo, double hi, const std::string& doc);
   void option(const std::string& key, glm::dvec2* field, glm::dvec2 def, double lo, double hi, const std::string& doc);

@@ -1,5 +1,7 @@
 #include "core/render_settings.hpp"
 
+#include "core/enum_names.hpp"
+
 #include <algorithm>
 #include <cmath>
 
@@ -7,11 +9,6 @@
 #include "core/error.hpp"
 
 namespace pp5 {
-
-Projection RenderSettings::projectionEnum() const {
-  PP5_CHECK(projection == "perspective" || projection == "orthographic");
-  return projection == "perspective" ? Projection::Perspective : Projection::Orthographic;
-}
 
 double RenderSettings::step(const Grid& g) const {
   return stepMm > 0.0 ? stepMm : 0.5 * std::min(g.spacing.x, std::min(g.spacing.y, g.spacing.z));
@@ -21,7 +18,7 @@ void registerOptions(ConfigSchema& c, RenderSettings& s) {
   c.section("render", "The rendered view: image size, projection, the camera's orbit and the ray lattice.");
   c.option("render.width", &s.width, 512, 16, 8192, "Image width in pixels.");
   c.option("render.height", &s.height, 512, 16, 8192, "Image height in pixels.");
-  c.choice("render.projection", &s.projection, "perspective", {"perspective", "orthographic"},
+  enumOption(c, "render.projection", &s.projection, Projection::Perspective,
            "`perspective` (the 1990 paper's choice, for depth perception) or `orthographic`.");
   c.option("render.fov_deg", &s.fovDeg, 30.0, 1.0, 150.0, "Perspective: vertical field of view, degrees.");
   c.option("render.azimuth_deg", &s.azimuthDeg, -120.0, -360.0, 360.0,
@@ -48,7 +45,7 @@ Camera makeCamera(const RenderSettings& s, const Grid& g) {
   const double az = glm::radians(s.azimuthDeg), el = glm::radians(s.elevationDeg);
   const Vec3 dir(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el));
   Camera c;
-  c.projection = s.projectionEnum();
+  c.projection = s.projection;
   c.width = s.width;
   c.height = s.height;
   c.fovYDeg = s.fovDeg;

@@ -14,7 +14,7 @@ class ConfigSchema;
 struct RenderSettings {
   int width = 512;
   int height = 512;
-  std::string projection = "perspective";  // perspective | orthographic
+  Projection projection = Projection::Perspective;
   double fovDeg = 30.0;                    // perspective: vertical field of view
   // The eye orbits the grid's centre: azimuth about +z from +x, elevation
   // above the xy plane; its distance is `distance` times the radius of the
@@ -34,7 +34,6 @@ struct RenderSettings {
   std::vector<std::string> compositing = {"over", "mip"};
   int threads = 0;  // 0 = every core
 
-  Projection projectionEnum() const;
   double step(const Grid& g) const;
 };
 

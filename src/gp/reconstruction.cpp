@@ -12,41 +12,14 @@
 
 namespace pp5::gp {
 
-Method ReconSettings::methodEnum() const {
-  if (method == "tent") return Method::Tent;
-  if (method == "nearest") return Method::Nearest;
-  if (method == "trilinear") return Method::Trilinear;
-  throw InputError("recon.method = \"" + method + "\" is not one of: tent, nearest, trilinear");
-}
-
-Compounding ReconSettings::compoundingEnum() const {
-  if (compounding == "mean") return Compounding::Mean;
-  if (compounding == "latest") return Compounding::Latest;
-  if (compounding == "maximum") return Compounding::Maximum;
-  throw InputError("recon.compounding = \"" + compounding + "\" is not one of: mean, latest, maximum");
-}
-
-Replacement ReconSettings::replacementEnum() const {
-  if (replacement == "accumulate") return Replacement::Accumulate;
-  if (replacement == "motion_vector") return Replacement::MotionVector;
-  if (replacement == "decay") return Replacement::Decay;
-  throw InputError("recon.replacement = \"" + replacement + "\" is not one of: accumulate, motion_vector, decay");
-}
-
-Arithmetic ReconSettings::arithmeticEnum() const {
-  if (arithmetic == "float") return Arithmetic::Float;
-  if (arithmetic == "plus") return Arithmetic::Plus;
-  throw InputError("recon.arithmetic = \"" + arithmetic + "\" is not one of: float, plus");
-}
-
 void registerOptions(ConfigSchema& schema, ReconSettings& s) {
   schema.section("recon", "Incremental reconstruction of each frame into the grid (`reconstruct`, the GP stage).");
-  schema.choice("recon.method", &s.method, "tent", {"tent", "nearest", "trilinear"},
+  enumOption(schema, "recon.method", &s.method, Method::Tent,
                 "`tent`: the 1990 paper's forward mapping with an asymmetric tent kernel, fill-in and "
                 "replacement; `nearest` / `trilinear`: PLUS's pixel nearest neighbour and trilinear splatting.");
-  schema.choice("recon.compounding", &s.compounding, "mean", {"mean", "latest", "maximum"},
+  enumOption(schema, "recon.compounding", &s.compounding, Compounding::Mean,
                 "How `nearest` and `trilinear` combine several hits on a voxel (PLUS's CompoundingMode).");
-  schema.choice("recon.arithmetic", &s.arithmetic, "float", {"float", "plus"},
+  enumOption(schema, "recon.arithmetic", &s.arithmetic, Arithmetic::Float,
                 "`float`: exact weighted means in float accumulators; `plus`: PLUS's 14-bit fixed point, "
                 "truncating 8-bit running mean and 16-bit accumulator, to reproduce PLUS bit for bit.");
   schema.option("recon.threads", &s.threads, 0, 0, 1024, "Threads; 0 = every core. The result does not depend on it.");
@@ -70,7 +43,7 @@ void registerOptions(ConfigSchema& schema, ReconSettings& s) {
                 "No fill-in across a larger displacement of any image corner (the probe jumped), mm.");
   schema.option("recon.fill_in_max_angle_deg", &s.fillInMaxAngleDeg, 20.0, 0.0, 180.0,
                 "No fill-in across a larger rotation between consecutive frames, degrees.");
-  schema.choice("recon.replacement", &s.replacement, "accumulate", {"accumulate", "motion_vector", "decay"},
+  enumOption(schema, "recon.replacement", &s.replacement, Replacement::Accumulate,
                 "Replacement of aging data when a region is scanned again (tent method): plain accumulation, "
                 "the paper's motion vectors, or exponential decay.");
   schema.option("recon.motion_vector_new_weight", &s.motionVectorNewWeight, 0.8, 0.5, 1.0,
@@ -101,15 +74,15 @@ glm::dvec2 toVec2(const std::optional<glm::dvec2>& v, glm::dvec2 def) { return v
 
 ReconSettings fromPlus(const PlusVolumeReconstruction& v) {
   ReconSettings s;
-  s.method = v.interpolation == PlusInterpolation::Linear ? "trilinear" : "nearest";
+  s.method = v.interpolation == PlusInterpolation::Linear ? Method::Trilinear : Method::Nearest;
   switch (v.compounding) {
-    case PlusCompounding::Mean: s.compounding = "mean"; break;
-    case PlusCompounding::Latest: s.compounding = "latest"; break;
-    case PlusCompounding::Maximum: s.compounding = "maximum"; break;
+    case PlusCompounding::Mean: s.compounding = Compounding::Mean; break;
+    case PlusCompounding::Latest: s.compounding = Compounding::Latest; break;
+    case PlusCompounding::Maximum: s.compounding = Compounding::Maximum; break;
     case PlusCompounding::ImportanceMask:
       throw InputError("CompoundingMode IMPORTANCE_MASK is not supported by pp5echo");
   }
-  s.arithmetic = "plus";
+  s.arithmetic = Arithmetic::Plus;
   s.threads = v.numberOfThreads;
   s.skipInterval = std::max(1, v.skipInterval);
   if (v.clipRectangleOrigin) s.clipOrigin = *v.clipRectangleOrigin;
@@ -139,15 +112,15 @@ Box3 reconstructionReach(const Grid& g, const ReconSettings& s, const Box3& wind
   const Box3 all{Index3(0), g.dims};
   Box3 w = window.intersect(all);
   if (w.empty()) return Box3{};
-  if (s.methodEnum() == Method::Tent) {
-    if (s.replacementEnum() == Replacement::MotionVector) {
+  if (s.method == Method::Tent) {
+    if (s.replacement == Replacement::MotionVector) {
       const std::int64_t b = std::max(1, s.motionVectorBrick);
       w.lo = w.lo / Index3(b) * Index3(b);  // lo >= 0: division rounds down
       w.hi = (w.hi + Index3(b - 1)) / Index3(b) * Index3(b);
     }
   } else if (s.fillHoles) {
     const HoleFiller filler(s.holeFilling.empty() ? HoleFiller::defaultElements() : s.holeFilling,
-                            s.arithmeticEnum() == Arithmetic::Plus);
+                            s.arithmetic == Arithmetic::Plus);
     w = w.grown(filler.reach());
   }
   return w.intersect(all);
@@ -155,10 +128,11 @@ Box3 reconstructionReach(const Grid& g, const ReconSettings& s, const Box3& wind
 
 std::unique_ptr<Reconstructor> makeReconstructor(const Grid& g, const ReconSettings& s,
                                                  std::uint64_t memoryLimitBytes, const std::string& what) {
-  const Method m = s.methodEnum();
-  (void)s.compoundingEnum();
-  (void)s.replacementEnum();
-  (void)s.arithmeticEnum();
+  // Settings built in code are held to the names a file could give.
+  const Method m = checkedEnum(s.method);
+  checkedEnum(s.compounding);
+  checkedEnum(s.replacement);
+  checkedEnum(s.arithmetic);
   const std::uint64_t bpv = m == Method::Tent ? tentBytesPerVoxel(s) : pixelBytesPerVoxel(s);
   checkGridFits(g, bpv, what, memoryLimitBytes);
   return m == Method::Tent ? makeTentReconstructor(g, s) : makePixelReconstructor(g, s);

@@ -24,6 +24,7 @@
 #include "core/plus_config.hpp"
 #include "core/volume_io.hpp"
 #include "gp/dirty_region.hpp"
+#include "core/enum_names.hpp"
 
 namespace pp5 {
 class ConfigSchema;
@@ -41,9 +42,9 @@ enum class Arithmetic { Float, Plus };
 
 // [recon] settings. Defaults are the paper's method for the simulated probe.
 struct ReconSettings {
-  std::string method = "tent";          // tent | nearest | trilinear
-  std::string compounding = "mean";     // mean | latest | maximum (nearest/trilinear)
-  std::string arithmetic = "float";     // float | plus
+  Method method = Method::Tent;
+  Compounding compounding = Compounding::Mean;  // nearest/trilinear
+  Arithmetic arithmetic = Arithmetic::Float;
   int threads = 0;                      // 0 = every core; the result does not depend on it
   int skipInterval = 1;                 // insert every n-th frame
 
@@ -58,7 +59,7 @@ struct ReconSettings {
   double fillInMaxAngleDeg = 20.0;      // ... or a larger rotation
 
   // Replacement of aging data (tent method).
-  std::string replacement = "accumulate";  // accumulate | motion_vector | decay
+  Replacement replacement = Replacement::Accumulate;
   double motionVectorNewWeight = 0.8;      // share of the new sweep in the replaced value
   int motionVectorBrick = 8;               // voxels per side of a motion-vector cell
   double decayTauS = 5.0;                  // time constant of the decay, seconds
@@ -77,10 +78,6 @@ struct ReconSettings {
   bool fillHolesIncremental = false;       // keep holes filled inside each dirty region
   std::vector<PlusHoleFillingElement> holeFilling;
 
-  Method methodEnum() const;
-  Compounding compoundingEnum() const;
-  Replacement replacementEnum() const;
-  Arithmetic arithmeticEnum() const;
 };
 
 void registerOptions(ConfigSchema& schema, ReconSettings& s);
@@ -186,3 +183,42 @@ Grid plusOutputGrid(const std::vector<Mat4>& imageToReference, int width, int he
                     const Vec3& spacing);
 
 }  // namespace pp5::gp
+
+namespace pp5 {
+
+template <>
+struct EnumNames<gp::Method> {
+  static constexpr std::string_view key = "recon.method";
+  static constexpr std::array<std::pair<gp::Method, std::string_view>, 3> names{{
+      {gp::Method::Tent, "tent"},
+      {gp::Method::Nearest, "nearest"},
+      {gp::Method::Trilinear, "trilinear"}}};
+};
+
+template <>
+struct EnumNames<gp::Compounding> {
+  static constexpr std::string_view key = "recon.compounding";
+  static constexpr std::array<std::pair<gp::Compounding, std::string_view>, 3> names{{
+      {gp::Compounding::Mean, "mean"},
+      {gp::Compounding::Latest, "latest"},
+      {gp::Compounding::Maximum, "maximum"}}};
+};
+
+template <>
+struct EnumNames<gp::Replacement> {
+  static constexpr std::string_view key = "recon.replacement";
+  static constexpr std::array<std::pair<gp::Replacement, std::string_view>, 3> names{{
+      {gp::Replacement::Accumulate, "accumulate"},
+      {gp::Replacement::MotionVector, "motion_vector"},
+      {gp::Replacement::Decay, "decay"}}};
+};
+
+template <>
+struct EnumNames<gp::Arithmetic> {
+  static constexpr std::string_view key = "recon.arithmetic";
+  static constexpr std::array<std::pair<gp::Arithmetic, std::string_view>, 2> names{{
+      {gp::Arithmetic::Float, "float"},
+      {gp::Arithmetic::Plus, "plus"}}};
+};
+
+}  // namespace pp5

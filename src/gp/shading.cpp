@@ -13,17 +13,6 @@
 
 namespace pp5::gp {
 
-ShadeMode ShadeSettings::modeEnum() const {
-  if (mode == "phong") return ShadeMode::Phong;
-  if (mode == "value") return ShadeMode::Value;
-  throw InputError("render.shading.mode = \"" + mode + "\" is not one of: phong, value");
-}
-
-LightKind ShadeSettings::lightEnum() const {
-  if (light == "viewer") return LightKind::Viewer;
-  if (light == "direction") return LightKind::Direction;
-  throw InputError("render.shading.light = \"" + light + "\" is not one of: viewer, direction");
-}
 
 namespace {
 
@@ -49,7 +38,7 @@ void validate(const ShadeSettings& s) {
   check("gradient_opacity_low", s.gradientOpacityLow, kOpacityLow);
   check("gradient_opacity_width", s.gradientOpacityWidth, kOpacityWidth);
   const double len = glm::length(s.lightDirection);
-  if (s.light == "direction" && (!(len > 1e-9) || !std::isfinite(len)))
+  if (s.light == LightKind::Direction && (!(len > 1e-9) || !std::isfinite(len)))
     throw InputError(fmt::format("render.shading.light_direction = [{}, {}, {}] has no direction",
                                  s.lightDirection.x, s.lightDirection.y, s.lightDirection.z));
 }
@@ -61,7 +50,7 @@ void registerOptions(ConfigSchema& c, ShadeSettings& s) {
   c.section("render.shading",
             "Shading: each voxel's colour and opacity from its grey value through the transfer function "
             "([render.tf]), lit in `phong` mode, stored premultiplied for the ray sampler.");
-  c.choice("render.shading.mode", &s.mode, d.mode, {"phong", "value"},
+  enumOption(c, "render.shading.mode", &s.mode, d.mode,
            "`phong`: the transfer function's colour lit by the grey-value gradient (two-sided Phong); "
            "`value`: the transfer function's colour and opacity unlit.");
   c.option("render.shading.ambient", &s.ambient, d.ambient, kCoefficient.lo, kCoefficient.hi,
@@ -74,7 +63,7 @@ void registerOptions(ConfigSchema& c, ShadeSettings& s) {
            "the light.");
   c.option("render.shading.shininess", &s.shininess, d.shininess, kShininess.lo, kShininess.hi,
            "Phong: specular exponent.");
-  c.choice("render.shading.light", &s.light, d.light, {"viewer", "direction"},
+  enumOption(c, "render.shading.light", &s.light, d.light,
            "`viewer`: a light at the eye (perspective: from each voxel towards the eye; orthographic: against "
            "the view direction); `direction`: a distant light along `render.shading.light_direction`.");
   c.option("render.shading.light_direction", &s.lightDirection, d.lightDirection, -1.0, 1.0,
@@ -379,8 +368,9 @@ void shadeAll(const Volume& values, const TransferFunction& tf, const ShadeSetti
   const Grid& g = values.grid;
   PP5_CHECK(g.dims == out.grid().dims);
   PP5_CHECK_EQ(values.bytes.size(), g.voxelCount() * static_cast<std::uint64_t>(scalarBytes(values.type)));
-  const ShadeMode mode = s.modeEnum();
-  const LightKind light = s.lightEnum();
+  // Settings built in code are held to the names a file could give.
+  const ShadeMode mode = checkedEnum(s.mode);
+  const LightKind light = checkedEnum(s.light);
   validate(s);
 
   Context c;

@@ -28,6 +28,7 @@
 #include "core/volume_io.hpp"
 #include "gp/dirty_region.hpp"
 #include "gp/shade_buffer.hpp"
+#include "core/enum_names.hpp"
 
 namespace pp5 {
 class ConfigSchema;
@@ -40,12 +41,12 @@ enum class LightKind { Viewer, Direction };
 
 // [render.shading]. The transfer function is separate ([render.tf]).
 struct ShadeSettings {
-  std::string mode = "phong";   // phong | value
+  ShadeMode mode = ShadeMode::Phong;
   double ambient = 0.3;
   double diffuse = 0.7;
   double specular = 0.25;
   double shininess = 20.0;
-  std::string light = "viewer";  // viewer | direction
+  LightKind light = LightKind::Viewer;
   // World direction from the light towards the scene (light = "direction").
   glm::dvec3 lightDirection{1.0, 1.0, -1.0};
   // Below this gradient magnitude (grey levels per mm) a normal means little:
@@ -60,8 +61,6 @@ struct ShadeSettings {
   // own: the pipeline passes render.threads.
   int threads = 0;
 
-  ShadeMode modeEnum() const;   // InputError for an unknown name
-  LightKind lightEnum() const;  // InputError for an unknown name
 };
 
 void registerOptions(ConfigSchema& schema, ShadeSettings& s);
@@ -98,3 +97,23 @@ void shade(const Volume& values, const TransferFunction& tf, const ShadeSettings
 std::vector<Box3> shadingBoxes(const DirtyRegion& dirty);
 
 }  // namespace pp5::gp
+
+namespace pp5 {
+
+template <>
+struct EnumNames<gp::ShadeMode> {
+  static constexpr std::string_view key = "render.shading.mode";
+  static constexpr std::array<std::pair<gp::ShadeMode, std::string_view>, 2> names{{
+      {gp::ShadeMode::Phong, "phong"},
+      {gp::ShadeMode::Value, "value"}}};
+};
+
+template <>
+struct EnumNames<gp::LightKind> {
+  static constexpr std::string_view key = "render.shading.light";
+  static constexpr std::array<std::pair<gp::LightKind, std::string_view>, 2> names{{
+      {gp::LightKind::Viewer, "viewer"},
+      {gp::LightKind::Direction, "direction"}}};
+};
+
+}  // namespace pp5

@@ -71,10 +71,11 @@ struct FloatSource {
 class PixelReconstructor final : public Reconstructor {
 public:
   PixelReconstructor(const Grid& g, const ReconSettings& s) : Reconstructor(g, s) {
-    method_ = s.methodEnum();
+    // Settings built in code are held to the names a file could give.
+    method_ = checkedEnum(s.method);
     PP5_CHECK(method_ != Method::Tent);
-    comp_ = s.compoundingEnum();
-    plus_ = s.arithmeticEnum() == Arithmetic::Plus;
+    comp_ = checkedEnum(s.compounding);
+    plus_ = checkedEnum(s.arithmetic) == Arithmetic::Plus;
     PP5_CHECK(g.dims.x > 0 && g.dims.y > 0 && g.dims.z > 0);
     const std::size_t n = static_cast<std::size_t>(g.voxelCount());
     out_.allocate(g, ScalarType::F32);
@@ -471,7 +472,7 @@ Volume PixelReconstructor::weights() const {
 
 std::uint64_t pixelBytesPerVoxel(const ReconSettings& s) {
   // state + F32 output + one "written" flag (+ one "filled" flag)
-  return (s.arithmeticEnum() == Arithmetic::Plus ? sizeof(PlusCell) : sizeof(FloatCell)) + 4 + 1 + (s.fillHoles ? 1 : 0);
+  return (s.arithmetic == Arithmetic::Plus ? sizeof(PlusCell) : sizeof(FloatCell)) + 4 + 1 + (s.fillHoles ? 1 : 0);
 }
 
 std::unique_ptr<Reconstructor> makePixelReconstructor(const Grid& g, const ReconSettings& s) {

@@ -217,7 +217,7 @@ private:
 };
 
 TentReconstructor::TentReconstructor(const Grid& g, const ReconSettings& s)
-    : Reconstructor(g, s), mode_(s.replacementEnum()) {
+    : Reconstructor(g, s), mode_(checkedEnum(s.replacement)) {
   if (!(s.kernelLateralMm > 0.0) || !(s.kernelAxialMm > 0.0) || !(s.kernelElevationMm > 0.0))
     throw InputError(fmt::format("recon: the tent kernel's half-widths must be positive (got {} {} {} mm)",
                                  s.kernelLateralMm, s.kernelAxialMm, s.kernelElevationMm));
@@ -805,7 +805,7 @@ void TentReconstructor::restorePrevious(const Frame& f) {
 
 std::uint64_t tentBytesPerVoxel(const ReconSettings& s) {
   std::uint64_t b = 12;  // output, sum(w*v), sum(w): F32 each
-  switch (s.replacementEnum()) {
+  switch (s.replacement) {
     case Replacement::Accumulate: break;
     case Replacement::Decay: b += 4; break;  // time of the last update
     case Replacement::MotionVector: {

@@ -62,11 +62,7 @@ void preprocess(const Preprocess& p, Frame& f, Mat4& pose) {
   }
 }
 
-DropPolicy dropPolicyFromName(const std::string& name) {
-  if (name == "oldest") return DropPolicy::Oldest;
-  if (name == "newest") return DropPolicy::Newest;
-  throw InputError(fmt::format("run.drop = \"{}\": use \"oldest\" or \"newest\"", name));
-}
+DropPolicy dropPolicyFromName(const std::string& name) { return enumFromName<DropPolicy>(name); }
 
 Acquisition::Acquisition(Source source, Preprocess pre, std::size_t capacity, DropPolicy policy, double paceFps)
     : source_(std::move(source)), pre_(pre), capacity_(std::max<std::size_t>(1, capacity)), policy_(policy),

@@ -22,6 +22,7 @@
 #include "core/frame.hpp"
 #include "core/grid.hpp"
 #include "core/transform.hpp"
+#include "core/enum_names.hpp"
 
 namespace pp5::host {
 
@@ -100,3 +101,15 @@ private:
 };
 
 }  // namespace pp5::host
+
+namespace pp5 {
+
+template <>
+struct EnumNames<host::DropPolicy> {
+  static constexpr std::string_view key = "run.drop";
+  static constexpr std::array<std::pair<host::DropPolicy, std::string_view>, 2> names{{
+      {host::DropPolicy::Oldest, "oldest"},
+      {host::DropPolicy::Newest, "newest"}}};
+};
+
+}  // namespace pp5

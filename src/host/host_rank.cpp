@@ -547,11 +547,12 @@ int HostRank::run() {
                  orbitMs[orbitMs.size() / 2]);
   }
   std::printf("run: %llu frames through %d ranks (1 host, %d GP, %d PP; %s partition, %s tiles of %d px, %s) in %.1f s\n",
-              static_cast<unsigned long long>(sent_), L_.worldSize(), L_.gps, L_.pps, j_.parallel.gpPartition.c_str(),
-              j_.parallel.tileOwner.c_str(), j_.parallel.tileSize, j_.parallel.compositeOn.c_str(), totalS);
+              static_cast<unsigned long long>(sent_), L_.worldSize(), L_.gps, L_.pps, enumName(j_.parallel.gpPartition).data(),
+              enumName(j_.parallel.tileOwner).data(), j_.parallel.tileSize, enumName(j_.parallel.compositeOn).data(),
+              totalS);
   if (acq.dropped())
     std::printf("  dropped %llu frames (live source behind; run.drop = %s)\n",
-                static_cast<unsigned long long>(acq.dropped()), j_.drop == DropPolicy::Oldest ? "oldest" : "newest");
+                static_cast<unsigned long long>(acq.dropped()), enumName(j_.drop).data());
   if (ref_) std::printf("  verified: %llu images bitwise equal to the serial pipeline's\n", static_cast<unsigned long long>(verified_));
   writeSummary(streamS, totalS, acq.dropped(), wrote);
   std::printf("wrote to %s\n", fs::absolute(dir).string().c_str());
@@ -573,8 +574,8 @@ void HostRank::writeSummary(double streamS, double totalS, std::uint64_t drops, 
   json += fmt::format("  \"ranks\": {}, \"gps\": {}, \"pps\": {},\n", L_.worldSize(), L_.gps, L_.pps);
   json += fmt::format("  \"gp_partition\": \"{}\", \"slab_split\": \"{}\", \"tile_owner\": \"{}\", \"tile_size\": {}, "
                       "\"composite_on\": \"{}\",\n",
-                      j_.parallel.gpPartition, j_.parallel.slabSplit, j_.parallel.tileOwner, j_.parallel.tileSize,
-                      j_.parallel.compositeOn);
+                      enumName(j_.parallel.gpPartition), enumName(j_.parallel.slabSplit),
+                      enumName(j_.parallel.tileOwner), j_.parallel.tileSize, enumName(j_.parallel.compositeOn));
   json += fmt::format("  \"frames\": {}, \"stream_s\": {:.4f}, \"total_s\": {:.4f},\n", sent_, streamS, totalS);
   json += fmt::format("  \"frames_per_s_in\": {:.3f}, \"images_per_s_out\": {:.3f}, \"dropped_frames\": {},\n",
                       sent_ / streamS, streamImages_ / streamS, drops);

@@ -24,25 +24,9 @@
 
 namespace pp5::board {
 
-FaultKind faultKindFromName(const std::string& name) {
-  if (name == "bad_crc") return FaultKind::BadCrc;
-  if (name == "drop") return FaultKind::Drop;
-  if (name == "short") return FaultKind::Short;
-  if (name == "stall") return FaultKind::Stall;
-  if (name == "unplug") return FaultKind::Unplug;
-  throw InputError(fmt::format("unknown board fault '{}' (expected bad_crc, drop, short, stall or unplug)", name));
-}
+FaultKind faultKindFromName(const std::string& name) { return enumFromName<FaultKind>(name); }
 
-const char* faultKindName(FaultKind k) {
-  switch (k) {
-    case FaultKind::BadCrc: return "bad_crc";
-    case FaultKind::Drop: return "drop";
-    case FaultKind::Short: return "short";
-    case FaultKind::Stall: return "stall";
-    case FaultKind::Unplug: return "unplug";
-  }
-  return "?";
-}
+const char* faultKindName(FaultKind k) { return enumName(k).data(); }
 
 Fault parseFault(const std::string& spec) {
   const auto at = spec.find('@');

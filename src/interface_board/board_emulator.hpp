@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "interface_board/wire.hpp"
+#include "core/enum_names.hpp"
 
 namespace pp5::board {
 
@@ -75,3 +76,18 @@ private:
 };
 
 }  // namespace pp5::board
+
+namespace pp5 {
+
+template <>
+struct EnumNames<board::FaultKind> {
+  static constexpr std::string_view key = "--fault";
+  static constexpr std::array<std::pair<board::FaultKind, std::string_view>, 5> names{{
+      {board::FaultKind::BadCrc, "bad_crc"},
+      {board::FaultKind::Drop, "drop"},
+      {board::FaultKind::Short, "short"},
+      {board::FaultKind::Stall, "stall"},
+      {board::FaultKind::Unplug, "unplug"}}};
+};
+
+}  // namespace pp5

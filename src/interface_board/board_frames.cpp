@@ -9,12 +9,7 @@
 
 namespace pp5::board {
 
-PoseKind poseKindFromName(const std::string& name) {
-  if (name == "matrix") return PoseKind::Matrix;
-  if (name == "arm") return PoseKind::ArmCounts;
-  if (name == "none") return PoseKind::None;
-  throw InputError(fmt::format("board pose '{}': expected matrix, arm or none", name));
-}
+PoseKind poseKindFromName(const std::string& name) { return enumFromName<PoseKind>(name); }
 
 WireFrame toWireFrame(const Frame& f, PoseKind kind, const std::string& transformName) {
   WireFrame w;

@@ -13,6 +13,7 @@
 #include "core/frame.hpp"
 #include "interface_board/arm_calibration.hpp"
 #include "interface_board/wire.hpp"
+#include "core/enum_names.hpp"
 
 namespace pp5::board {
 
@@ -24,3 +25,16 @@ WireFrame toWireFrame(const Frame& f, PoseKind kind, const std::string& transfor
 Frame fromWireFrame(WireFrame&& w, const std::string& transformName, const ArmCalibration* arm);
 
 }  // namespace pp5::board
+
+namespace pp5 {
+
+template <>
+struct EnumNames<board::PoseKind> {
+  static constexpr std::string_view key = "board pose";
+  static constexpr std::array<std::pair<board::PoseKind, std::string_view>, 3> names{{
+      {board::PoseKind::Matrix, "matrix"},
+      {board::PoseKind::ArmCounts, "arm"},
+      {board::PoseKind::None, "none"}}};
+};
+
+}  // namespace pp5

@@ -14,18 +14,18 @@ void registerOptions(ConfigSchema& schema, ParallelSettings& s) {
   schema.option("parallel.gps", &s.gps, 0, 0, 4096,
                 "Graphics processors (ranks 1..G); 0 = the world size less the host and the pixel processors.");
   schema.option("parallel.pps", &s.pps, 0, 0, 4096, "Pixel processors (ranks G+1..G+P); 0 = max(1, world size / 4).");
-  schema.choice("parallel.gp_partition", &s.gpPartition, "slab", {"slab", "tile"},
+  enumOption(schema, "parallel.gp_partition", &s.gpPartition, GpPartition::Slab,
                 "How GPs share the work: slab = each owns a box of the grid (object space); tile = each "
                 "reconstructs the whole grid and samples only its own screen tiles (screen space).");
-  schema.choice("parallel.slab_split", &s.slabSplit, "longest", {"longest", "3d"},
+  enumOption(schema, "parallel.slab_split", &s.slabSplit, SlabSplit::Longest,
                 "slab: cut the grid along its longest axis, or into a 3D grid of boxes closest to cubes.");
   schema.option("parallel.ghost_voxels", &s.ghostVoxels, 1, 1, 64,
                 "slab: voxels a GP keeps exact around its box (1 is what the shading gradient needs).");
   schema.option("parallel.tile_size", &s.tileSize, 128, 8, 4096,
                 "Screen tile side in pixels (128: a Pixel-Planes 5 renderer); a multiple of 8.");
-  schema.choice("parallel.tile_owner", &s.tileOwner, "contiguous", {"contiguous", "interleaved"},
+  enumOption(schema, "parallel.tile_owner", &s.tileOwner, TileOwnership::Contiguous,
                 "Which PP (and, for gp_partition = tile, which GP) owns a tile: runs of tiles, or tile id mod count.");
-  schema.choice("parallel.composite_on", &s.compositeOn, "tick", {"tick", "lockstep"},
+  enumOption(schema, "parallel.composite_on", &s.compositeOn, CompositeOn::Tick,
                 "tick: PPs composite on a fixed clock and send what changed; lockstep: after every frame, and "
                 "the host waits for each image (deterministic, for tests).");
   schema.option("parallel.tick_hz", &s.tickHz, 30.0, 1.0, 1000.0, "Compositing ticks per second (composite_on = tick).");
@@ -44,10 +44,10 @@ void registerOptions(ConfigSchema& schema, ParallelSettings& s) {
 comm::ControlState makeControlState(const RenderSettings& r, const gp::ShadeSettings& sh,
                               const TransferFunctionSettings& tf) {
   comm::ControlState c;
-  c.projection = r.projectionEnum() == Projection::Orthographic ? 1 : 0;
+  c.projection = r.projection == Projection::Orthographic ? 1 : 0;
   c.liveMode = static_cast<std::uint8_t>(pp::compositeModeFromName(r.compositing.front()));
-  c.shadeMode = static_cast<std::uint8_t>(sh.modeEnum());
-  c.light = static_cast<std::uint8_t>(sh.lightEnum());
+  c.shadeMode = static_cast<std::uint8_t>(sh.mode);
+  c.light = static_cast<std::uint8_t>(sh.light);
   c.gradientOpacity = sh.gradientOpacity ? 1 : 0;
   c.fovDeg = r.fovDeg;
   c.azimuthDeg = r.azimuthDeg;
@@ -76,7 +76,7 @@ comm::ControlState makeControlState(const RenderSettings& r, const gp::ShadeSett
 }
 
 void applyControlState(const comm::ControlState& c, RenderSettings& r, gp::ShadeSettings& sh, TransferFunctionSettings& tf) {
-  r.projection = c.projection ? "orthographic" : "perspective";
+  r.projection = c.projection ? Projection::Orthographic : Projection::Perspective;
   r.fovDeg = c.fovDeg;
   r.azimuthDeg = c.azimuthDeg;
   r.elevationDeg = c.elevationDeg;
@@ -84,8 +84,8 @@ void applyControlState(const comm::ControlState& c, RenderSettings& r, gp::Shade
   const std::string live = pp::compositeModeName(liveMode(c));
   std::erase(r.compositing, live);
   r.compositing.insert(r.compositing.begin(), live);
-  sh.mode = static_cast<gp::ShadeMode>(c.shadeMode) == gp::ShadeMode::Value ? "value" : "phong";
-  sh.light = static_cast<gp::LightKind>(c.light) == gp::LightKind::Direction ? "direction" : "viewer";
+  sh.mode = static_cast<gp::ShadeMode>(c.shadeMode) == gp::ShadeMode::Value ? gp::ShadeMode::Value : gp::ShadeMode::Phong;
+  sh.light = static_cast<gp::LightKind>(c.light) == gp::LightKind::Direction ? gp::LightKind::Direction : gp::LightKind::Viewer;
   sh.gradientOpacity = c.gradientOpacity != 0;
   sh.ambient = c.ambient;
   sh.diffuse = c.diffuse;

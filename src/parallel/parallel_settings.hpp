@@ -7,6 +7,7 @@
 #include "comm/messages.hpp"
 #include "parallel/schedule.hpp"
 #include "core/camera.hpp"
+#include "core/enum_names.hpp"
 #include "core/render_settings.hpp"
 #include "core/transfer_function.hpp"
 #include "gp/shading.hpp"
@@ -18,25 +19,28 @@ class ConfigSchema;
 
 namespace pp5::parallel {
 
+enum class GpPartition { Slab, Tile };
+enum class CompositeOn { Tick, Lockstep };
+
 struct ParallelSettings {
   int gps = 0;                            // graphics processors; 0 = from the world size
   int pps = 0;                            // pixel processors; 0 = max(1, size / 4)
-  std::string gpPartition = "slab";       // slab | tile
-  std::string slabSplit = "longest";      // longest | 3d
+  GpPartition gpPartition = GpPartition::Slab;
+  SlabSplit slabSplit = SlabSplit::Longest;
   int ghostVoxels = 1;                    // slab: voxels kept exact around a GP's cells
   int tileSize = 128;                     // screen tile side, pixels
-  std::string tileOwner = "contiguous";   // contiguous | interleaved
-  std::string compositeOn = "tick";       // tick | lockstep
+  TileOwnership tileOwner = TileOwnership::Contiguous;
+  CompositeOn compositeOn = CompositeOn::Tick;
   double tickHz = 30.0;                   // compositing ticks per second (tick)
   int credits = 4;                        // frames in flight per GP
   int batchFrames = 8;                    // tick: waiting frames a GP updates together
   double timeoutS = 30.0;                 // longest silence before a rank gives up
   int threads = 1;                        // threads per rank (reconstruct, shade, sample, composite)
 
-  bool slab() const { return gpPartition == "slab"; }
-  bool lockstep() const { return compositeOn == "lockstep"; }
-  TileOwnership ownership() const { return tileOwnershipFromName(tileOwner); }
-  SlabSplit split() const { return slabSplitFromName(slabSplit); }
+  bool slab() const { return gpPartition == GpPartition::Slab; }
+  bool lockstep() const { return compositeOn == CompositeOn::Lockstep; }
+  TileOwnership ownership() const { return tileOwner; }
+  SlabSplit split() const { return slabSplit; }
 };
 void registerOptions(ConfigSchema& schema, ParallelSettings& s);
 
@@ -54,3 +58,23 @@ Camera controlCamera(const comm::ControlState& c, const RenderSettings& base, co
 std::uint32_t controlChanges(const comm::ControlState& before, const comm::ControlState& after);
 
 }  // namespace pp5::parallel
+
+namespace pp5 {
+
+template <>
+struct EnumNames<parallel::GpPartition> {
+  static constexpr std::string_view key = "parallel.gp_partition";
+  static constexpr std::array<std::pair<parallel::GpPartition, std::string_view>, 2> names{{
+      {parallel::GpPartition::Slab, "slab"},
+      {parallel::GpPartition::Tile, "tile"}}};
+};
+
+template <>
+struct EnumNames<parallel::CompositeOn> {
+  static constexpr std::string_view key = "parallel.composite_on";
+  static constexpr std::array<std::pair<parallel::CompositeOn, std::string_view>, 2> names{{
+      {parallel::CompositeOn::Tick, "tick"},
+      {parallel::CompositeOn::Lockstep, "lockstep"}}};
+};
+
+}  // namespace pp5

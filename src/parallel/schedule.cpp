@@ -68,15 +68,9 @@ RankLayout RankLayout::choose(int worldSize, int gps, int pps) {
 
 // ------------------------------------------------------------------ tiles --
 
-TileOwnership tileOwnershipFromName(const std::string& name) {
-  if (name == "contiguous") return TileOwnership::Contiguous;
-  if (name == "interleaved") return TileOwnership::Interleaved;
-  throw InputError(fmt::format("parallel.tile_owner = \"{}\" is not one of contiguous, interleaved", name));
-}
+TileOwnership tileOwnershipFromName(const std::string& name) { return enumFromName<TileOwnership>(name); }
 
-const char* tileOwnershipName(TileOwnership o) {
-  return o == TileOwnership::Contiguous ? "contiguous" : "interleaved";
-}
+const char* tileOwnershipName(TileOwnership o) { return enumName(o).data(); }
 
 namespace {
 void checkTileArgs(int tile, int count, int owners) {
@@ -108,13 +102,9 @@ std::vector<int> tilesOwnedBy(int owner, int count, int owners, TileOwnership o)
 
 // ------------------------------------------------------------------ slabs --
 
-SlabSplit slabSplitFromName(const std::string& name) {
-  if (name == "longest") return SlabSplit::Longest;
-  if (name == "3d") return SlabSplit::Grid3d;
-  throw InputError(fmt::format("parallel.slab_split = \"{}\" is not one of longest, 3d", name));
-}
+SlabSplit slabSplitFromName(const std::string& name) { return enumFromName<SlabSplit>(name); }
 
-const char* slabSplitName(SlabSplit s) { return s == SlabSplit::Longest ? "longest" : "3d"; }
+const char* slabSplitName(SlabSplit s) { return enumName(s).data(); }
 
 namespace {
 

@@ -26,6 +26,7 @@
 #include "gp/dbuffer.hpp"
 #include "gp/dirty_region.hpp"
 #include "gp/reconstruction.hpp"
+#include "core/enum_names.hpp"
 
 namespace pp5::parallel {
 
@@ -113,3 +114,23 @@ std::vector<int> gpsTouched(const SlabLayout& slabs, const gp::WorldBox& box, in
                             const gp::ReconSettings& recon);
 
 }  // namespace pp5::parallel
+
+namespace pp5 {
+
+template <>
+struct EnumNames<parallel::TileOwnership> {
+  static constexpr std::string_view key = "parallel.tile_owner";
+  static constexpr std::array<std::pair<parallel::TileOwnership, std::string_view>, 2> names{{
+      {parallel::TileOwnership::Contiguous, "contiguous"},
+      {parallel::TileOwnership::Interleaved, "interleaved"}}};
+};
+
+template <>
+struct EnumNames<parallel::SlabSplit> {
+  static constexpr std::string_view key = "parallel.slab_split";
+  static constexpr std::array<std::pair<parallel::SlabSplit, std::string_view>, 2> names{{
+      {parallel::SlabSplit::Longest, "longest"},
+      {parallel::SlabSplit::Grid3d, "3d"}}};
+};
+
+}  // namespace pp5

@@ -49,7 +49,7 @@ public:
         recon_(recon),
         workTile_(workTileSize(tiles)),
         // The pose-only frames rest on the tent kernel's reach (gp::frameReach).
-        places_(recon.methodEnum() == gp::Method::Tent) {}
+        places_(recon.method == gp::Method::Tent) {}
 
   std::unique_ptr<gp::GpShare> share(int g) const override {
     const gp::Box3& owned = slabs_.ownedCells(g);

@@ -17,37 +17,10 @@
 
 namespace pp5::pp {
 
-CompositeMode compositeModeFromName(const std::string& name) {
-  if (name == "over") return CompositeMode::Over;
-  if (name == "additive") return CompositeMode::Additive;
-  if (name == "mip") return CompositeMode::Mip;
-  throw InputError(fmt::format("render.compositing: unknown mode '{}' (over, additive or mip)", name));
-}
-
-const char* compositeModeName(CompositeMode m) {
-  switch (m) {
-    case CompositeMode::Over: return "over";
-    case CompositeMode::Additive: return "additive";
-    case CompositeMode::Mip: return "mip";
-  }
-  return "?";
-}
-
-SampleFormat sampleFormatFromName(const std::string& name) {
-  if (name == "rgba8") return SampleFormat::Rgba8;
-  if (name == "half") return SampleFormat::Half;
-  if (name == "float") return SampleFormat::Float;
-  throw InputError(fmt::format("render.cache.format: unknown format '{}' (rgba8, half or float)", name));
-}
-
-const char* sampleFormatName(SampleFormat f) {
-  switch (f) {
-    case SampleFormat::Rgba8: return "rgba8";
-    case SampleFormat::Half: return "half";
-    case SampleFormat::Float: return "float";
-  }
-  return "?";
-}
+CompositeMode compositeModeFromName(const std::string& name) { return enumFromName<CompositeMode>(name); }
+const char* compositeModeName(CompositeMode m) { return enumName(m).data(); }
+SampleFormat sampleFormatFromName(const std::string& name) { return enumFromName<SampleFormat>(name); }
+const char* sampleFormatName(SampleFormat f) { return enumName(f).data(); }
 
 std::size_t sampleFormatBytes(SampleFormat f) {
   switch (f) {
@@ -63,13 +36,11 @@ namespace {
 constexpr int kMaxBlockSize = 1024;
 }  // namespace
 
-SampleFormat RayCacheSettings::formatEnum() const { return sampleFormatFromName(format); }
 
 void RayCacheSettings::validate() const {
   if (blockSize < 1 || blockSize > kMaxBlockSize || !std::has_single_bit(static_cast<unsigned>(blockSize)))
     throw InputError(fmt::format("render.cache.block_size = {}: must be a power of two from 1 to {}", blockSize,
                                  kMaxBlockSize));
-  formatEnum();
   if (!(terminationAlpha >= 0.5 && terminationAlpha <= 1.0))
     throw InputError(fmt::format("render.cache.termination_alpha = {}: must be within 0.5 .. 1", terminationAlpha));
   if (!(additiveScale > 0.0)) throw InputError(fmt::format("render.cache.additive_scale = {}: must be > 0", additiveScale));
@@ -83,7 +54,7 @@ void registerOptions(ConfigSchema& c, RayCacheSettings& s) {
            "Samples per block, a power of two. A changed sample recomposites its block, then the ray's block "
            "partials; each block also costs 17 bytes of partial and flag, and termination stops at a block "
            "boundary.");
-  c.choice("render.cache.format", &s.format, "half", {"rgba8", "half", "float"},
+  enumOption(c, "render.cache.format", &s.format, SampleFormat::Half,
            "How a sample's premultiplied colour and opacity are stored: `half` (8 bytes, IEEE binary16; images "
            "within a small fraction of an 8-bit level of `float`), `float` (16 bytes, exact) or `rgba8` (4 bytes; "
            "quantises the small per-sample opacities of a fine lattice, and images are off by tens of levels).");
@@ -271,7 +242,7 @@ RayCache::RayCache(const TileRect& tile, int imageWidth, std::span<const std::ui
                    const RayCacheSettings& settings, CompositeMode live, int threads)
     : tile_(tile), imageWidth_(imageWidth), live_(live), threads_(threads) {
   settings.validate();
-  format_ = settings.formatEnum();
+  format_ = settings.format;
   blockSize_ = settings.blockSize;
   blockShift_ = std::countr_zero(static_cast<unsigned>(blockSize_));
   transmittanceLimit_ = settings.earlyTermination ? static_cast<float>(1.0 - settings.terminationAlpha) : -1.0f;

@@ -46,6 +46,7 @@
 #include "core/ray_sample.hpp"
 #include "core/tiles.hpp"
 #include "pp/zeroed_array.hpp"
+#include "core/enum_names.hpp"
 
 namespace pp5 {
 class ConfigSchema;
@@ -71,12 +72,11 @@ std::size_t sampleFormatBytes(SampleFormat f);
 // [render.cache]
 struct RayCacheSettings {
   int blockSize = 32;  // samples per block, a power of two
-  std::string format = "half";
+  SampleFormat format = SampleFormat::Half;
   bool earlyTermination = true;
   double terminationAlpha = 1.0 - 1.0 / 512.0;
   double additiveScale = 0.25;
 
-  SampleFormat formatEnum() const;
   // Throws InputError naming the key when a value the schema cannot express
   // (block_size a power of two) is wrong.
   void validate() const;
@@ -239,3 +239,25 @@ void toRgba8(const TileImage& im, std::uint8_t* rgba);
 
 
 }  // namespace pp5::pp
+
+namespace pp5 {
+
+template <>
+struct EnumNames<pp::CompositeMode> {
+  static constexpr std::string_view key = "render.compositing";
+  static constexpr std::array<std::pair<pp::CompositeMode, std::string_view>, 3> names{{
+      {pp::CompositeMode::Over, "over"},
+      {pp::CompositeMode::Additive, "additive"},
+      {pp::CompositeMode::Mip, "mip"}}};
+};
+
+template <>
+struct EnumNames<pp::SampleFormat> {
+  static constexpr std::string_view key = "render.cache.format";
+  static constexpr std::array<std::pair<pp::SampleFormat, std::string_view>, 3> names{{
+      {pp::SampleFormat::Rgba8, "rgba8"},
+      {pp::SampleFormat::Half, "half"},
+      {pp::SampleFormat::Float, "float"}}};
+};
+
+}  // namespace pp5

@@ -180,7 +180,7 @@ ProbeModel probePreset(const std::string& name) {
 }
 
 ProbeModel makeProbe(const ProbeSettings& s) {
-  ProbeModel p = probePreset(s.preset);
+  ProbeModel p = probePreset(std::string(enumName(s.preset)));
   if (s.widthPx > 0) p.width = s.widthPx;
   if (s.heightPx > 0) p.height = s.heightPx;
   if (s.depthMm > 0.0) p.depthMm = s.depthMm;
@@ -282,8 +282,7 @@ BModeSimulator::BModeSimulator(const Phantom& phantom, const ProbeModel& probe, 
   speckleLogBiasDb_ = speckleLogBiasDb(osf_, subDy_, sigmaAx_);
   noiseFloorLevel_ = noiseFloor();
 
-  ideal_ = settings_.medium == "ideal";
-  PP5_CHECK(ideal_ || settings_.medium == "physical");
+  ideal_ = checkedEnum(settings_.medium) == Medium::Ideal;
   // No attenuation in the ideal medium, so nothing to compensate.
   const double tgc = ideal_                            ? 0.0
                      : settings_.tgcDbPerCmMHz < 0.0 ? phantom_.scan.tgcDbPerCmMHz

@@ -154,14 +154,14 @@ struct Pass {
 std::vector<Pass> armPasses(const SweepSettings& sw, const Vec3& center, const Vec3& d, const Vec3& side, double len) {
   std::vector<Pass> passes;
   const Vec3 half = 0.5 * len * d;
-  if (sw.kind == "parallel") {
+  if (sw.kind == SweepKind::Parallel) {
     for (int k = 0; k < sw.passes; ++k) {
       const Vec3 c = center + (k - 0.5 * (sw.passes - 1)) * sw.passSpacingMm * side;
       passes.push_back({c - half, c + half});
     }
-  } else if (sw.kind == "angled") {
+  } else if (sw.kind == SweepKind::Angled) {
     passes.push_back({center - half, center + half});
-  } else if (sw.kind == "back_and_forth") {
+  } else if (sw.kind == SweepKind::BackAndForth) {
     for (int k = 0; k < sw.repeats; ++k) {
       if (k % 2 == 0)
         passes.push_back({center - half, center + half});
@@ -226,7 +226,7 @@ Sweep captureArmSweep(const SimSettings& s, const ArmTrajectory& traj, double pr
     for (std::size_t i = 0; i < 3; ++i) counts[i] = c0[i] + frac * (c1[i] - c0[i]);
     const ArmPose reported = adc.calibrate(counts);
     const Mat4 reportedM = armProbeToTracker(reported, probeZ);
-    const bool capture = s.sweep.capture == "every_frame" || !last ||
+    const bool capture = s.sweep.capture == Capture::EveryFrame || !last ||
                          largestDisplacement(*last, reportedM, corners) >= s.sweep.captureIntervalMm;
     if (!capture) continue;
     CapturedFrame f;
@@ -275,7 +275,7 @@ Sweep captureFreehandSweep(const SimSettings& s, const FreehandPath& path, const
     const double t = static_cast<double>(k) / fps;
     const Mat4 truth = refToTracker * path.probeToReference(t);
     const Mat4 reported = trackerReading(truth, s.freehand, key, k);
-    const bool capture = s.sweep.capture == "every_frame" || !last ||
+    const bool capture = s.sweep.capture == Capture::EveryFrame || !last ||
                          largestDisplacement(*last, reported, corners) >= s.sweep.captureIntervalMm;
     if (!capture) continue;
     CapturedFrame f;
@@ -295,20 +295,19 @@ Sweep captureFreehandSweep(const SimSettings& s, const FreehandPath& path, const
 Sweep planSweep(const SimSettings& s, const ScanSetup& scan, const std::vector<Vec3>& imageCorners) {
   const SweepSettings& sw = s.sweep;
   const double len = sw.lengthMm > 0.0 ? sw.lengthMm : scan.sweepLengthMm;
-  const double heading = sw.kind == "angled" ? sw.angleDeg : 0.0;
+  const double heading = sw.kind == SweepKind::Angled ? sw.angleDeg : 0.0;
   const Vec3 d(std::cos(heading * kDeg), std::sin(heading * kDeg), 0.0);
   const Vec3 side(-d.y, d.x, 0.0);
   const Vec3 center = Vec3(scan.sweepCenter.x, scan.sweepCenter.y, 0.0) + sw.lateralOffsetMm * side;
   const Vec3 offset = s.arm.referenceToTrackerMm;
   const Mat4 refToTracker = translation(offset);
 
-  if (sw.kind == "freehand") {
+  if (sw.kind == SweepKind::Freehand) {
     const FreehandPath path(s.freehand, center - 0.5 * len * d, center + 0.5 * len * d, scan.surfaceZ, heading,
                             sw.speedMmPerS, s.seed);
     return captureFreehandSweep(s, path, refToTracker, imageCorners);
   }
-  if (sw.kind != "parallel" && sw.kind != "angled" && sw.kind != "back_and_forth")
-    throw InputError("sim.sweep.kind: unknown sweep '" + sw.kind + "'");
+  checkedEnum(sw.kind);
 
   const ArmAdc adc = armAdc(s.arm);
   auto toArm = [&](const Vec3& p) { return ArmPose{p.x + offset.x, p.y + offset.y, heading}; };

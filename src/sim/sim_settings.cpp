@@ -10,7 +10,7 @@ namespace {
 
 void registerProbe(ConfigSchema& c, ProbeSettings& p) {
   c.section("sim.probe", "The simulated 2D scanner's probe.");
-  c.choice("sim.probe.preset", &p.preset, "paper35", {"paper35", "linear75"},
+  enumOption(c, "sim.probe.preset", &p.preset, ProbePreset::Paper35,
            "`paper35`: the 1990 paper's 3.5 MHz linear probe, 98 x 195 mm field, 256 x 405 pixels; "
            "`linear75`: a modern 7.5 MHz linear probe, 38 x 50 mm field, 256 x 336 pixels.");
   c.option("sim.probe.width_px", &p.widthPx, 0, 0, 4096,
@@ -35,7 +35,7 @@ void registerBMode(ConfigSchema& c, BModeSettings& b) {
   c.option("sim.bmode.specular_width_deg", &b.specularWidthDeg, 12.0, 1.0, 90.0,
            "Angular width (Gaussian sigma, degrees) over which a smooth interface still echoes back "
            "to the probe as the beam leaves its normal.");
-  c.choice("sim.bmode.medium", &b.medium, "physical", {"physical", "ideal"},
+  enumOption(c, "sim.bmode.medium", &b.medium, Medium::Physical,
            "`physical`: attenuation, specular interface echoes, bone rims, transmission loss and shadows, "
            "compensated by the TGC; `ideal`: speckle from each tissue's backscatter only (no attenuation, TGC, "
            "interfaces or shadows), for which `pp5echo simulate`'s expected image (`<phantom>_expected.mha`) is "
@@ -45,11 +45,11 @@ void registerBMode(ConfigSchema& c, BModeSettings& b) {
 
 void registerSweep(ConfigSchema& c, SweepSettings& s) {
   c.section("sim.sweep", "How the probe sweeps over the phantom and when frames are captured.");
-  c.choice("sim.sweep.kind", &s.kind, "parallel", {"parallel", "angled", "back_and_forth", "freehand"},
+  enumOption(c, "sim.sweep.kind", &s.kind, SweepKind::Parallel,
            "`parallel`: straight passes along the phantom's x axis (side by side when `passes` > 1); "
            "`angled`: one pass at `angle_deg`; `back_and_forth`: `repeats` passes forth and back over "
            "the same line; `freehand`: a 6-DOF hand-held path with drift, tilt, roll and tremor.");
-  c.choice("sim.sweep.capture", &s.capture, "interval", {"interval", "every_frame"},
+  enumOption(c, "sim.sweep.capture", &s.capture, Capture::Interval,
            "`interval`: digitise a frame once the image has moved `capture_interval_mm` since the last "
            "one, measured on the reported pose (as the 1990 system did); `every_frame`: every video frame.");
   c.option("sim.sweep.capture_interval_mm", &s.captureIntervalMm, 2.0, 0.1, 100.0,
@@ -108,10 +108,10 @@ void registerOptions(ConfigSchema& c, SimSettings& s) {
   c.option("sim.seed", &s.seed, std::uint64_t{1}, std::uint64_t{0},
            static_cast<std::uint64_t>(std::numeric_limits<std::int64_t>::max()),
            "Seed of every random choice (scatterers, noise, hand motion); the same seed gives the same data.");
-  c.choice("sim.phantom", &s.phantom, "doll", {"doll", "forearm", "wires"},
+  enumOption(c, "sim.phantom", &s.phantom, PhantomKind::Doll,
            "`doll`: the 1990 paper's 16.5 cm plastic baby doll hung in a water tank; `forearm`: skin, fat, "
            "muscle with fascia, radius and ulna; `wires`: an N-wire calibration phantom with spheres of known size.");
-  c.choice("sim.truth_type", &s.truthType, "float32", {"float32", "uint8"},
+  enumOption(c, "sim.truth_type", &s.truthType, TruthType::Float32,
            "Voxel type of the ground-truth echogenicity volume.");
   c.option("sim.threads", &s.threads, 0, 0, 1024,
            "Threads simulating frames in parallel; 0 = every core. The frames do not depend on it.");

@@ -8,15 +8,24 @@
 
 #include <glm/glm.hpp>
 
+#include "core/enum_names.hpp"
+
 namespace pp5 {
 class ConfigSchema;
 }
 
 namespace pp5::sim {
 
+enum class ProbePreset { Paper35, Linear75 };
+enum class Medium { Physical, Ideal };
+enum class SweepKind { Parallel, Angled, BackAndForth, Freehand };
+enum class Capture { Interval, EveryFrame };
+enum class PhantomKind { Doll, Forearm, Wires };
+enum class TruthType { Float32, Uint8 };
+
 // [sim.probe]
 struct ProbeSettings {
-  std::string preset = "paper35";  // paper35 | linear75
+  ProbePreset preset = ProbePreset::Paper35;
   int widthPx = 0;                 // 0 = the preset's
   int heightPx = 0;                // 0 = the preset's
   double depthMm = 0.0;            // imaging depth; 0 = the preset's
@@ -32,13 +41,13 @@ struct BModeSettings {
   double specularWidthDeg = 12.0;
   // physical: attenuation, interface echoes, transmission loss and shadows;
   // ideal: speckle only, so the expected image is the truth volume (accuracy studies).
-  std::string medium = "physical";
+  Medium medium = Medium::Physical;
 };
 
 // [sim.sweep]
 struct SweepSettings {
-  std::string kind = "parallel";   // parallel | angled | back_and_forth | freehand
-  std::string capture = "interval";  // interval | every_frame
+  SweepKind kind = SweepKind::Parallel;
+  Capture capture = Capture::Interval;
   double captureIntervalMm = 2.0;
   double speedMmPerS = 6.0;
   double lengthMm = 0.0;           // 0 = the phantom's
@@ -77,8 +86,8 @@ struct FreehandSettings {
 // [sim]
 struct SimSettings {
   std::uint64_t seed = 1;
-  std::string phantom = "doll";    // doll | forearm | wires
-  std::string truthType = "float32";  // float32 | uint8
+  PhantomKind phantom = PhantomKind::Doll;
+  TruthType truthType = TruthType::Float32;
   int threads = 0;                 // 0 = every core
   ProbeSettings probe;
   BModeSettings bmode;
@@ -90,3 +99,58 @@ struct SimSettings {
 void registerOptions(ConfigSchema& schema, SimSettings& s);
 
 }  // namespace pp5::sim
+
+namespace pp5 {
+
+template <>
+struct EnumNames<sim::ProbePreset> {
+  static constexpr std::string_view key = "sim.probe.preset";
+  static constexpr std::array<std::pair<sim::ProbePreset, std::string_view>, 2> names{{
+      {sim::ProbePreset::Paper35, "paper35"},
+      {sim::ProbePreset::Linear75, "linear75"}}};
+};
+
+template <>
+struct EnumNames<sim::Medium> {
+  static constexpr std::string_view key = "sim.bmode.medium";
+  static constexpr std::array<std::pair<sim::Medium, std::string_view>, 2> names{{
+      {sim::Medium::Physical, "physical"},
+      {sim::Medium::Ideal, "ideal"}}};
+};
+
+template <>
+struct EnumNames<sim::SweepKind> {
+  static constexpr std::string_view key = "sim.sweep.kind";
+  static constexpr std::array<std::pair<sim::SweepKind, std::string_view>, 4> names{{
+      {sim::SweepKind::Parallel, "parallel"},
+      {sim::SweepKind::Angled, "angled"},
+      {sim::SweepKind::BackAndForth, "back_and_forth"},
+      {sim::SweepKind::Freehand, "freehand"}}};
+};
+
+template <>
+struct EnumNames<sim::Capture> {
+  static constexpr std::string_view key = "sim.sweep.capture";
+  static constexpr std::array<std::pair<sim::Capture, std::string_view>, 2> names{{
+      {sim::Capture::Interval, "interval"},
+      {sim::Capture::EveryFrame, "every_frame"}}};
+};
+
+template <>
+struct EnumNames<sim::PhantomKind> {
+  static constexpr std::string_view key = "sim.phantom";
+  static constexpr std::array<std::pair<sim::PhantomKind, std::string_view>, 3> names{{
+      {sim::PhantomKind::Doll, "doll"},
+      {sim::PhantomKind::Forearm, "forearm"},
+      {sim::PhantomKind::Wires, "wires"}}};
+};
+
+template <>
+struct EnumNames<sim::TruthType> {
+  static constexpr std::string_view key = "sim.truth_type";
+  static constexpr std::array<std::pair<sim::TruthType, std::string_view>, 2> names{{
+      {sim::TruthType::Float32, "float32"},
+      {sim::TruthType::Uint8, "uint8"}}};
+};
+
+}  // namespace pp5

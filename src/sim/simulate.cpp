@@ -31,7 +31,7 @@ std::string tripleText(double a, double b, double c) { return fmt::format("{} {}
 }  // namespace
 
 SweepSimulator::SweepSimulator(const SimSettings& s)
-    : settings_(s), phantom_(makePhantom(s.phantom)), probe_(makeProbe(s.probe)) {
+    : settings_(s), phantom_(makePhantom(std::string(enumName(s.phantom)))), probe_(makeProbe(s.probe)) {
   bmode_ = std::make_unique<BModeSimulator>(phantom_, probe_, settings_.bmode, settings_.seed);
   sweep_ = planSweep(settings_, phantom_.scan, imageCornersInProbe(probe_));
 }
