@@ -57,7 +57,7 @@ serial::PipelineSettings settings(int threads) {
   ps.render.height = 512;
   ps.render.maxSamples = 512;
   ps.render.stepMm = 0.8;  // 512 samples span the 355 mm diagonal of the grid
-  ps.render.compositing = {"over"};
+  ps.render.compositing = {pp5::CompositeMode::Over};
   ps.render.threads = threads;
   ps.recon.threads = threads;
   return ps;

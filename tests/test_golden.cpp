@@ -46,7 +46,7 @@ std::vector<std::uint8_t> render(const GoldenCase& c, const std::string& mode, i
   serial::PipelineSettings ps;
   ps.render.width = w = 160;
   ps.render.height = h = 128;
-  ps.render.compositing = {mode};
+  ps.render.compositing = {pp5::enumFromName<pp5::CompositeMode>(mode)};
   ps.render.threads = 2;
   if (c.phantom == "forearm") {  // as configs/forearm.toml
     ps.recon.kernelLateralMm = 0.8;

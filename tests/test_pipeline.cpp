@@ -48,7 +48,7 @@ TEST_P(IncrementalEqualsFull, AfterEveryFrame) {
   ps.render.width = 96;
   ps.render.height = 80;
   ps.render.projection = pp5::enumFromName<pp5::Projection>(c.projection);
-  ps.render.compositing = {c.mode};
+  ps.render.compositing = {pp5::enumFromName<pp5::CompositeMode>(c.mode)};
   ps.render.threads = 2;
   ps.shading.mode = pp5::enumFromName<gp::ShadeMode>(c.shading);
   serial::SerialPipeline pipe(g, ps);
@@ -141,7 +141,7 @@ TEST(AnalyticImage, MipOfABrightSphereHasItsValueAndRadius) {
   RenderSettings rs;
   rs.width = rs.height = 128;
   rs.projection = pp5::Projection::Orthographic;
-  rs.compositing = {"mip"};
+  rs.compositing = {pp5::CompositeMode::Mip};
   rs.stepMm = 0.5;
   rs.opacityUnitMm = 1.0;
   rs.azimuthDeg = 30.0;

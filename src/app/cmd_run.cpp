@@ -77,7 +77,7 @@ int runSerial(const RunOptions& o) {
   serial::PipelineSettings ps{s.recon, s.render, s.shading, s.tf, s.cache};
   spdlog::info("run: {}; grid {}x{}x{} of {} mm; {}x{} image, {} composition", src.description, src.grid.dims.x,
                src.grid.dims.y, src.grid.dims.z, src.grid.spacing.x, s.render.width, s.render.height,
-               s.render.compositing.front());
+               enumName(s.render.compositing.front()));
   serial::SerialPipeline pipe(src.grid, ps, s.grid.memoryLimitBytes());
   spdlog::info("run: ray cache {:.1f} MiB ({} samples, {} format), shade buffer {:.1f} MiB",
                static_cast<double>(pipe.cache().memoryBytes()) / (1 << 20), pipe.cache().sampleCount(),
@@ -138,8 +138,8 @@ int runSerial(const RunOptions& o) {
   buildup.add(pp::toRgb8(pipe.image()).data());
   buildup.close();
   std::vector<std::string> wrote = {"buildup.gif"};
-  for (const std::string& mode : s.render.compositing) {
-    const pp::CompositeMode m = pp::compositeModeFromName(mode);
+  for (const pp::CompositeMode m : s.render.compositing) {
+    const std::string mode(enumName(m));
     const pp::TileImage im = m == pipe.liveMode() ? pipe.image() : pipe.compositeFull(m);
     const std::string name = "final_" + mode + ".png";
     writeRgbPng((fs::path(dir) / name).string(), w, h, pp::toRgb8(im).data());

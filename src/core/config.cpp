@@ -248,27 +248,52 @@ void ConfigSchema::option(const std::string& key, std::vector<glm::dvec4>* field
 void ConfigSchema::choices(const std::string& key, std::vector<std::string>* field,
                            const std::vector<std::string>& def, const std::vector<std::string>& allowed,
                            const std::string& doc) {
+  auto index = [allowed](const std::vector<std::string>& names) {
+    std::vector<std::size_t> v;
+    for (const auto& n : names) v.push_back(static_cast<std::size_t>(std::find(allowed.begin(), allowed.end(), n) -
+                                                                     allowed.begin()));
+    return v;
+  };
+  choicesIndex(
+      key, allowed, index(def),
+      [=](const std::vector<std::size_t>& v) {
+        field->clear();
+        for (const std::size_t i : v) field->push_back(allowed[i]);
+      },
+      [=] { return index(*field); }, doc);
+}
+
+void ConfigSchema::choicesIndex(const std::string& key, const std::vector<std::string>& allowed,
+                                std::vector<std::size_t> def, std::function<void(const std::vector<std::size_t>&)> set,
+                                std::function<std::vector<std::size_t>()> get, const std::string& doc) {
   PP5_CHECK(!def.empty());
+  for (const std::size_t i : def) PP5_CHECK_LT(i, allowed.size());
   std::string list;
   for (const auto& c : allowed) list += (list.empty() ? "" : ", ") + c;
-  add({key, "list of strings", formatStrings(def), "each one of: " + list, doc, [=] { *field = def; },
+  auto names = [allowed](const std::vector<std::size_t>& v) {
+    std::vector<std::string> out;
+    for (const std::size_t i : v) out.push_back(i < allowed.size() ? allowed[i] : std::string("?"));
+    return out;
+  };
+  add({key, "list of strings", formatStrings(names(def)), "each one of: " + list, doc, [=] { set(def); },
        [=](const toml::node& n) -> std::string {
          const auto* arr = n.as_array();
          if (!arr || arr->empty()) return "must be a non-empty array of strings";
-         std::vector<std::string> v;
+         std::vector<std::size_t> v;
          for (std::size_t i = 0; i < arr->size(); ++i) {
            const auto* str = arr->get(i)->as_string();
            if (!str) return fmt::format("element {} must be a string", i);
            const std::string x = str->get();
-           if (std::find(allowed.begin(), allowed.end(), x) == allowed.end())
-             return fmt::format("element {} = \"{}\" is not one of: {}", i, x, list);
-           if (std::find(v.begin(), v.end(), x) != v.end()) return fmt::format("\"{}\" is listed twice", x);
-           v.push_back(x);
+           const auto it = std::find(allowed.begin(), allowed.end(), x);
+           if (it == allowed.end()) return fmt::format("element {} = \"{}\" is not one of: {}", i, x, list);
+           const auto k = static_cast<std::size_t>(it - allowed.begin());
+           if (std::find(v.begin(), v.end(), k) != v.end()) return fmt::format("\"{}\" is listed twice", x);
+           v.push_back(k);
          }
-         *field = std::move(v);
+         set(v);
          return "";
        },
-       [=] { return formatStrings(*field); }});
+       [=] { return formatStrings(names(get())); }});
 }
 
 void ConfigSchema::option(const std::string& key, std::vector<std::string>* field, const std::vector<std::string>& def,

@@ -54,6 +54,12 @@ public:
   void choices(const std::string& key, std::vector<std::string>* field, const std::vector<std::string>& def,
                const std::vector<std::string>& choices, const std::string& doc);
 
+  // A non-empty list of distinct choices, stored as their indices (enum
+  // lists: core/enum_names.hpp's enumListOption).
+  void choicesIndex(const std::string& key, const std::vector<std::string>& choices, std::vector<std::size_t> def,
+                    std::function<void(const std::vector<std::size_t>&)> set,
+                    std::function<std::vector<std::size_t>()> get, const std::string& doc);
+
   // A list of strings, possibly empty: ["40 render.azimuth_deg = 30", ...].
   void option(const std::string& key, std::vector<std::string>* field, const std::vector<std::string>& def,
               const std::string& doc);

@@ -77,4 +77,29 @@ void enumOption(ConfigSchema& schema, const std::string& key, E* field, E def, c
       doc);
 }
 
+// Registers a list of distinct enum values as a list-of-strings option.
+template <typename E>
+void enumListOption(ConfigSchema& schema, const std::string& key, std::vector<E>* field, const std::vector<E>& def,
+                    const std::string& doc) {
+  auto indexOf = [](E e) {
+    for (std::size_t i = 0; i < EnumNames<E>::names.size(); ++i)
+      if (EnumNames<E>::names[i].first == e) return i;
+    return EnumNames<E>::names.size();
+  };
+  std::vector<std::size_t> defIndex;
+  for (const E e : def) defIndex.push_back(indexOf(e));
+  schema.choicesIndex(
+      key, enumNameList<E>(), defIndex,
+      [field](const std::vector<std::size_t>& v) {
+        field->clear();
+        for (const std::size_t i : v) field->push_back(EnumNames<E>::names[i].first);
+      },
+      [field, indexOf] {
+        std::vector<std::size_t> v;
+        for (const E e : *field) v.push_back(indexOf(e));
+        return v;
+      },
+      doc);
+}
+
 }  // namespace pp5

@@ -32,7 +32,7 @@ void registerOptions(ConfigSchema& c, RenderSettings& s) {
   c.option("render.opacity_unit_mm", &s.opacityUnitMm, 1.0, 0.001, 1000.0,
            "Length of ray whose opacity the transfer function gives; each sample's opacity is corrected to the "
            "step as 1 - (1 - alpha)^(step / unit).");
-  c.choices("render.compositing", &s.compositing, {"over", "mip"}, {"over", "additive", "mip"},
+  enumListOption(c, "render.compositing", &s.compositing, {CompositeMode::Over, CompositeMode::Mip},
             "Composition modes to render, the first one live: `over` (front to back, Levoy), `additive` "
             "(sum of the samples' premultiplied colours), `mip` (maximum intensity projection).");
   c.option("render.threads", &s.threads, 0, 0, 1024, "Threads for shading, sampling and compositing; 0 = every core.");

@@ -1,15 +1,20 @@
 #pragma once
 // [render]: the view and the ray lattice, shared by the GP's sampler, the
 // PP's cache and the pipeline that drives them.
+#include <cstdint>
 #include <string>
 #include <vector>
 
 #include "core/camera.hpp"
+#include "core/enum_names.hpp"
 #include "core/grid.hpp"
 
 namespace pp5 {
 
 class ConfigSchema;
+
+// How a ray's samples combine into a pixel (the pixel processor composites).
+enum class CompositeMode : std::uint8_t { Over, Additive, Mip };
 
 struct RenderSettings {
   int width = 512;
@@ -30,8 +35,8 @@ struct RenderSettings {
   // The transfer function's alpha is the opacity of this length of ray; each
   // sample's is corrected to the step: 1 - (1 - alpha)^(step / unit).
   double opacityUnitMm = 1.0;
-  // Composition modes, the first one live (over | additive | mip).
-  std::vector<std::string> compositing = {"over", "mip"};
+  // Composition modes, the first one live.
+  std::vector<CompositeMode> compositing = {CompositeMode::Over, CompositeMode::Mip};
   int threads = 0;  // 0 = every core
 
   double step(const Grid& g) const;
@@ -41,5 +46,14 @@ void registerOptions(ConfigSchema& schema, RenderSettings& s);
 
 // The camera of `s` looking at grid `g` (image size, projection, orbit).
 Camera makeCamera(const RenderSettings& s, const Grid& g);
+
+template <>
+struct EnumNames<CompositeMode> {
+  static constexpr std::string_view key = "render.compositing";
+  static constexpr std::array<std::pair<CompositeMode, std::string_view>, 3> names{{
+      {CompositeMode::Over, "over"},
+      {CompositeMode::Additive, "additive"},
+      {CompositeMode::Mip, "mip"}}};
+};
 
 }  // namespace pp5

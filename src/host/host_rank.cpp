@@ -486,8 +486,8 @@ int HostRank::run() {
   addBuildup();
   buildup_->close();
   std::vector<std::string> wrote = {"buildup.gif"};
-  for (const std::string& mode : j_.pipeline.render.compositing) {
-    const pp::CompositeMode m = pp::compositeModeFromName(mode);
+  for (const pp::CompositeMode m : j_.pipeline.render.compositing) {
+    const std::string mode(enumName(m));
     const std::vector<float> im = request(m);
     if (ref_) verify(im, m == ref_->liveMode() ? ref_->image() : ref_->compositeFull(m), "final " + mode + " image");
     const std::string name = "final_" + mode + ".png";

@@ -45,7 +45,7 @@ comm::ControlState makeControlState(const RenderSettings& r, const gp::ShadeSett
                               const TransferFunctionSettings& tf) {
   comm::ControlState c;
   c.projection = r.projection == Projection::Orthographic ? 1 : 0;
-  c.liveMode = static_cast<std::uint8_t>(pp::compositeModeFromName(r.compositing.front()));
+  c.liveMode = static_cast<std::uint8_t>(checkedEnum(r.compositing.front()));
   c.shadeMode = static_cast<std::uint8_t>(sh.mode);
   c.light = static_cast<std::uint8_t>(sh.light);
   c.gradientOpacity = sh.gradientOpacity ? 1 : 0;
@@ -81,7 +81,7 @@ void applyControlState(const comm::ControlState& c, RenderSettings& r, gp::Shade
   r.azimuthDeg = c.azimuthDeg;
   r.elevationDeg = c.elevationDeg;
   r.distance = c.distance;
-  const std::string live = pp::compositeModeName(liveMode(c));
+  const CompositeMode live = liveMode(c);
   std::erase(r.compositing, live);
   r.compositing.insert(r.compositing.begin(), live);
   sh.mode = static_cast<gp::ShadeMode>(c.shadeMode) == gp::ShadeMode::Value ? gp::ShadeMode::Value : gp::ShadeMode::Phong;

@@ -44,6 +44,7 @@
 #include <vector>
 
 #include "core/ray_sample.hpp"
+#include "core/render_settings.hpp"
 #include "core/tiles.hpp"
 #include "pp/zeroed_array.hpp"
 #include "core/enum_names.hpp"
@@ -54,7 +55,8 @@ class ConfigSchema;
 
 namespace pp5::pp {
 
-enum class CompositeMode : std::uint8_t { Over, Additive, Mip };
+// The composition modes are a render setting (core/render_settings.hpp).
+using pp5::CompositeMode;
 // "over" | "additive" | "mip" (render.compositing); anything else is an InputError.
 CompositeMode compositeModeFromName(const std::string& name);
 const char* compositeModeName(CompositeMode m);
@@ -237,19 +239,9 @@ std::vector<std::uint8_t> toRgb8(const TileImage& im);
 // alpha is 0.
 void toRgba8(const TileImage& im, std::uint8_t* rgba);
 
-
 }  // namespace pp5::pp
 
 namespace pp5 {
-
-template <>
-struct EnumNames<pp::CompositeMode> {
-  static constexpr std::string_view key = "render.compositing";
-  static constexpr std::array<std::pair<pp::CompositeMode, std::string_view>, 3> names{{
-      {pp::CompositeMode::Over, "over"},
-      {pp::CompositeMode::Additive, "additive"},
-      {pp::CompositeMode::Mip, "mip"}}};
-};
 
 template <>
 struct EnumNames<pp::SampleFormat> {

@@ -42,7 +42,7 @@ private:
 SerialPipeline::SerialPipeline(const Grid& grid, const PipelineSettings& s, std::uint64_t memoryLimitBytes)
     : s_(s), grid_(grid) {
   if (s_.render.compositing.empty()) throw InputError("render.compositing: no composition mode given");
-  live_ = pp::compositeModeFromName(s_.render.compositing.front());
+  live_ = checkedEnum(s_.render.compositing.front());
   s_.shading.threads = s_.render.threads;
   s_.cache.validate();
   gp::GpUpdateSettings us;

@@ -1,0 +1,185 @@
+// The rank loops without mpirun: the in-process transport (comm/local_transport.hpp)
+// keeps MPI's guarantees, and a whole job (host, GPs, PPs as threads of this
+// process) gives images bitwise equal to the serial pipeline's (--verify),
+// for both partitionings.
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <chrono>
+#include <exception>
+#include <filesystem>
+#include <memory>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <unistd.h>
+
+#include "comm/local_transport.hpp"
+#include "comm/messages.hpp"
+#include "core/error.hpp"
+#include "host/host_rank.hpp"
+#include "host/sources.hpp"
+#include "parallel/parallel_settings.hpp"
+#include "ranks/gp_rank.hpp"
+#include "ranks/pp_rank.hpp"
+#include "sim/simulate.hpp"
+
+namespace {
+
+namespace fs = std::filesystem;
+using namespace pp5;
+
+comm::EmptyMsg header(comm::Tag tag, std::uint64_t frame) {
+  comm::EmptyMsg m;
+  m.h.tag = tag;
+  m.h.frame = frame;
+  return m;
+}
+
+TEST(LocalTransport, KeepsEachSendersOrderAndCountsBytes) {
+  comm::LocalJob job(3, 5.0);
+  std::thread a([&] {
+    for (std::uint64_t i = 0; i < 50; ++i) job.rank(1).send(0, header(comm::kTagCredit, i), "abc", 3);
+  });
+  std::thread b([&] {
+    for (std::uint64_t i = 0; i < 50; ++i) job.rank(2).send(0, header(comm::kTagPpDone, 100 + i));
+  });
+  a.join();
+  b.join();
+  comm::Transport& t = job.rank(0);
+  std::uint64_t next1 = 0, next2 = 100;
+  for (int i = 0; i < 100; ++i) {
+    const comm::Message m = t.wait("a message");
+    if (m.source == 1) {
+      EXPECT_EQ(m.tag, comm::kTagCredit);
+      EXPECT_EQ(m.header().frame, next1++);
+      ASSERT_EQ(m.payload<comm::EmptyMsg>().size(), 3u);
+    } else {
+      ASSERT_EQ(m.source, 2);
+      EXPECT_EQ(m.header().frame, next2++);
+    }
+  }
+  EXPECT_EQ(next1, 50u);
+  EXPECT_EQ(next2, 150u);
+  EXPECT_FALSE(t.poll());
+  EXPECT_EQ(t.counters()[1].messagesReceived, 50u);
+  EXPECT_EQ(t.counters()[1].bytesReceived, 50 * (sizeof(comm::EmptyMsg) + 3));
+  EXPECT_EQ(t.totals().messagesReceived, 100u);
+  EXPECT_EQ(job.rank(1).totals().bytesSent, 50 * (sizeof(comm::EmptyMsg) + 3));
+  EXPECT_THROW(job.rank(1).send(3, header(comm::kTagQuit, 0)), comm::CommError);
+}
+
+TEST(LocalTransport, BroadcastBarrierAndTimeout) {
+  comm::LocalJob job(4, 0.2);
+  std::vector<comm::GridMsg> got(4);
+  std::atomic<int> arrived{0};
+  std::vector<std::thread> ts;
+  for (int r = 0; r < 4; ++r)
+    ts.emplace_back([&, r] {
+      comm::GridMsg g;
+      if (r == 0) {
+        g.dims[0] = 7;
+        g.spacing[2] = 0.25;
+      }
+      job.rank(r).broadcast(g, 0);
+      got[static_cast<std::size_t>(r)] = g;
+      ++arrived;
+      job.rank(r).barrier();
+      EXPECT_EQ(arrived.load(), 4);  // nobody passes the barrier before all arrived
+    });
+  for (auto& t : ts) t.join();
+  for (const auto& g : got) {
+    EXPECT_EQ(g.dims[0], 7);
+    EXPECT_EQ(g.spacing[2], 0.25);
+  }
+  // Broadcasts are set-up collectives, not peer traffic.
+  EXPECT_EQ(job.rank(0).totals().bytesSent, 0u);
+  try {
+    job.rank(1).wait("a frame that never comes");
+    FAIL() << "no timeout";
+  } catch (const comm::CommError& e) {
+    EXPECT_NE(std::string(e.what()).find("a frame that never comes"), std::string::npos) << e.what();
+  }
+}
+
+// A small doll sweep through 1 host + 2 GP + 1 PP, lockstep, every image
+// checked against the serial pipeline on the host, with a view change.
+void runJob(parallel::GpPartition partition, const std::string& name) {
+  sim::SimSettings ss;
+  ss.seed = 1;
+  ss.sweep.captureIntervalMm = 6.0;
+  ss.sweep.lengthMm = 60.0;
+  auto simulator = std::make_shared<sim::SweepSimulator>(ss);
+  std::vector<Mat4> poses;
+  for (std::size_t i = 0; i < simulator->frameCount(); ++i) poses.push_back(simulator->imageToReference(i));
+  const Grid grid =
+      sim::fitGrid(poses, simulator->probe().width, simulator->probe().height, Vec3(2.0), 2.0);
+
+  host::HostJob j;
+  j.grid = grid;
+  j.pipeline.render.width = 128;
+  j.pipeline.render.height = 96;
+  j.pipeline.render.threads = 1;
+  j.pipeline.recon.threads = 1;
+  j.parallel.gpPartition = partition;
+  j.parallel.tileSize = 32;
+  j.parallel.compositeOn = parallel::CompositeOn::Lockstep;
+  j.parallel.timeoutS = 30.0;
+  j.layout = parallel::RankLayout::choose(4, 2, 1);
+  j.source = host::simulatorSource(simulator, grid, 1);
+  RenderSettings turned = j.pipeline.render;
+  turned.azimuthDeg = -60.0;
+  j.script.push_back({3, parallel::makeControlState(turned, j.pipeline.shading, j.pipeline.tf), "azimuth -60"});
+  const fs::path dir = fs::temp_directory_path() / ("pp5_ranks_local_" + name + "_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  j.outDir = dir.string();
+  j.orbitFrames = 2;
+  j.verify = true;
+
+  comm::LocalJob job(4, j.parallel.timeoutS);
+  std::vector<std::exception_ptr> errors(4);
+  std::vector<std::thread> ranks;
+  for (int r = 1; r < 4; ++r)
+    ranks.emplace_back([&, r] {
+      try {
+        if (j.layout.role(r) == parallel::Role::Gp) {
+          ranks::GpRankConfig c{grid, j.pipeline.recon, j.pipeline.render, j.pipeline.shading, j.pipeline.tf,
+                                j.parallel, j.layout, 0};
+          ranks::runGpRank(job.rank(r), c);
+        } else {
+          ranks::PpRankConfig c{grid, j.pipeline.render, j.pipeline.shading, j.pipeline.tf, j.pipeline.cache,
+                                j.parallel, j.layout};
+          ranks::runPpRank(job.rank(r), c);
+        }
+      } catch (...) {
+        errors[static_cast<std::size_t>(r)] = std::current_exception();
+      }
+    });
+  testing::internal::CaptureStdout();
+  int status = -1;
+  try {
+    status = host::runHostRank(job.rank(0), j);
+  } catch (...) {
+    errors[0] = std::current_exception();
+  }
+  const std::string out = testing::internal::GetCapturedStdout();
+  for (auto& t : ranks) t.join();
+  for (const auto& e : errors)
+    if (e) std::rethrow_exception(e);
+  EXPECT_EQ(status, 0);
+  // Every image after every frame, the view change, the final passes and the orbit.
+  const auto at = out.find("verified: ");
+  ASSERT_NE(at, std::string::npos) << out;
+  EXPECT_GE(std::stoi(out.substr(at + 10)), 12) << out;
+  EXPECT_NE(out.find("images bitwise equal to the serial pipeline's"), std::string::npos) << out;
+  for (const char* f : {"final_over.png", "final_mip.png", "volume.mha", "stats.csv", "summary.json"})
+    EXPECT_TRUE(fs::exists(dir / f)) << f;
+  fs::remove_all(dir);
+}
+
+TEST(LocalJob, SlabRanksEqualTheSerialPipeline) { runJob(parallel::GpPartition::Slab, "slab"); }
+TEST(LocalJob, TileRanksEqualTheSerialPipeline) { runJob(parallel::GpPartition::Tile, "tile"); }
+
+}  // namespace
