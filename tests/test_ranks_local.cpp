@@ -95,12 +95,40 @@ TEST(LocalTransport, BroadcastBarrierAndTimeout) {
   }
   // Broadcasts are set-up collectives, not peer traffic.
   EXPECT_EQ(job.rank(0).totals().bytesSent, 0u);
+  // A barrier that not every rank reaches gives up, and an aborted job's
+  // barriers throw at once.
+  EXPECT_THROW(job.rank(2).barrier(), comm::CommError);
+  job.abort();
+  EXPECT_THROW(job.rank(3).barrier(), comm::CommError);
+  comm::GridMsg g;
+  EXPECT_THROW(job.rank(0).broadcast(g, 0), comm::CommError);
   try {
     job.rank(1).wait("a frame that never comes");
     FAIL() << "no timeout";
   } catch (const comm::CommError& e) {
     EXPECT_NE(std::string(e.what()).find("a frame that never comes"), std::string::npos) << e.what();
   }
+}
+
+TEST(LocalTransport, AFailedRankLeavesNoneWaiting) {
+  comm::LocalJob job(3, 60.0);
+  std::vector<std::string> errors(3);
+  const auto t0 = std::chrono::steady_clock::now();
+  std::vector<std::thread> ts;
+  for (int r = 0; r < 3; ++r)
+    ts.emplace_back([&, r] {
+      try {
+        if (r == 0) throw InputError("rank 0 cannot start");
+        job.rank(r).barrier();
+      } catch (const std::exception& e) {
+        errors[static_cast<std::size_t>(r)] = e.what();
+        job.abort();
+      }
+    });
+  for (auto& t : ts) t.join();
+  EXPECT_LT(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(), 10.0);
+  EXPECT_EQ(errors[0], "rank 0 cannot start");
+  for (int r = 1; r < 3; ++r) EXPECT_NE(errors[static_cast<std::size_t>(r)].find("aborted"), std::string::npos) << r;
 }
 
 // A small doll sweep through 1 host + 2 GP + 1 PP, lockstep, every image
@@ -155,6 +183,7 @@ void runJob(parallel::GpPartition partition, const std::string& name) {
         }
       } catch (...) {
         errors[static_cast<std::size_t>(r)] = std::current_exception();
+        job.abort();  // no rank waits for this one
       }
     });
   testing::internal::CaptureStdout();
@@ -163,6 +192,7 @@ void runJob(parallel::GpPartition partition, const std::string& name) {
     status = host::runHostRank(job.rank(0), j);
   } catch (...) {
     errors[0] = std::current_exception();
+    job.abort();
   }
   const std::string out = testing::internal::GetCapturedStdout();
   for (auto& t : ranks) t.join();

@@ -2,7 +2,8 @@
 // An in-process transport: the ranks of one job as threads of one process,
 // so that the rank loops run in a test without mpirun (and under the
 // sanitizers). Messages keep each sender's order, as MPI's do; the barrier
-// and the broadcast are those of the job's threads. Counting is the base
+// and the broadcast are those of the job's threads, and give up after the
+// timeout, or at once when the job is aborted (a rank failed). Counting is the base
 // Transport's, so the counters read as under MPI.
 #include <memory>
 #include <vector>
@@ -22,6 +23,9 @@ public:
   int size() const { return static_cast<int>(ranks_.size()); }
   // Rank r's transport, for the one thread that plays rank r.
   Transport& rank(int r);
+  // A rank failed: every barrier and broadcast, now and later, throws
+  // CommError instead of waiting for it (MPI_Abort's part for threads).
+  void abort();
 
   struct Hub;
 

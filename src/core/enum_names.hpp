@@ -64,15 +64,16 @@ E checkedEnum(E e) {
 template <typename E>
 void enumOption(ConfigSchema& schema, const std::string& key, E* field, E def, const std::string& doc) {
   std::vector<std::string> names = enumNameList<E>();
-  std::size_t defIndex = 0;
+  std::size_t defIndex = names.size();
   for (std::size_t i = 0; i < EnumNames<E>::names.size(); ++i)
     if (EnumNames<E>::names[i].first == def) defIndex = i;
+  PP5_CHECK_LT(defIndex, names.size());
   schema.choiceIndex(
       key, names, defIndex, [field](std::size_t i) { *field = EnumNames<E>::names[i].first; },
       [field] {
         for (std::size_t i = 0; i < EnumNames<E>::names.size(); ++i)
           if (EnumNames<E>::names[i].first == *field) return i;
-        return std::size_t{0};
+        return EnumNames<E>::names.size();  // written as "?": no file could have given it
       },
       doc);
 }
@@ -87,7 +88,10 @@ void enumListOption(ConfigSchema& schema, const std::string& key, std::vector<E>
     return EnumNames<E>::names.size();
   };
   std::vector<std::size_t> defIndex;
-  for (const E e : def) defIndex.push_back(indexOf(e));
+  for (const E e : def) {
+    defIndex.push_back(indexOf(e));
+    PP5_CHECK_LT(defIndex.back(), EnumNames<E>::names.size());
+  }
   schema.choicesIndex(
       key, enumNameList<E>(), defIndex,
       [field](const std::vector<std::size_t>& v) {

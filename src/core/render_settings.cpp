@@ -45,7 +45,7 @@ Camera makeCamera(const RenderSettings& s, const Grid& g) {
   const double az = glm::radians(s.azimuthDeg), el = glm::radians(s.elevationDeg);
   const Vec3 dir(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el));
   Camera c;
-  c.projection = s.projection;
+  c.projection = checkedEnum(s.projection);
   c.width = s.width;
   c.height = s.height;
   c.fovYDeg = s.fovDeg;

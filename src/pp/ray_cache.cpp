@@ -38,6 +38,7 @@ constexpr int kMaxBlockSize = 1024;
 
 
 void RayCacheSettings::validate() const {
+  checkedEnum(format);
   if (blockSize < 1 || blockSize > kMaxBlockSize || !std::has_single_bit(static_cast<unsigned>(blockSize)))
     throw InputError(fmt::format("render.cache.block_size = {}: must be a power of two from 1 to {}", blockSize,
                                  kMaxBlockSize));
