@@ -20,6 +20,7 @@ pkgs=(
   libspdlog-dev libfmt-dev
   zlib1g-dev
   nlohmann-json3-dev
+  libboost-dev  # Boost.Beast: the live viewer's HTTP and WebSocket server (src/viewer)
   libgtest-dev libgmock-dev
   libbenchmark-dev
   python3-matplotlib  # the plots of `pp5echo bench` (scripts/bench_plots.py)

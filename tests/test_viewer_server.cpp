@@ -1,0 +1,217 @@
+// The live viewer's server (src/viewer): static files, WebSockets that carry
+// only the newest message to a slow client, control messages with error
+// replies, and the security rules (loopback or a token, the Origin, no path
+// traversal, bounded messages), against a real client on 127.0.0.1.
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <chrono>
+#include <filesystem>
+#include <fstream>
+#include <string>
+#include <thread>
+
+// Boost 1.74's asio uses std::exchange without including <utility> (C++20, GCC 12).
+#include <utility>
+
+#include <boost/asio.hpp>
+#include <boost/beast/core.hpp>
+#include <boost/beast/http.hpp>
+#include <boost/beast/websocket.hpp>
+#include <unistd.h>
+
+#include "core/error.hpp"
+#include "viewer/viewer_server.hpp"
+
+namespace {
+
+namespace fs = std::filesystem;
+namespace net = boost::asio;
+namespace beast = boost::beast;
+namespace http = beast::http;
+namespace websocket = beast::websocket;
+using tcp = net::ip::tcp;
+using pp5::viewer::Server;
+using pp5::viewer::ServerOptions;
+
+fs::path webRoot() {
+  const fs::path d = fs::temp_directory_path() / ("pp5_viewer_" + std::to_string(::getpid()));
+  fs::create_directories(d / "css");
+  std::ofstream(d / "index.html") << "<html>pp5echo</html>";
+  std::ofstream(d / "css" / "a.css") << "body{}";
+  std::ofstream(d.parent_path() / ("pp5_secret_" + std::to_string(::getpid()))) << "secret";
+  return d;
+}
+
+ServerOptions options() {
+  ServerOptions o;
+  o.root = webRoot().string();
+  return o;
+}
+
+// One HTTP GET: status and body.
+std::pair<int, std::string> get(int port, const std::string& target) {
+  net::io_context ioc;
+  tcp::resolver resolver(ioc);
+  beast::tcp_stream stream(ioc);
+  stream.connect(resolver.resolve("127.0.0.1", std::to_string(port)));
+  http::request<http::empty_body> req(http::verb::get, target, 11);
+  req.set(http::field::host, "127.0.0.1:" + std::to_string(port));
+  http::write(stream, req);
+  beast::flat_buffer buffer;
+  http::response<http::string_body> res;
+  http::read(stream, buffer, res);
+  return {static_cast<int>(res.result_int()), res.body()};
+}
+
+struct Client {
+  net::io_context ioc;
+  websocket::stream<tcp::socket> ws{ioc};
+  // Connects and upgrades; `origin` empty: none sent (not a browser).
+  void connect(int port, const std::string& origin, const std::string& target = "/ws") {
+    tcp::resolver resolver(ioc);
+    net::connect(ws.next_layer(), resolver.resolve("127.0.0.1", std::to_string(port)));
+    ws.set_option(websocket::stream_base::decorator([origin](websocket::request_type& r) {
+      if (!origin.empty()) r.set(http::field::origin, origin);
+    }));
+    ws.handshake("127.0.0.1:" + std::to_string(port), target);
+  }
+  std::string read() {
+    beast::flat_buffer b;
+    ws.read(b);
+    return beast::buffers_to_string(b.data());
+  }
+};
+
+bool waitFor(const std::function<bool()>& f) {
+  for (int i = 0; i < 500 && !f(); ++i) std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  return f();
+}
+
+TEST(ViewerServer, ServesItsOwnFilesOnly) {
+  Server s(options());
+  EXPECT_NE(s.url().find("http://127.0.0.1:"), std::string::npos);
+  EXPECT_EQ(get(s.port(), "/"), (std::pair<int, std::string>{200, "<html>pp5echo</html>"}));
+  EXPECT_EQ(get(s.port(), "/css/a.css").first, 200);
+  EXPECT_EQ(get(s.port(), "/missing.html").first, 404);
+  // Traversal, plain and encoded, never reaches a file outside the folder.
+  const std::string secret = "pp5_secret_" + std::to_string(::getpid());
+  for (const std::string t : {"/../" + secret, "/css/../../" + secret, "/%2e%2e/" + secret, "/..%2f" + secret})
+    EXPECT_NE(get(s.port(), t).second, "secret") << t;
+  EXPECT_EQ(get(s.port(), "/../" + secret).first, 400);
+}
+
+TEST(ViewerServer, NonLoopbackNeedsAToken) {
+  ServerOptions o = options();
+  o.address = "0.0.0.0";
+  try {
+    Server s(o);
+    FAIL() << "bound every interface without a token";
+  } catch (const pp5::InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("token"), std::string::npos) << e.what();
+  }
+  // With a token (on loopback here, so the test stays on this machine) every
+  // request must carry it.
+  o.address = "127.0.0.1";
+  o.token = "k3y";
+  Server s(o);
+  EXPECT_NE(s.url().find("?token=k3y"), std::string::npos);
+  EXPECT_EQ(get(s.port(), "/").first, 403);
+  EXPECT_EQ(get(s.port(), "/?token=wrong").first, 403);
+  EXPECT_EQ(get(s.port(), "/?token=k3y").first, 200);
+  o.root = "/no/such/folder";
+  EXPECT_THROW(Server{o}, pp5::InputError);
+}
+
+TEST(ViewerServer, WebSocketChecksTheOrigin) {
+  Server s(options());
+  const std::string own = "http://127.0.0.1:" + std::to_string(s.port());
+  Client evil;
+  EXPECT_THROW(evil.connect(s.port(), "http://evil.example"), boost::system::system_error);
+  Client page;
+  page.connect(s.port(), own);
+  ASSERT_TRUE(waitFor([&] { return s.clients() == 1; }));
+  s.publish(0, "frame");
+  EXPECT_EQ(page.read(), "frame");
+}
+
+TEST(ViewerServer, ControlMessagesAreCheckedAndBadOnesAnswered) {
+  Server s(options());
+  std::atomic<int> accepted{0};
+  s.onMessage([&](const std::string& m) -> std::string {
+    if (m == "{\"view\": 1}") {
+      ++accepted;
+      return "";
+    }
+    return "unknown control \"" + m + "\"";
+  });
+  Client c;
+  c.connect(s.port(), "");
+  c.ws.text(true);
+  c.ws.write(net::buffer(std::string("{\"view\": 1}")));
+  c.ws.write(net::buffer(std::string("nonsense")));
+  EXPECT_EQ(c.read(), "{\"error\": \"unknown control \\\"nonsense\\\"\"}");
+  EXPECT_EQ(accepted.load(), 1);
+  // A message over the size limit ends that connection, not the server.
+  c.ws.write(net::buffer(std::string(70 * 1024, 'x')));
+  beast::flat_buffer b;
+  beast::error_code ec;
+  c.ws.read(b, ec);
+  EXPECT_TRUE(ec);
+  Client d;
+  d.connect(s.port(), "");
+  s.publish(0, "still here");
+  EXPECT_EQ(d.read(), "still here");
+}
+
+TEST(ViewerServer, ASlowClientGetsTheNewestImageOnly) {
+  Server s(options());
+  Client c;
+  c.connect(s.port(), "");
+  ASSERT_TRUE(waitFor([&] { return s.clients() == 1; }));
+  // 200 images of 256 kB each while the client reads nothing: the server
+  // keeps only the newest unsent one per channel.
+  const int n = 200;
+  for (int i = 0; i < n; ++i) {
+    std::string img(256 * 1024, static_cast<char>('a' + i % 26));
+    img.replace(0, std::to_string(i).size(), std::to_string(i));
+    s.publish(1, std::move(img));
+  }
+  s.publish(2, "status");
+  int got = 0, last = -1;
+  bool status = false;
+  while (last != n - 1 || !status) {
+    const std::string m = c.read();
+    if (m == "status") {
+      status = true;
+      continue;
+    }
+    const int i = std::stoi(m.substr(0, 3));
+    EXPECT_GT(i, last);  // in order, never an older image after a newer one
+    last = i;
+    ++got;
+  }
+  EXPECT_LT(got, n);  // the slow client skipped images
+  EXPECT_EQ(last, n - 1);
+}
+
+TEST(ViewerServer, ClientsComeAndGo) {
+  Server s(options());
+  {
+    Client a, b;
+    a.connect(s.port(), "");
+    b.connect(s.port(), "");
+    ASSERT_TRUE(waitFor([&] { return s.clients() == 2; }));
+    s.publish(0, "both");
+    EXPECT_EQ(a.read(), "both");
+    EXPECT_EQ(b.read(), "both");
+  }
+  ASSERT_TRUE(waitFor([&] { return s.clients() == 0; }));
+  Client again;
+  again.connect(s.port(), "");
+  ASSERT_TRUE(waitFor([&] { return s.clients() == 1; }));
+  s.publish(0, "resumed");
+  EXPECT_EQ(again.read(), "resumed");
+}
+
+}  // namespace
