@@ -21,6 +21,7 @@ pkgs=(
   zlib1g-dev
   nlohmann-json3-dev
   libboost-dev  # Boost.Beast: the live viewer's HTTP and WebSocket server (src/viewer)
+  libturbojpeg0-dev  # the viewer's JPEG images (src/viewer/jpeg)
   libgtest-dev libgmock-dev
   libbenchmark-dev
   python3-matplotlib  # the plots of `pp5echo bench` (scripts/bench_plots.py)

@@ -5,6 +5,8 @@
 #include <gtest/gtest.h>
 
 #include <atomic>
+#include <cmath>
+#include <cstdint>
 #include <chrono>
 #include <filesystem>
 #include <fstream>
@@ -21,6 +23,7 @@
 #include <unistd.h>
 
 #include "core/error.hpp"
+#include "viewer/jpeg.hpp"
 #include "viewer/viewer_server.hpp"
 
 namespace {
@@ -212,6 +215,38 @@ TEST(ViewerServer, ClientsComeAndGo) {
   ASSERT_TRUE(waitFor([&] { return s.clients() == 1; }));
   s.publish(0, "resumed");
   EXPECT_EQ(again.read(), "resumed");
+}
+
+// JPEG: a smooth image comes back close to its pixels, the size and the
+// quality matter, and what is not a JPEG is refused.
+TEST(ViewerJpeg, RoundTripIsCloseAndQualityCounts) {
+  const int w = 160, h = 96;
+  std::string rgb(static_cast<std::size_t>(w) * h * 3, '\0');
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      auto* p = reinterpret_cast<std::uint8_t*>(rgb.data()) + 3 * (y * w + x);
+      p[0] = static_cast<std::uint8_t>(x * 255 / (w - 1));
+      p[1] = static_cast<std::uint8_t>(y * 255 / (h - 1));
+      p[2] = 90;
+    }
+  pp5::viewer::JpegEncoder enc;
+  const auto* px = reinterpret_cast<const std::uint8_t*>(rgb.data());
+  const std::string hi = enc.encode(px, w, h, 90), lo = enc.encode(px, w, h, 20);
+  EXPECT_EQ(static_cast<unsigned char>(hi[0]), 0xFF);  // SOI
+  EXPECT_EQ(static_cast<unsigned char>(hi[1]), 0xD8);
+  EXPECT_LT(lo.size(), hi.size());
+  const auto d = pp5::viewer::decodeJpeg(hi);
+  ASSERT_EQ(d.width, w);
+  ASSERT_EQ(d.height, h);
+  double se = 0.0;
+  for (std::size_t i = 0; i < rgb.size(); ++i) {
+    const double e = static_cast<double>(static_cast<std::uint8_t>(d.rgb[i])) - static_cast<std::uint8_t>(rgb[i]);
+    se += e * e;
+  }
+  const double psnr = 10.0 * std::log10(255.0 * 255.0 / (se / static_cast<double>(rgb.size())));
+  EXPECT_GT(psnr, 35.0);
+  EXPECT_THROW(pp5::viewer::decodeJpeg("not a jpeg"), pp5::InputError);
+  EXPECT_THROW(enc.encode(px, w, h, 0), pp5::InvariantError);
 }
 
 }  // namespace
