@@ -11,6 +11,7 @@
 #endif
 
 #include "core/error.hpp"
+#include "core/threads.hpp"
 
 namespace pp5 {
 
@@ -139,7 +140,7 @@ SampleLattice::SampleLattice(const Camera& camera, const Grid& grid, double step
   t0_.assign(static_cast<std::size_t>(W) * H, 0.0f);
   count_.assign(static_cast<std::size_t>(W) * H, 0);
   const Vec3 lo = boxMin(), hi = boxMax();
-  const int nt = threads > 0 ? threads : std::max(1, omp_get_max_threads());
+  const int nt = resolveThreads(threads);
 #pragma omp parallel num_threads(nt)
   {
     std::vector<double> rowIn(W), rowOut(W);

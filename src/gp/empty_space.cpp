@@ -7,12 +7,9 @@
 #include <omp.h>
 
 #include "core/error.hpp"
+#include "core/threads.hpp"
 
 namespace pp5::gp {
-
-namespace {
-int threadCount(int requested) { return requested > 0 ? requested : std::max(1, omp_get_max_threads()); }
-}  // namespace
 
 EmptySpaceMap::EmptySpaceMap(const ShadeBuffer& shade, int threads) : grid_(shade.grid()) {
   const Index3& d = grid_.dims;
@@ -24,7 +21,7 @@ EmptySpaceMap::EmptySpaceMap(const ShadeBuffer& shade, int threads) : grid_(shad
   occupied_.assign(n, 0);
   dist_.assign(n, 0);
   const std::int64_t slices = bdims_.z * bdims_.y;
-#pragma omp parallel for num_threads(threadCount(threads)) schedule(dynamic, 1)
+#pragma omp parallel for num_threads(resolveThreads(threads)) schedule(dynamic, 1)
   for (std::int64_t s = 0; s < slices; ++s)
     for (std::int64_t bi = 0; bi < bdims_.x; ++bi) scanBrick(shade, bi, s % bdims_.y, s / bdims_.y);
   computeDistances();

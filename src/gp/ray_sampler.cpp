@@ -18,6 +18,7 @@
 #include "gp/interpolator.hpp"
 #include "gp/opacity_correction.hpp"
 #include "core/simd.hpp"
+#include "core/threads.hpp"
 
 namespace pp5::gp {
 
@@ -25,8 +26,6 @@ using namespace simd;
 using opacity::correctLanes;
 
 namespace {
-
-int threadCount(int requested) { return requested > 0 ? requested : std::max(1, omp_get_max_threads()); }
 
 // One thread's output: a batch that goes to the sink when full or when the
 // tile ends.
@@ -392,7 +391,7 @@ void sampleAll(const ShadeBuffer& shade, const SampleLattice& lattice, const Ren
       clipHi[a] = std::min(clipHi[a], owned->hi(a));
     }
   }
-  const int nt = static_cast<int>(std::min<std::int64_t>(threadCount(settings.threads), workCount));
+  const int nt = static_cast<int>(std::min<std::int64_t>(resolveThreads(settings.threads), workCount));
 
 #pragma omp parallel num_threads(nt)
   {
@@ -520,7 +519,7 @@ void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const 
   // are the lattice's, bit for bit.
   const Vec3* dirs = dbuffer.rays().camera() == lattice.camera() ? dbuffer.touchedDirs() : nullptr;
   const Vec3 eye = lattice.camera().eye;
-  const int nt = std::max(1, std::min<int>(threadCount(settings.threads), static_cast<int>(work.size())));
+  const int nt = std::max(1, std::min<int>(resolveThreads(settings.threads), static_cast<int>(work.size())));
 
 #pragma omp parallel num_threads(nt)
   {

@@ -10,6 +10,7 @@
 
 #include "core/config.hpp"
 #include "core/error.hpp"
+#include "core/threads.hpp"
 
 namespace pp5::gp {
 
@@ -417,7 +418,7 @@ void shadeAll(const Volume& values, const TransferFunction& tf, const ShadeSetti
     case ScalarType::U8: fn = pickRow<LoadU8>(k, s.gradientOpacity); break;
   }
   PP5_CHECK(fn != nullptr);
-  const int threads = s.threads > 0 ? s.threads : std::max(1, omp_get_max_threads());
+  const int threads = resolveThreads(s.threads);
   shadeBoxes(c, fn, boxes, threads);
 }
 

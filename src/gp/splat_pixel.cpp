@@ -43,6 +43,7 @@
 #include "gp/fixed_point.hpp"
 #include "gp/pixel_kernels.hpp"
 #include "gp/hole_fill.hpp"
+#include "core/threads.hpp"
 
 namespace pp5::gp {
 
@@ -123,7 +124,7 @@ public:
 
 private:
   float* out() { return reinterpret_cast<float*>(out_.bytes.data()); }
-  int threadCount() const { return settings_.threads > 0 ? settings_.threads : std::max(1, omp_get_max_threads()); }
+  int threadCount() const { return resolveThreads(settings_.threads); }
   // Threads worth starting for `work` units of `grain` each, at most `limit`.
   // The result never depends on it: slabs and bricks decide who writes what.
   static int worthwhile(int limit, std::uint64_t work, std::uint64_t grain) {

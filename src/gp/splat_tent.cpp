@@ -72,6 +72,7 @@
 #include "gp/tent_kernel.hpp"
 #include "gp/tent_reconstructor.hpp"
 #include "gp/voxel_array.hpp"
+#include "core/threads.hpp"
 
 namespace pp5::gp {
 
@@ -87,7 +88,7 @@ TentReconstructor::TentReconstructor(const Grid& g, const ReconSettings& s)
   hl_ = s.kernelLateralMm;
   ha_ = s.kernelAxialMm;
   he_ = s.kernelElevationMm;
-  threads_ = s.threads > 0 ? s.threads : std::max(1, omp_get_max_threads());
+  threads_ = resolveThreads(s.threads);
   const auto n = static_cast<std::size_t>(g.voxelCount());
   // Volume::allocate, with huge pages asked for before the zero fill.
   checkGridFits(g, 4, "reconstruction output");

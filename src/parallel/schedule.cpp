@@ -216,12 +216,11 @@ gp::Box3 SlabLayout::reach(int g, int ghostVoxels, const gp::ReconSettings& reco
   return w.empty() ? w : gp::reconstructionReach(grid_, recon, w);
 }
 
-std::vector<int> gpsTouched(const SlabLayout& slabs, const gp::WorldBox& box, int ghostVoxels,
-                            const gp::ReconSettings& recon) {
+std::vector<int> gpsTouched(const Grid& grid, std::span<const gp::Box3> reaches, const gp::WorldBox& box) {
   std::vector<int> out;
   for (int a = 0; a < 3; ++a)
     if (!(box.lo[a] <= box.hi[a])) return out;  // empty or NaN
-  const Grid& g = slabs.grid();
+  const Grid& g = grid;
   // Per axis, the voxel indices whose world position (as Grid::voxelToWorld
   // computes it) lies in [lo, hi]: a contiguous range, since the position is
   // monotone in the index. A guess from the division, widened by one, is
@@ -245,8 +244,8 @@ std::vector<int> gpsTouched(const SlabLayout& slabs, const gp::WorldBox& box, in
     first[static_cast<std::size_t>(a)] = i0;
     last[static_cast<std::size_t>(a)] = i1;
   }
-  for (int k = 0; k < slabs.gps(); ++k) {
-    const gp::Box3 w = slabs.reach(k, ghostVoxels, recon);
+  for (int k = 0; k < static_cast<int>(reaches.size()); ++k) {
+    const gp::Box3& w = reaches[static_cast<std::size_t>(k)];
     if (w.empty()) continue;
     bool hit = true;
     for (int a = 0; a < 3 && hit; ++a)

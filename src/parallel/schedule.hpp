@@ -108,10 +108,9 @@ private:
 };
 
 // The GPs whose reconstruction a world box (gp::frameReach, gp::fillInReach)
-// can change, ascending: those with a voxel of their reach (SlabLayout::reach)
-// inside the box.
-std::vector<int> gpsTouched(const SlabLayout& slabs, const gp::WorldBox& box, int ghostVoxels,
-                            const gp::ReconSettings& recon);
+// can change, ascending: those with a voxel of their reach (reaches[g], as
+// SlabLayout::reach gives it, worked out once per run) inside the box.
+std::vector<int> gpsTouched(const Grid& grid, std::span<const gp::Box3> reaches, const gp::WorldBox& box);
 
 }  // namespace pp5::parallel
 

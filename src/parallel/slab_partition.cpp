@@ -46,10 +46,12 @@ public:
       : grid_(grid),
         slabs_(grid, layout.gps, s.split()),
         ghost_(s.ghostVoxels),
-        recon_(recon),
         workTile_(workTileSize(tiles)),
         // The pose-only frames rest on the tent kernel's reach (gp::frameReach).
-        places_(recon.method == gp::Method::Tent) {}
+        places_(recon.method == gp::Method::Tent) {
+    // What each GP's reconstruction depends on, once for the run.
+    for (int g = 0; g < layout.gps; ++g) reaches_.push_back(slabs_.reach(g, ghost_, recon));
+  }
 
   std::unique_ptr<gp::GpShare> share(int g) const override {
     const gp::Box3& owned = slabs_.ownedCells(g);
@@ -72,14 +74,14 @@ public:
   }
   bool placesFrames() const override { return places_; }
   std::vector<int> gpsReached(const gp::WorldBox& reach) const override {
-    return gpsTouched(slabs_, reach, ghost_, recon_);
+    return gpsTouched(grid_, reaches_, reach);
   }
 
 private:
   Grid grid_;
   SlabLayout slabs_;
   int ghost_;
-  gp::ReconSettings recon_;
+  std::vector<gp::Box3> reaches_;  // per GP: the voxels its reconstruction depends on
   int workTile_;
   bool places_;
 };

@@ -14,6 +14,7 @@
 #include "core/error.hpp"
 #include "pp/composite_kernels.hpp"
 #include "pp/half_float.hpp"
+#include "core/threads.hpp"
 
 namespace pp5::pp {
 
@@ -73,7 +74,6 @@ namespace {
 
 using namespace composite;
 
-int resolveThreads(int threads) { return threads > 0 ? threads : omp_get_max_threads(); }
 
 // Below this many rays a parallel region costs more than it saves.
 constexpr std::size_t kMinParallelRays = 512;
