@@ -5,8 +5,6 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
-#include <map>
-#include <tuple>
 
 #include <omp.h>
 

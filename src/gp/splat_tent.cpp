@@ -57,7 +57,6 @@
 #include <vector>
 
 #include <fmt/format.h>
-#include <glm/gtc/quaternion.hpp>
 #include <omp.h>
 #if defined(__linux__)
 #include <sys/mman.h>

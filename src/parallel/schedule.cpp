@@ -7,7 +7,6 @@
 #include <tuple>
 
 #include <fmt/format.h>
-#include <glm/gtc/quaternion.hpp>
 
 #include "core/error.hpp"
 

@@ -121,7 +121,6 @@ private:
   std::chrono::steady_clock::time_point start_;
   StageClock clock_;
   std::uint32_t epoch_ = 0;
-  std::uint64_t lastFrame_ = 0;
 
   ControlState state_;
   TileGrid tiles_;
@@ -236,7 +235,6 @@ private:
     clock_.start(kReceive);
     const FrameMsg& fm = m.as<FrameMsg>();
     epoch_ = fm.h.epoch;
-    lastFrame_ = fm.h.frame;
     std::array<double, 16> rm;
     std::copy(std::begin(fm.imageToReference), std::end(fm.imageToReference), rm.begin());
     const Mat4 pose = fromRowMajor(rm);
