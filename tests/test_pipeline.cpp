@@ -119,64 +119,80 @@ using namespace pp5;
 // through the sphere's core shows the sphere's sample, the shade voxel's
 // premultiplied colour after the opacity correction; the lit disc has the
 // sphere's radius on screen.
+// MIP and additive composite grey values: a sphere of value v shows v
+// through the identity window whatever the transfer function and the step,
+// and its additive image is v times the chord, also whatever the step.
 TEST(AnalyticImage, MipOfABrightSphereHasItsValueAndRadius) {
   Grid g;
   g.dims = Index3(64);
   g.spacing = Vec3(1.0);
   g.origin = Vec3(-31.5);
   const double R = 15.0;
-  Volume v;
-  v.allocate(g, ScalarType::F32);
-  for (std::int64_t k = 0; k < 64; ++k)
-    for (std::int64_t j = 0; j < 64; ++j)
-      for (std::int64_t i = 0; i < 64; ++i)
-        v.setValue(g.linear(i, j, k), glm::length(g.voxelToWorld(Vec3(i, j, k))) <= R ? 200.0 : 0.0);
+  for (const double value : {200.0, 77.0}) {
+    Volume v;
+    v.allocate(g, ScalarType::F32);
+    for (std::int64_t k = 0; k < 64; ++k)
+      for (std::int64_t j = 0; j < 64; ++j)
+        for (std::int64_t i = 0; i < 64; ++i)
+          v.setValue(g.linear(i, j, k), glm::length(g.voxelToWorld(Vec3(i, j, k))) <= R ? value : 0.0);
 
-  TransferFunctionSettings tfs;
-  tfs.opacity = {{0, 0, 0, 0}, {100, 0, 0, 0}, {101, 0.5, 0, 0}, {255, 0.5, 0, 0}};
-  tfs.colour = {{0, 0, 0, 0}, {255, 1, 1, 1}};
-  const TransferFunction tf(tfs);
-  gp::ShadeSettings ss;
-  ss.mode = gp::ShadeMode::Value;
-  RenderSettings rs;
-  rs.width = rs.height = 128;
-  rs.projection = pp5::Projection::Orthographic;
-  rs.compositing = {pp5::CompositeMode::Mip};
-  rs.stepMm = 0.5;
-  rs.opacityUnitMm = 1.0;
-  rs.azimuthDeg = 30.0;
-  rs.elevationDeg = 20.0;
-  const Camera cam = makeCamera(rs, g);
-  gp::ShadeBuffer shade(g);
-  gp::shade(v, tf, ss, cam, gp::Box3{Index3(0), g.dims}, shade);
-  const SampleLattice lattice(cam, g, rs.step(g), rs.maxSamples, 2);
-  pp::RayCache cache(TileRect{0, 0, rs.width, rs.height}, rs.width, lattice.counts(), pp::RayCacheSettings{},
-                     pp::CompositeMode::Mip, 2);
-  gp::SampleCollector collect;
-  gp::sampleAll(shade, lattice, rs, collect);
-  const auto samples = collect.samples();
-  cache.put(samples.data(), samples.size());
-  cache.composite();
-  const pp::TileImage& im = cache.image();
-
-  // The sample deep inside: the shade voxel (value 200: colour 200/255, alpha
-  // 0.5, premultiplied and rounded to 8 bits), opacity-corrected for 0.5 mm.
-  const gp::ShadeVoxel inside = shade.at(g.linear(32, 32, 32));
-  const float a = inside.a / 255.0f, r = inside.r / 255.0f;
-  const float aStep = gp::correctOpacity(a, 0.5f);
-  const float expected = r * aStep / a;
-  const float centre = im.pixel(rs.width / 2, rs.height / 2)[0];
-  EXPECT_NEAR(centre, expected, 1e-3f);  // half-precision storage
-
-  // The disc: pixels at least half as bright as the centre.
-  const double mmPerPixel = cam.orthoHeightMm / rs.height;
-  std::size_t lit = 0;
-  for (int y = 0; y < rs.height; ++y)
-    for (int x = 0; x < rs.width; ++x) lit += im.pixel(x, y)[0] >= 0.5f * centre ? 1 : 0;
-  const double radiusPx = std::sqrt(static_cast<double>(lit) / 3.14159265358979323846);
-  // The voxelised sphere's edge is within a voxel of R.
-  std::printf("MIP sphere: centre %.4f (expected %.4f), radius %.2f mm (R %.1f)\n", centre, expected, radiusPx * mmPerPixel, R);
-  EXPECT_NEAR(radiusPx * mmPerPixel, R, 1.0) << lit << " pixels lit";
+    // A transfer function that would hide the sphere: MIP must not care.
+    TransferFunctionSettings tfs;
+    tfs.opacity = {{0, 0, 0, 0}, {230, 0, 0, 0}, {231, 0.5, 0, 0}, {255, 0.5, 0, 0}};
+    tfs.colour = {{0, 0, 0, 0}, {255, 1, 0.2, 0.2}};
+    const TransferFunction tf(tfs);
+    double additiveAtFirstStep = 0.0;
+    for (const double step : {0.25, 0.5, 0.9, 1.7}) {
+      for (const auto mode : {pp5::CompositeMode::Mip, pp5::CompositeMode::Additive}) {
+        gp::ShadeSettings ss;  // Phong: MIP must not care either
+        ss.greyValues = pp5::compositesGreyValues(mode);  // what the pipeline sets for a grey-value mode
+        RenderSettings rs;
+        rs.width = rs.height = 128;
+        rs.projection = pp5::Projection::Orthographic;
+        rs.compositing = {mode};
+        rs.stepMm = step;
+        rs.opacityUnitMm = 1.0;
+        rs.azimuthDeg = 30.0;
+        rs.elevationDeg = 20.0;
+        const Camera cam = makeCamera(rs, g);
+        gp::ShadeBuffer shade(g);
+        gp::shade(v, tf, ss, cam, gp::Box3{Index3(0), g.dims}, shade);
+        const SampleLattice lattice(cam, g, rs.step(g), rs.maxSamples, 2);
+        pp::RayCacheSettings cs;
+        cs.additiveScale = 1.0 / 64.0;  // the mean over 64 mm
+        pp::RayCache cache(TileRect{0, 0, rs.width, rs.height}, rs.width, lattice.counts(), cs, mode, 2);
+        gp::SampleCollector collect;
+        gp::sampleAll(shade, lattice, rs, collect);
+        const auto samples = collect.samples();
+        cache.put(samples.data(), samples.size());
+        cache.composite();
+        const pp::TileImage& im = cache.image();
+        const std::vector<std::uint8_t> rgb = pp::toRgb8(im);
+        const std::size_t mid = (static_cast<std::size_t>(rs.height / 2) * rs.width + rs.width / 2) * 3;
+        if (mode == pp5::CompositeMode::Mip) {
+          // The displayed grey level is the sphere's value, exactly.
+          EXPECT_EQ(rgb[mid], static_cast<int>(value)) << "step " << step;
+          EXPECT_EQ(rgb[mid + 1], rgb[mid]);
+          // The disc: pixels at least half as bright as the centre.
+          const float centre = im.pixel(rs.width / 2, rs.height / 2)[0];
+          const double mmPerPixel = cam.orthoHeightMm / rs.height;
+          std::size_t lit = 0;
+          for (int y = 0; y < rs.height; ++y)
+            for (int x = 0; x < rs.width; ++x) lit += im.pixel(x, y)[0] >= 0.5f * centre ? 1 : 0;
+          const double radiusPx = std::sqrt(static_cast<double>(lit) / 3.14159265358979323846);
+          std::printf("MIP sphere of %g, step %.2f mm: centre %.2f, radius %.2f mm (R %.1f)\n", value, step,
+                      255.0 * centre, radiusPx * mmPerPixel, R);
+          EXPECT_NEAR(radiusPx * mmPerPixel, R, 1.0) << lit << " pixels lit";
+        } else {
+          // Additive at the centre: value x chord (2R, within a voxel) x scale, the same for every step.
+          const double got = 255.0 * im.pixel(rs.width / 2, rs.height / 2)[0];
+          EXPECT_NEAR(got, value * 2.0 * R / 64.0, value * 1.5 / 64.0) << "step " << step;
+          if (additiveAtFirstStep == 0.0) additiveAtFirstStep = got;
+          EXPECT_NEAR(got, additiveAtFirstStep, 0.03 * additiveAtFirstStep) << "step " << step;
+        }
+      }
+    }
+  }
 }
 
 }  // namespace

@@ -169,20 +169,27 @@ TEST_P(Analytic, UniformRunOverAdditiveMip) {
     EXPECT_GT(exactError, 0.015);
   }
 
+  // Additive and MIP read grey-value samples (r = g = b = v / 255, a = v /
+  // 255 times the step): additive shows the sum of a times the scale, MIP the
+  // largest r, each through the value window, as premultiplied white.
   RayCache add(TileRect{0, 0, 1, 1}, 1, counts, s, CompositeMode::Additive);
   add.put(run.data(), run.size());
   add.composite();
-  EXPECT_NEAR(add.image().rgba[3], 0.2 * n * aq, 0.2 * n * aq * 1e-5);
-  EXPECT_NEAR(add.image().rgba[0], 0.2 * n * rq, 0.2 * n * rq * 1e-5);
+  const double sum = 0.2 * n * aq;  // 0.6: inside the identity window
+  for (int c = 0; c < 4; ++c) EXPECT_NEAR(add.image().rgba[c], sum, sum * 1e-5) << c;
+  add.setValueWindow(0.25 * 255, 0.75 * 255);
+  add.composite();
+  EXPECT_NEAR(add.image().rgba[0], (sum - 0.25) / 0.5, 1e-5);
 
-  // MIP of a run with one brighter sample is that sample, as stored.
+  // MIP of a run with one brighter sample is that sample's r, as stored.
   run[137] = sample(0, 137, 0.04f, 0.9f);
   RayCache mip(TileRect{0, 0, 1, 1}, 1, counts, s, CompositeMode::Mip);
   mip.put(run.data(), run.size());
   mip.composite();
-  EXPECT_EQ(mip.image().rgba[3], quantised(f, run[137].a));
-  EXPECT_EQ(mip.image().rgba[0], quantised(f, run[137].r));
-  EXPECT_EQ(mip.image().rgba[2], quantised(f, run[137].b));
+  const double top = quantised(f, run[137].r);
+  for (int c = 0; c < 4; ++c) EXPECT_NEAR(mip.image().rgba[c], top, 1e-6) << c;
+  EXPECT_THROW(mip.setValueWindow(-1.0, 255.0), pp5::InputError);
+  EXPECT_THROW(mip.setValueWindow(100.0, 100.0), pp5::InputError);
 }
 
 TEST_P(Analytic, EarlyTerminationStopsWithinOneMinusThreshold) {
@@ -376,9 +383,12 @@ TEST(Incremental, BlockArithmeticIsTheDocumentedOrder) {
         }
       P acc = lane[0];
       for (int j = 1; j < 4; ++j) fold(acc, lane[j].r, lane[j].g, lane[j].b, lane[j].w);
-      float want[4] = {acc.r, acc.g, acc.b, m == CompositeMode::Over ? 1.0f - acc.w : acc.w};
-      if (m == CompositeMode::Additive)
-        for (float& v : want) v = std::min(1.0f, v * 0.01f);
+      float want[4] = {acc.r, acc.g, acc.b, 1.0f - acc.w};
+      if (m != CompositeMode::Over) {  // grey: the largest r, or the sum of a times the scale, windowed [0, 255]
+        const float grey = m == CompositeMode::Mip ? acc.r * 255.0f : acc.w * 255.0f * 0.01f;
+        const float v = std::min(1.0f, std::max(0.0f, (grey - 0.0f) * (1.0f / 255.0f)));
+        for (float& x : want) x = v;
+      }
       ASSERT_EQ(std::memcmp(want, c.image().pixel(0, 0), 16), 0) << pp5::pp::compositeModeName(m) << " n " << n;
     }
 }

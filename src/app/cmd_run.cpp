@@ -9,7 +9,9 @@
 #include <cstdio>
 #include <filesystem>
 #include <memory>
+#include <deque>
 #include <numeric>
+#include <thread>
 
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
@@ -25,7 +27,9 @@
 #include "core/volume_io.hpp"
 #include "host/acquisition.hpp"
 #include "host/host_rank.hpp"
+#include "host/live_view.hpp"
 #include "host/outputs.hpp"
+#include "host/recorder.hpp"
 #include "parallel/parallel_settings.hpp"
 #include "ranks/gp_rank.hpp"
 #include "ranks/pp_rank.hpp"
@@ -43,6 +47,8 @@ struct RunOptions {
   std::vector<std::string> overrides;
   bool serial = false;
   bool verify = false;
+  std::string view;  // --view [ADDR:]PORT
+  bool serve = false;
   int expectRanks = 0;
   int gps = -1, pps = -1;
 };
@@ -59,6 +65,120 @@ host::Preprocess preprocessOf(const Settings& s) {
   return p;
 }
 
+std::atomic<bool> gInterrupted{false};
+extern "C" void onInterrupt(int) { gInterrupted = true; }
+
+void checkView(const Settings& s) {
+  if (s.view.serve && s.view.listen.empty())
+    throw InputError("view.serve (--serve) keeps the viewer's final volume live: give --view [ADDR:]PORT too");
+}
+
+// The serial run's side of the live viewer: what the host rank does for the
+// distributed pipeline, for the one process.
+class SerialViewer {
+public:
+  SerialViewer(const Settings& s, const Grid& grid, serial::SerialPipeline& pipe, const std::string& dir)
+      : s_(s), grid_(grid), pipe_(pipe), dir_(dir), cur_(parallel::makeControlState(s.render, s.shading, s.tf)) {
+    if (s.view.listen.empty()) return;
+    live_ = std::make_unique<host::LiveView>(s.view, grid, s.render, s.recon, s.tf, cur_);
+    std::printf("viewer: open %s\n", live_->url().c_str());
+    std::fflush(stdout);
+  }
+  explicit operator bool() const { return live_ != nullptr; }
+  host::LiveView& live() { return *live_; }
+
+  void frame(const Frame& f, const Mat4& pose, double t, std::chrono::steady_clock::time_point arrival, double ms) {
+    if (!live_) return;
+    live_->frame(f, pose, frames_, t, arrival);
+    if (recorder_) {
+      Frame r = f;
+      std::erase_if(r.transforms, [](const FrameTransform& x) { return x.name == "ImageToReference"; });
+      r.transforms.push_back({"ImageToReference", pose, true});
+      recorder_->write(r);
+    }
+    ++frames_;
+    frameMs_.push_back(ms);
+    live_->image(pipe_.image().rgba, pipe_.image().width, pipe_.image().height, epoch_,
+                 static_cast<std::int64_t>(frames_) - 1);
+    // Paused: the source waits here.
+    while (serve() && !gInterrupted) std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
+
+  // Applies what the page asks; true while it asks for a pause.
+  bool serve() {
+    if (!live_) return false;
+    const host::LiveWanted w = live_->wanted();
+    if (const std::uint32_t ch = parallel::controlChanges(cur_, w.state)) {
+      host::applyControl(pipe_, ch, w.state, s_.render, grid_);
+      cur_ = w.state;
+      live_->epochStarted(++epoch_, cur_);
+      live_->image(pipe_.image().rgba, pipe_.image().width, pipe_.image().height, epoch_,
+                   static_cast<std::int64_t>(frames_) - 1);
+    }
+    if (w.recording && !recorder_) {
+      const std::string path = (fs::path(dir_) / fmt::format("recording-{}.mha", ++recordings_)).string();
+      recorder_ = std::make_unique<host::Recorder>(path);
+      live_->recordingTo(path);
+    } else if (!w.recording && recorder_) {
+      recorder_.reset();
+      live_->recordingTo("");
+    }
+    if (frames_ > 0 && live_->wantsVolume()) live_->volume(pipe_.reconstructor().output());
+    const auto now = std::chrono::steady_clock::now();
+    if (now - lastFigures_ > std::chrono::milliseconds(250)) {
+      window_.emplace_back(now, frames_);
+      while (window_.size() > 9) window_.pop_front();
+      lastFigures_ = now;
+      host::LiveFigures f;
+      const double span = std::chrono::duration<double>(now - window_.front().first).count();
+      if (span > 0) f.framesPerS = f.imagesPerS = static_cast<double>(frames_ - window_.front().second) / span;
+      std::vector<double> last(frameMs_.end() - std::min<std::ptrdiff_t>(90, std::ssize(frameMs_)), frameMs_.end());
+      std::sort(last.begin(), last.end());
+      if (!last.empty()) {
+        f.latencyMedianMs = last[last.size() / 2];
+        f.latencyP95Ms = last[std::min(last.size() - 1, static_cast<std::size_t>(0.95 * last.size()))];
+      }
+      f.frames = frames_;
+      f.gpLoad = f.ppLoad = 1.0;  // one process does it all
+      live_->figures(f);
+    }
+    return w.paused;
+  }
+
+  void ended() {
+    if (!live_) return;
+    recorder_.reset();
+    live_->inputEnded();
+    serve();
+  }
+
+  // After the input: the page steers the final volume until Ctrl-C.
+  void serveFinal() {
+    if (!live_ || !live_->serve()) return;
+    std::printf("viewer: the final volume stays live at %s until Ctrl-C\n", live_->url().c_str());
+    std::fflush(stdout);
+    while (!gInterrupted) {
+      serve();
+      std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    }
+  }
+
+private:
+  const Settings& s_;
+  Grid grid_;
+  serial::SerialPipeline& pipe_;
+  std::string dir_;
+  comm::ControlState cur_;
+  std::unique_ptr<host::LiveView> live_;
+  std::unique_ptr<host::Recorder> recorder_;
+  int recordings_ = 0;
+  std::uint32_t epoch_ = 0;
+  std::uint64_t frames_ = 0;
+  std::vector<double> frameMs_;
+  std::deque<std::pair<std::chrono::steady_clock::time_point, std::uint64_t>> window_;
+  std::chrono::steady_clock::time_point lastFigures_{};
+};
+
 double median(std::vector<double> v) {
   if (v.empty()) return 0.0;
   std::sort(v.begin(), v.end());
@@ -70,8 +190,11 @@ int runSerial(const RunOptions& o) {
   ConfigSchema schema;
   registerAll(schema, s);
   loadSettings(schema, o.file, o.overrides);
+  checkView(s);
   const std::string dir = o.outDir.empty() ? s.output.dir : o.outDir;
   makeOutputDir(dir);
+  std::signal(SIGINT, onInterrupt);
+  std::signal(SIGTERM, onInterrupt);
 
   Source src = makeSource(s);
   serial::PipelineSettings ps{s.recon, s.render, s.shading, s.tf, s.cache};
@@ -89,6 +212,7 @@ int runSerial(const RunOptions& o) {
     settingsFile.commit();
   }
 
+  SerialViewer viewer(s, src.grid, pipe, dir);
   const int w = s.render.width, h = s.render.height;
   host::StatsCsv stats((fs::path(dir) / "stats.csv").string(),
                        {"frame", "recon_ms", "shade_ms", "sample_ms", "composite_ms", "total_ms", "fill_in_slices",
@@ -103,6 +227,7 @@ int runSerial(const RunOptions& o) {
   const host::Preprocess pre = preprocessOf(s);
   Frame cropped;
   src.run([&](const Frame& in, const Mat4& inPose, double t) {
+    const auto arrival = Clock::now();
     Mat4 pose = inPose;
     const Frame* fp = &in;
     if (!pre.identity()) {
@@ -121,6 +246,7 @@ int runSerial(const RunOptions& o) {
     shades.push_back(st.shadeMs);
     samplings.push_back(st.sampleMs);
     composites.push_back(st.compositeMs);
+    viewer.frame(*fp, pose, t, arrival, std::chrono::duration<double, std::milli>(Clock::now() - arrival).count());
     if (done % static_cast<std::uint64_t>(s.run.buildupEvery) == 0) buildup.add(pp::toRgb8(pipe.image()).data());
     ++done;
     const auto now = Clock::now();
@@ -135,19 +261,23 @@ int runSerial(const RunOptions& o) {
 
   // The end of the sweep: final passes, then what is shown of the final volume.
   pipe.finish();
+  viewer.ended();
   buildup.add(pp::toRgb8(pipe.image()).data());
   buildup.close();
   std::vector<std::string> wrote = {"buildup.gif"};
+  const pp::CompositeMode liveMode = pipe.liveMode();
   for (const pp::CompositeMode m : s.render.compositing) {
     const std::string mode(enumName(m));
+    // MIP and additive need grey-value samples, over classified colour ones.
+    if (compositesGreyValues(m) != compositesGreyValues(pipe.liveMode())) pipe.setLiveMode(m);
     const pp::TileImage im = m == pipe.liveMode() ? pipe.image() : pipe.compositeFull(m);
     const std::string name = "final_" + mode + ".png";
     writeRgbPng((fs::path(dir) / name).string(), w, h, pp::toRgb8(im).data());
     wrote.push_back(name);
   }
+  pipe.setLiveMode(liveMode);
   if (s.run.mpr) {
-    const Index3 c = pipe.reconstructor().grid().dims / Index3(2);
-    for (const auto& p : host::writeMpr(pipe.reconstructor().output(), c, (fs::path(dir) / "mpr").string()))
+    for (const auto& p : host::writeMpr(pipe.reconstructor().output(), s.run.mprLook, (fs::path(dir) / "mpr").string()))
       wrote.push_back(fs::path(p).filename().string());
   }
   if (s.run.volume) {
@@ -171,6 +301,7 @@ int runSerial(const RunOptions& o) {
   }
   wrote.push_back("stats.csv");
   wrote.push_back("settings.toml");
+  viewer.serveFinal();
 
   const double seconds = std::chrono::duration<double>(Clock::now() - start).count();
   std::printf("run: %llu frames through the serial pipeline in %.1f s\n", static_cast<unsigned long long>(done),
@@ -186,8 +317,6 @@ int runSerial(const RunOptions& o) {
 
 // ---- the distributed pipeline (under mpirun) --------------------------------
 
-std::atomic<bool> gInterrupted{false};
-extern "C" void onInterrupt(int) { gInterrupted = true; }
 
 // run.script entries: "AFTER_FRAME key = value; key = value".
 std::vector<host::ScriptedControl> parseScript(const Settings& base) {
@@ -254,6 +383,7 @@ int runDistributed(const RunOptions& o) {
     if (o.gps >= 0) overrides.push_back(fmt::format("parallel.gps={}", o.gps));
     if (o.pps >= 0) overrides.push_back(fmt::format("parallel.pps={}", o.pps));
     loadSettings(schema, o.file, overrides);
+    checkView(s);
     if (o.expectRanks > 0 && size != o.expectRanks)
       throw InputError(fmt::format("--expect-ranks {}: the job has {} ranks (was it started by another MPI's "
                                    "launcher?)",
@@ -310,10 +440,12 @@ int runDistributed(const RunOptions& o) {
         j.orbitFrames = s.run.orbitFrames;
         j.orbitFps = s.run.orbitFps;
         j.mpr = s.run.mpr;
+        j.mprLook = s.run.mprLook;
         j.volume = s.run.volume;
         j.verify = o.verify;
         j.memoryLimitBytes = s.grid.memoryLimitBytes();
         j.interrupt = &gInterrupted;
+        j.view = s.view;
         spdlog::info("run: {}; grid {}x{}x{} of {} mm; {}x{} image; {} ranks: 1 host, {} GP ({} partition), {} PP "
                      "({} tiles of {} px), compositing on {}",
                      j.source.description, grid.dims.x, grid.dims.y, grid.dims.z, grid.spacing.x, s.render.width,
@@ -370,6 +502,11 @@ void addRunOptions(CLI::App* cmd, const std::shared_ptr<RunOptions>& o) {
                 "Under mpirun: also run the serial pipeline on the host and require its images to be bitwise equal: "
                 "every image in lockstep; in tick mode the image once every frame is in, and those after it");
   cmd->add_option("--expect-ranks", o->expectRanks, "Refuse to run unless the job has exactly this many ranks");
+  cmd->add_option("--view", o->view,
+                  "Serve the live viewer at [ADDR:]PORT (address 127.0.0.1 unless given; sets view.listen); its URL is "
+                  "printed first");
+  cmd->add_flag("--serve", o->serve,
+                "Keep the final volume interactive in the viewer after the input ends, until Ctrl-C (view.serve)");
 }
 
 // --source becomes overrides placed before the user's own --set ones.
@@ -377,6 +514,8 @@ int runWithSource(RunOptions o, const std::string& record) {
   std::vector<std::string> extra;
   if (!o.source.empty()) extra = sourceOverrides(o.source);
   if (!record.empty()) extra.push_back(fmt::format("run.record=\"{}\"", record));
+  if (!o.view.empty()) extra.push_back(fmt::format("view.listen=\"{}\"", o.view));
+  if (o.serve) extra.push_back("view.serve=true");
   o.overrides.insert(o.overrides.begin(), extra.begin(), extra.end());
   return runCommand(o);
 }

@@ -94,6 +94,12 @@ void registerAll(ConfigSchema& schema, Settings& s) {
   schema.option("run.orbit_fps", &s.run.orbitFps, 12.0, 0.5, 100.0, "Frame rate of `orbit.gif`.");
   schema.option("run.mpr", &s.run.mpr, true,
                 "Write three orthogonal slices through the final volume's centre (`mpr_axial.png`, ...).");
+  schema.option("run.mpr_size", &s.run.mprLook.longSide, 512, 8, 8192,
+                "Pixels on the longer side of each written slice (trilinear; the other side keeps the proportions).");
+  schema.option("run.mpr_window", &s.run.mprLook.window, 255.0, 1.0, 65535.0,
+                "Grey levels the written slices map from black to white.");
+  schema.option("run.mpr_level", &s.run.mprLook.level, 127.5, -65535.0, 65535.0,
+                "The grey level at the middle of the written slices' window.");
   schema.option("run.volume", &s.run.volume, true, "Write the final reconstructed volume (`volume.mha`, 8 bit).");
   schema.option("run.script", &s.run.script, {},
                 "Control changes by frame (distributed run): each entry is \"AFTER_FRAME key = value; key = value\" (the change follows the first frame sent whose source index is at least AFTER_FRAME), "
@@ -114,6 +120,7 @@ void registerAll(ConfigSchema& schema, Settings& s) {
                 "A live source's queue is full: drop the oldest queued frame, or the new one. Drops are counted.");
 
   parallel::registerOptions(schema, s.parallel);
+  host::registerOptions(schema, s.view);
 
   schema.section("output", "Where results are written.");
   schema.option("output.dir", &s.output.dir, "out/doll", "Output folder, unless the command line gives `-o`.");

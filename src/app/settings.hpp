@@ -12,6 +12,8 @@
 #include "gp/reconstruction.hpp"
 #include "gp/shading.hpp"
 #include "host/acquisition.hpp"
+#include "host/live_view.hpp"
+#include "host/slices.hpp"
 #include "parallel/parallel_settings.hpp"
 #include "pp/ray_cache.hpp"
 #include "sim/sim_settings.hpp"
@@ -83,6 +85,7 @@ struct RunSettings {
   int orbitFrames = 36;              // frames of the rotating movie loop; 0 = none
   double orbitFps = 12.0;
   bool mpr = true;                   // three orthogonal slices through the volume
+  host::SliceLook mprLook;           // ... at this size, window and level
   bool volume = true;                // the reconstructed volume as .mha
   // Scripted control changes: "AFTER_FRAME key = value; key = value".
   std::vector<std::string> script;
@@ -109,6 +112,7 @@ struct Settings {
   RunSettings run;
   parallel::ParallelSettings parallel;
   OutputSettings output;
+  host::ViewSettings view;
 };
 
 void registerAll(ConfigSchema& schema, Settings& s);

@@ -114,6 +114,10 @@ struct ControlState {
   // An orbit of the settings' camera (the rotating loop): axis and degrees.
   double orbitAxis[3] = {0, 0, 1};
   double orbitDeg = 0.0;
+  // The viewer's drag (render.step_scale, render.pan_mm; not options).
+  double stepScale = 1.0;
+  double panMm[2] = {0.0, 0.0};
+  double valueWindow[2] = {0.0, 255.0};  // render.value_window
   // Shading (render.shading.*)
   double ambient = 0, diffuse = 0, specular = 0, shininess = 0;
   double lightDirection[3] = {};

@@ -11,7 +11,7 @@
 namespace pp5 {
 
 double RenderSettings::step(const Grid& g) const {
-  return stepMm > 0.0 ? stepMm : 0.5 * std::min(g.spacing.x, std::min(g.spacing.y, g.spacing.z));
+  return stepScale * (stepMm > 0.0 ? stepMm : 0.5 * std::min(g.spacing.x, std::min(g.spacing.y, g.spacing.z)));
 }
 
 void registerOptions(ConfigSchema& c, RenderSettings& s) {
@@ -34,7 +34,11 @@ void registerOptions(ConfigSchema& c, RenderSettings& s) {
            "step as 1 - (1 - alpha)^(step / unit).");
   enumListOption(c, "render.compositing", &s.compositing, {CompositeMode::Over, CompositeMode::Mip},
             "Composition modes to render, the first one live: `over` (front to back, Levoy), `additive` "
-            "(sum of the samples' premultiplied colours), `mip` (maximum intensity projection).");
+            "(the sum of the grey values along the ray times the step, times render.cache.additive_scale), `mip` "
+            "(maximum intensity projection: the largest grey value along the ray). `mip` and `additive` "
+            "composite grey values, not the transfer function's colours, shown through render.value_window.");
+  c.option("render.value_window", &s.valueWindow, {0.0, 255.0}, 0.0, 1e6,
+           "MIP and additive: the grey levels shown as black and as white ([0, 255]: the grey value itself).");
   c.option("render.threads", &s.threads, 0, 0, 1024, "Threads for shading, sampling and compositing; 0 = every core.");
 }
 
@@ -53,6 +57,11 @@ Camera makeCamera(const RenderSettings& s, const Grid& g) {
   c.eye = centre + dir * (radius * s.distance);
   c.up = Vec3(0, 0, 1);
   c.orthoHeightMm = 2.0 * radius;
+  if (s.panMm[0] != 0.0 || s.panMm[1] != 0.0) {
+    const Vec3 shift = s.panMm[0] * c.right() + s.panMm[1] * c.trueUp();
+    c.target += shift;
+    c.eye += shift;
+  }
   return c;
 }
 

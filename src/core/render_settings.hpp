@@ -15,6 +15,9 @@ class ConfigSchema;
 
 // How a ray's samples combine into a pixel (the pixel processor composites).
 enum class CompositeMode : std::uint8_t { Over, Additive, Mip };
+// MIP and additive composite grey values, shown through render.value_window;
+// "over" composites classified, shaded colour.
+inline bool compositesGreyValues(CompositeMode m) { return m != CompositeMode::Over; }
 
 struct RenderSettings {
   int width = 512;
@@ -38,6 +41,13 @@ struct RenderSettings {
   // Composition modes, the first one live.
   std::vector<CompositeMode> compositing = {CompositeMode::Over, CompositeMode::Mip};
   int threads = 0;  // 0 = every core
+  // Set while the user drags the view (not options): the step times this
+  // (a coarser, faster lattice), and the look-at point moved by this many mm
+  // along the camera's right and up.
+  double stepScale = 1.0;
+  double panMm[2] = {0.0, 0.0};
+  // MIP and additive: the grey levels shown as black and white.
+  glm::dvec2 valueWindow{0.0, 255.0};
 
   double step(const Grid& g) const;
 };

@@ -8,6 +8,7 @@ GpUpdate::GpUpdate(const Grid& grid, const GpUpdateSettings& settings, const Cam
                    std::unique_ptr<GpShare> share)
     : grid_(grid), s_(settings), share_(std::move(share)), tf_(settings.tf), camera_(camera) {
   s_.shading.threads = s_.render.threads;
+  s_.shading.greyValues = compositesGreyValues(s_.render.compositing.front());
   // The reconstruction, then the shade buffer (4 bytes a voxel) on top of it.
   recon_ = makeReconstructor(grid_, s_.recon, s_.memoryLimitBytes, "reconstruction grid ([grid])");
   checkGridFits(grid_, 4, "shade buffer ([grid])", s_.memoryLimitBytes);
@@ -32,8 +33,9 @@ void GpUpdate::sampleChanged(SampleSink& sink) {
   sampleRegion(shade_, lattice_, dbuf_, s_.render, sink, &space_, share_->sampler(), &spaceBefore_);
 }
 
-void GpUpdate::setCamera(const Camera& camera) {
+void GpUpdate::setCamera(const Camera& camera, double stepScale) {
   camera_ = camera;
+  s_.render.stepScale = stepScale;
   lattice_ = SampleLattice(camera_, grid_, s_.render.step(grid_), s_.render.maxSamples, s_.render.threads);
 }
 
@@ -41,7 +43,14 @@ void GpUpdate::setStyle(const ShadeSettings& shading, const TransferFunctionSett
   s_.shading = shading;
   s_.shading.threads = s_.render.threads;
   s_.tf = tf;
+  s_.shading.greyValues = compositesGreyValues(s_.render.compositing.front());
   tf_ = TransferFunction(tf);
+}
+
+void GpUpdate::setLiveMode(CompositeMode m) {
+  std::erase(s_.render.compositing, m);
+  s_.render.compositing.insert(s_.render.compositing.begin(), m);
+  s_.shading.greyValues = compositesGreyValues(m);
 }
 
 void GpUpdate::reshadeAll(bool viewOnly) {

@@ -95,9 +95,13 @@ public:
   const DBuffer& dbuffer() const { return dbuf_; }
 
   // A new camera: the lattice is rebuilt. Call resampleAll() after it.
-  void setCamera(const Camera& camera);
+  // stepScale: the lattice's step times this (render.step_scale: a coarser view while the user drags).
+  void setCamera(const Camera& camera, double stepScale = 1.0);
   // New shading or transfer function. Call resampleAll() after it.
   void setStyle(const ShadeSettings& shading, const TransferFunctionSettings& tf);
+  // A new live composition mode: what reshadeAll and the sampler make next
+  // (grey values for MIP and additive, classified colour for over).
+  void setLiveMode(CompositeMode m);
   // Re-shades everything this GP shades and rebuilds the empty-space map;
   // viewOnly: only the view changed, so where the share allows, only the
   // visible voxels get new light and the map stays.

@@ -59,7 +59,11 @@ private:
 // runs over four samples at a time (it is most of a sample's arithmetic).
 class RayStage {
 public:
-  explicit RayStage(int maxSamples, float exponent) : e_(exponent) {
+  // grey: the shade buffer holds grey values (ShadeSettings::greyValues), and
+  // a sample is (v, v, v, v * exponent) with v the interpolated grey level /
+  // 255: MIP takes the largest v, additive sums v times the step in units of
+  // render.opacity_unit_mm, so neither depends on the step.
+  RayStage(int maxSamples, float exponent, bool grey) : e_(exponent), grey_(grey) {
     const std::size_t cap = static_cast<std::size_t>(maxSamples) + 4;
     rgba_.resize(4 * cap);
     a_.resize(cap);
@@ -75,6 +79,18 @@ public:
   }
   void emit(std::uint32_t pixel, Batcher& out) {
     if (n_ == 0) return;
+    if (grey_) {
+      for (std::size_t i = 0; i < n_;) {
+        std::size_t m;
+        RaySample* dst = out.append(n_ - i, m);
+        for (std::size_t j = 0; j < m; ++j, ++i) {
+          const float v = rgba_[4 * i] * (1.0f / 255.0f);
+          dst[j] = RaySample{pixel, k_[i], v, v, v, v * e_};
+        }
+      }
+      n_ = 0;
+      return;
+    }
     for (std::size_t i = n_; i % 4 != 0; ++i) a_[i] = 0.0f;
     for (std::size_t i = 0; i < n_; i += 4) {
       F4 a255;
@@ -101,6 +117,7 @@ public:
 
 private:
   float e_;
+  bool grey_;
   std::size_t n_ = 0;
   std::vector<float> rgba_, a_, ap_, scale_;
   std::vector<std::uint32_t> k_;
@@ -394,7 +411,7 @@ void sampleAll(const ShadeBuffer& shade, const SampleLattice& lattice, const Ren
 #pragma omp parallel num_threads(nt)
   {
     Batcher out(sink, omp_get_thread_num(), options.batchSamples);
-    RayStage stage(lattice.maxSamples(), e);
+    RayStage stage(lattice.maxSamples(), e, compositesGreyValues(settings.compositing.front()));
     // This thread's copies: the walk reads them for every ray.
     const OwnedCells* const mine = owned ? &*owned : nullptr;
     const double lo[3] = {clipLo[0], clipLo[1], clipLo[2]}, hi[3] = {clipHi[0], clipHi[1], clipHi[2]};
@@ -522,7 +539,7 @@ void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const 
 #pragma omp parallel num_threads(nt)
   {
     Batcher out(sink, omp_get_thread_num(), options.batchSamples);
-    RayStage stage(lattice.maxSamples(), e);
+    RayStage stage(lattice.maxSamples(), e, compositesGreyValues(settings.compositing.front()));
     const OwnedCells* const mine = owned ? &*owned : nullptr;  // this thread's copy
 #pragma omp for schedule(dynamic, 1)
     for (std::int64_t w = 0; w < static_cast<std::int64_t>(work.size()); ++w) {
@@ -644,7 +661,7 @@ RaySample sampleAt(const ShadeBuffer& shade, const SampleLattice& lattice, const
                    std::uint32_t pixel, std::uint32_t k) {
   checkSameGrid(shade.grid(), lattice.grid());
   const Interpolator interp(shade);
-  RayStage stage(1, exponentOf(lattice, settings));
+  RayStage stage(1, exponentOf(lattice, settings), compositesGreyValues(settings.compositing.front()));
   Cells4 c;
   interp.locate4(lattice.voxelRay(pixel), k, c);
   interp.at(c, 0, stage.slot());

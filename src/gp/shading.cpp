@@ -315,6 +315,19 @@ void shadeRow(const Context& c, std::int64_t j, std::int64_t k, std::int64_t x0,
 
 using RowFn = void (*)(const Context&, std::int64_t, std::int64_t, std::int64_t, std::int64_t);
 
+// greyValues: each voxel its own grey level as colour and opacity, unlit and
+// unclassified (what MIP and additive composite).
+template <class Load>
+void greyRow(const Context& c, std::int64_t j, std::int64_t k, std::int64_t x0, std::int64_t x1) {
+  constexpr auto B = static_cast<std::int64_t>(Load::kBytes);
+  const std::uint8_t* const r0 = c.vol + ((k * c.ny + j) * c.nx) * B;
+  ShadeVoxel* const out = c.out + (k * c.ny + j) * c.nx;
+  for (std::int64_t i = x0; i < x1; ++i) {
+    const auto v = static_cast<std::uint8_t>(std::lround(Load::at(r0 + i * B)));
+    out[i] = ShadeVoxel{v, v, v, v};
+  }
+}
+
 template <class Load, bool GradOpacity>
 RowFn pickLighting(Lighting k) {
   switch (k) {
@@ -413,9 +426,9 @@ void shadeAll(const Volume& values, const TransferFunction& tf, const ShadeSetti
 
   RowFn fn = nullptr;
   switch (values.type) {
-    case ScalarType::F32: fn = pickRow<LoadF32>(k, s.gradientOpacity); break;
-    case ScalarType::U16: fn = pickRow<LoadU16>(k, s.gradientOpacity); break;
-    case ScalarType::U8: fn = pickRow<LoadU8>(k, s.gradientOpacity); break;
+    case ScalarType::F32: fn = s.greyValues ? &greyRow<LoadF32> : pickRow<LoadF32>(k, s.gradientOpacity); break;
+    case ScalarType::U16: fn = s.greyValues ? &greyRow<LoadU16> : pickRow<LoadU16>(k, s.gradientOpacity); break;
+    case ScalarType::U8: fn = s.greyValues ? &greyRow<LoadU8> : pickRow<LoadU8>(k, s.gradientOpacity); break;
   }
   PP5_CHECK(fn != nullptr);
   const int threads = resolveThreads(s.threads);

@@ -60,6 +60,10 @@ struct ShadeSettings {
   // 0 = every core; the result does not depend on it. Not an option of its
   // own: the pipeline passes render.threads.
   int threads = 0;
+  // Not an option: set while the live composition is MIP or additive, which
+  // composite grey values. Each voxel is then (v, v, v, v), v its grey level
+  // (0..255, rounded): no transfer function, no light.
+  bool greyValues = false;
 
 };
 

@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
+#include <deque>
 #include <memory>
 #include <thread>
 
@@ -21,6 +22,8 @@
 #include "core/volume_io.hpp"
 #include "gp/slice_geometry.hpp"
 #include "host/outputs.hpp"
+#include "host/recorder.hpp"
+#include "host/slices.hpp"
 
 namespace pp5::host {
 
@@ -109,6 +112,18 @@ private:
   std::uint64_t pixelMessages_ = 0, poseOnlyMessages_ = 0, previousMessages_ = 0;
 
   std::unique_ptr<serial::SerialPipeline> ref_;
+  // The live viewer (view.listen), what it has seen of the run, and a
+  // recording the page asked for.
+  std::unique_ptr<LiveView> live_;
+  bool volumeOutstanding_ = false;  // a volume for the viewer's slices is on its way
+  double gpBusyMs_ = 0.0, ppBusyMs_ = 0.0;
+  std::deque<std::pair<Clock::time_point, std::uint64_t>> rateWindow_;  // (time, frames sent) every figures()
+  std::deque<std::pair<Clock::time_point, std::uint64_t>> imageWindow_;
+  std::deque<std::pair<Clock::time_point, std::pair<double, double>>> busyWindow_;
+  Clock::time_point lastFigures_{};
+  std::unique_ptr<Recorder> recorder_;
+  int recordings_ = 0;
+  std::uint64_t pausedFrames_ = 0;
   std::unique_ptr<StatsCsv> stats_;
   std::unique_ptr<AnimatedGif> buildup_;
   std::int64_t lastBuildup_ = -1;
@@ -195,6 +210,7 @@ private:
     imageHas(shownFrame_ + 1, f);
     shownFrame_ = f;
     ++images_;
+    if (live_) live_->image(fb_, w_, h_, shownEpoch_, f);
   }
 
   void advanceImage() {
@@ -209,6 +225,7 @@ private:
     imageHas(imageFrame_ + 1, f);
     imageFrame_ = f;
     ++images_;
+    if (live_) live_->image(fb_, w_, h_, shownEpoch_, f);
     if (buildup_ && !j_.parallel.lockstep() && f / j_.buildupEvery > lastBuildup_ / j_.buildupEvery) {
       addBuildup();
       lastBuildup_ = f;
@@ -217,6 +234,12 @@ private:
 
   void row(const Header& h, int rank, Role role, const StageTimes& st, std::uint64_t samples, std::uint64_t bytes,
            std::uint64_t dirty, double latency, bool control) {
+    if (role != Role::Host) {
+      double busy = 0.0;
+      for (int s = 0; s < kStageCount; ++s)
+        if (s != kWait) busy += st.ms[s];
+      (role == Role::Gp ? gpBusyMs_ : ppBusyMs_) += busy;
+    }
     if (!stats_) return;
     std::vector<double> v = {static_cast<double>(h.frame), static_cast<double>(h.epoch), static_cast<double>(rank),
                              static_cast<double>(role)};
@@ -301,6 +324,8 @@ private:
     clock_.stop();
     arrival_.push_back(a.arrival);
     latencyMs_.push_back(-1.0);
+    if (live_) live_->frame(f, a.imageToReference, k, a.timeS, a.arrival);
+    if (recorder_) record(a);
     ++sent_;
     if (ref_) ref_->insert(f, a.imageToReference, a.timeS);
     prev_ = std::move(a);
@@ -324,16 +349,8 @@ private:
     for (auto& c : credits_) --c;
     for (PpProgress& p : pp_) p = {epoch_, -1};
     imageFrame_ = -1;
-    if (ref_) {
-      RenderSettings render = j_.pipeline.render;
-      gp::ShadeSettings shading = j_.pipeline.shading;
-      TransferFunctionSettings tf;
-      applyControlState(next, render, shading, tf);
-      if (changes & ControlMsg::kFinish) ref_->finish();
-      if (changes & (ControlMsg::kShading | ControlMsg::kTransfer)) ref_->setStyle(shading, tf);
-      if (changes & ControlMsg::kView) ref_->setCamera(controlCamera(next, j_.pipeline.render, j_.grid));
-      if (changes & ControlMsg::kMode) ref_->setLiveMode(liveMode(next));
-    }
+    if (ref_) applyControl(*ref_, changes, next, j_.pipeline.render, j_.grid);
+    if (live_) live_->epochStarted(epoch_, next);
   }
 
   // The image after the last update, compared with the serial pipeline's.
@@ -380,6 +397,92 @@ private:
         }
     }
     if (vm.last) ++volumesDone_;
+    if (volumeOutstanding_ && volumesDone_ == L_.gps) {
+      volumeOutstanding_ = false;
+      if (live_) live_->volume(volume_);
+    }
+  }
+
+  // ---- the live viewer -------------------------------------------------
+  void record(const AcquiredFrame& a) {
+    Frame f = a.frame;  // as sent, placed: its ImageToReference with it
+    std::erase_if(f.transforms, [](const FrameTransform& t) { return t.name == "ImageToReference"; });
+    f.transforms.push_back({"ImageToReference", a.imageToReference, true});
+    f.timestamp = a.timeS;
+    recorder_->write(f);
+  }
+
+  // What the page asks: a control change (once the last one's image is in,
+  // so that a drag does not queue views), a recording, a volume for the
+  // slices; and the figures it shows. Returns whether acquisition is paused.
+  bool serveViewer(bool lockstep) {
+    if (!live_) return false;
+    const LiveWanted w = live_->wanted();
+    const std::uint32_t ch = controlChanges(state_, w.state);
+    if (ch && shownEpoch_ == epoch_) {
+      sendControl(ch, w.state);
+      if (lockstep && sent_ > 0) {
+        waitImage(static_cast<std::int64_t>(sent_) - 1);
+        if (ref_) verify(fb_, ref_->image(), "after a change from the viewer");
+      }
+    }
+    if (w.recording && !recorder_) {
+      const std::string path =
+          (fs::path(j_.outDir) / fmt::format("recording-{}.mha", ++recordings_)).string();
+      recorder_ = std::make_unique<Recorder>(path);
+      live_->recordingTo(path);
+      spdlog::info("run: recording the frames sent to {}", path);
+    } else if (!w.recording && recorder_) {
+      recorder_.reset();
+      live_->recordingTo("");
+    }
+    if (!volumeOutstanding_ && sent_ > 0 && live_->wantsVolume()) {
+      EmptyMsg rq;
+      rq.h = {kTagVolumeRequest, epoch_, sent_ - 1};
+      volumesDone_ = 0;
+      volumeOutstanding_ = true;
+      for (int g = 0; g < L_.gps; ++g) t_.send(L_.gpRank(g), rq);
+    }
+    const auto now = Clock::now();
+    if (now - lastFigures_ > std::chrono::milliseconds(250)) {
+      lastFigures_ = now;
+      rateWindow_.emplace_back(now, sent_);
+      imageWindow_.emplace_back(now, images_);
+      busyWindow_.emplace_back(now, std::make_pair(gpBusyMs_, ppBusyMs_));
+      while (rateWindow_.size() > 9) rateWindow_.pop_front();
+      while (imageWindow_.size() > 9) imageWindow_.pop_front();
+      while (busyWindow_.size() > 9) busyWindow_.pop_front();
+      LiveFigures f;
+      const double span = std::chrono::duration<double>(now - rateWindow_.front().first).count();
+      if (span > 0) {
+        f.framesPerS = static_cast<double>(sent_ - rateWindow_.front().second) / span;
+        f.imagesPerS = static_cast<double>(images_ - imageWindow_.front().second) / span;
+        f.gpLoad = (gpBusyMs_ - busyWindow_.front().second.first) / (1e3 * span * L_.gps);
+        f.ppLoad = (ppBusyMs_ - busyWindow_.front().second.second) / (1e3 * span * L_.pps);
+      }
+      std::vector<double> lat;
+      for (std::size_t i = latencyMs_.size(); i-- > 0 && lat.size() < 90;)
+        if (latencyMs_[i] >= 0.0) lat.push_back(latencyMs_[i]);
+      f.latencyMedianMs = percentile(lat, 0.5);
+      f.latencyP95Ms = percentile(lat, 0.95);
+      f.frames = sent_;
+      f.dropped = dropped_ ? dropped_() : 0;
+      live_->figures(f);
+    }
+    return w.paused;
+  }
+  std::function<std::uint64_t()> dropped_;
+
+  // After the input: the page steers the final volume until Ctrl-C.
+  void serveFinal() {
+    std::printf("viewer: the final volume stays live at %s until Ctrl-C\n", live_->url().c_str());
+    std::fflush(stdout);
+    while (!(j_.interrupt && j_.interrupt->load())) {
+      pump();
+      serveViewer(j_.parallel.lockstep());
+      std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    }
+    waitUntil([&] { return shownEpoch_ == epoch_ && !volumeOutstanding_; }, "the last image for the viewer");
   }
 
   std::vector<float> request(pp::CompositeMode mode) {
@@ -418,14 +521,29 @@ int HostRank::run() {
                    [](const ScriptedControl& a, const ScriptedControl& b) { return a.afterFrame < b.afterFrame; });
   std::size_t nextScript = 0;
 
+  if (!j_.view.listen.empty()) {
+    live_ = std::make_unique<LiveView>(j_.view, j_.grid, j_.pipeline.render, j_.pipeline.recon, j_.pipeline.tf, state_);
+    std::printf("viewer: open %s\n", live_->url().c_str());
+    std::fflush(stdout);
+  }
   // Every rank has allocated its grids and caches before the first frame is
   // acquired, so a live source does not queue behind the start-up.
   t_.barrier();
   Acquisition acq(j_.source, j_.preprocess, j_.queueFrames, j_.drop, j_.paceFps);
+  dropped_ = [&acq] { return acq.dropped(); };
+  const bool liveSource = j_.source.live || j_.paceFps > 0.0;
   Clock::time_point firstSent{}, lastLog = start;
   bool stopping = false;
   for (;;) {
     pump();
+    if (serveViewer(lockstep) && !stopping) {
+      // Paused: a live source's frames go by unused; a file's wait.
+      AcquiredFrame skipped;
+      if (liveSource && acq.tryPop(skipped)) ++pausedFrames_;
+      else if (acq.finished()) break;
+      else std::this_thread::sleep_for(std::chrono::milliseconds(2));
+      continue;
+    }
     if (!stopping && j_.interrupt && j_.interrupt->load()) {
       spdlog::warn("run: interrupted; finishing the {} frames acquired", sent_);
       acq.stop();
@@ -476,6 +594,11 @@ int HostRank::run() {
                  script[nextScript].afterFrame, script[nextScript].text);
   waitImage(static_cast<std::int64_t>(sent_) - 1);
   const double streamS = std::chrono::duration<double>(Clock::now() - firstSent).count();
+  if (live_) {
+    live_->inputEnded();
+    recorder_.reset();
+    waitUntil([&] { return !volumeOutstanding_; }, "the volume for the viewer's slices");
+  }
   streamImages_ = images_;
   if (ref_ && !lockstep) verify(fb_, ref_->image(), fmt::format("after the last frame ({})", sent_ - 1));
 
@@ -486,13 +609,28 @@ int HostRank::run() {
   addBuildup();
   buildup_->close();
   std::vector<std::string> wrote = {"buildup.gif"};
+  const ControlState liveState = state_;
   for (const pp::CompositeMode m : j_.pipeline.render.compositing) {
     const std::string mode(enumName(m));
-    const std::vector<float> im = request(m);
+    std::vector<float> im;
+    if (compositesGreyValues(m) != compositesGreyValues(liveMode(state_))) {
+      // The cache holds the other kind of samples: render this mode live.
+      ControlState s = state_;
+      s.liveMode = static_cast<std::uint8_t>(m);
+      sendControl(controlChanges(state_, s), s);
+      waitImage(static_cast<std::int64_t>(sent_) - 1);
+      im = fb_;
+    } else {
+      im = request(m);
+    }
     if (ref_) verify(im, m == ref_->liveMode() ? ref_->image() : ref_->compositeFull(m), "final " + mode + " image");
     const std::string name = "final_" + mode + ".png";
     writeRgbPng((dir / name).string(), w_, h_, rgb8(im).data());
     wrote.push_back(name);
+  }
+  if (const std::uint32_t ch = controlChanges(state_, liveState)) {  // back to the live mode
+    sendControl(ch, liveState);
+    waitImage(static_cast<std::int64_t>(sent_) - 1);
   }
   if (j_.mpr || j_.volume || ref_) {
     EmptyMsg rq;
@@ -503,8 +641,8 @@ int HostRank::run() {
     if (ref_ && volume_.bytes != ref_->reconstructor().output().bytes)
       throw InvariantError("the distributed reconstruction differs from the serial pipeline's");
     if (j_.mpr) {
-      const Index3 c = j_.grid.dims / Index3(2);
-      for (const auto& p : writeMpr(volume_, c, (dir / "mpr").string())) wrote.push_back(fs::path(p).filename().string());
+      for (const auto& p : writeMpr(volume_, j_.mprLook, (dir / "mpr").string()))
+        wrote.push_back(fs::path(p).filename().string());
     }
     if (j_.volume) {
       writeVolume((dir / "volume.mha").string(), volume_.as(ScalarType::U8), true);
@@ -530,6 +668,9 @@ int HostRank::run() {
     wrote.push_back("orbit.gif");
   }
 
+  if (live_ && live_->serve()) serveFinal();
+  if (live_) waitUntil([&] { return !volumeOutstanding_; }, "the volume for the viewer's slices");
+
   // Quit: every rank reports and leaves.
   EmptyMsg quit;
   quit.h = {kTagQuit, epoch_, sent_ - 1};
@@ -553,6 +694,9 @@ int HostRank::run() {
   if (acq.dropped())
     std::printf("  dropped %llu frames (live source behind; run.drop = %s)\n",
                 static_cast<unsigned long long>(acq.dropped()), enumName(j_.drop).data());
+  if (pausedFrames_)
+    std::printf("  %llu frames went by while the viewer paused acquisition\n",
+                static_cast<unsigned long long>(pausedFrames_));
   if (ref_) std::printf("  verified: %llu images bitwise equal to the serial pipeline's\n", static_cast<unsigned long long>(verified_));
   writeSummary(streamS, totalS, acq.dropped(), wrote);
   std::printf("wrote to %s\n", fs::absolute(dir).string().c_str());
@@ -643,6 +787,19 @@ void HostRank::writeSummary(double streamS, double totalS, std::uint64_t drops, 
 }
 
 }  // namespace
+
+void applyControl(serial::SerialPipeline& pipe, std::uint32_t changes, const comm::ControlState& next,
+                  const RenderSettings& base, const Grid& grid) {
+  RenderSettings render = base;
+  gp::ShadeSettings shading = pipe.settings().shading;
+  TransferFunctionSettings tf;
+  applyControlState(next, render, shading, tf);
+  if (changes & ControlMsg::kFinish) pipe.finish();
+  if (changes & ControlMsg::kMode) pipe.setValueWindow(next.valueWindow[0], next.valueWindow[1]);
+  if (changes & (ControlMsg::kShading | ControlMsg::kTransfer)) pipe.setStyle(shading, tf, liveMode(next));
+  else if (changes & ControlMsg::kMode) pipe.setLiveMode(liveMode(next));
+  if (changes & ControlMsg::kView) pipe.setCamera(controlCamera(next, base, grid), next.stepScale);
+}
 
 int runHostRank(comm::Transport& t, const HostJob& job) {
   HostRank h(t, job);

@@ -14,6 +14,8 @@
 #include "parallel/parallel_settings.hpp"
 #include "comm/transport.hpp"
 #include "host/acquisition.hpp"
+#include "host/live_view.hpp"
+#include "host/slices.hpp"
 #include "serial/serial_pipeline.hpp"
 
 namespace pp5::host {
@@ -43,13 +45,22 @@ struct HostJob {
   int orbitFrames = 36;
   double orbitFps = 12.0;
   bool mpr = true, volume = true;
+  SliceLook mprLook;
   // Run the serial pipeline beside the distributed one and require every
   // image to be bitwise equal (needs parallel.composite_on = lockstep).
   bool verify = false;
   std::uint64_t memoryLimitBytes = 0;
+  // The live viewer ([view]; view.listen "" = none).
+  ViewSettings view;
   // Set from a signal handler: stop acquiring, finish what was acquired.
   const std::atomic<bool>* interrupt = nullptr;
 };
+
+// Applies a control change to a serial pipeline, as the GPs and PPs apply it
+// to their shares (the reference run beside the distributed one, and the
+// serial run's live viewer).
+void applyControl(serial::SerialPipeline& pipe, std::uint32_t changes, const comm::ControlState& next,
+                  const RenderSettings& base, const Grid& grid);
 
 // Runs the job; returns the process exit status. Throws on errors (the caller
 // ends the job with the message).

@@ -53,6 +53,11 @@ comm::ControlState makeControlState(const RenderSettings& r, const gp::ShadeSett
   c.azimuthDeg = r.azimuthDeg;
   c.elevationDeg = r.elevationDeg;
   c.distance = r.distance;
+  c.stepScale = r.stepScale;
+  c.panMm[0] = r.panMm[0];
+  c.panMm[1] = r.panMm[1];
+  c.valueWindow[0] = r.valueWindow[0];
+  c.valueWindow[1] = r.valueWindow[1];
   c.ambient = sh.ambient;
   c.diffuse = sh.diffuse;
   c.specular = sh.specular;
@@ -81,6 +86,10 @@ void applyControlState(const comm::ControlState& c, RenderSettings& r, gp::Shade
   r.azimuthDeg = c.azimuthDeg;
   r.elevationDeg = c.elevationDeg;
   r.distance = c.distance;
+  r.stepScale = c.stepScale;
+  r.panMm[0] = c.panMm[0];
+  r.panMm[1] = c.panMm[1];
+  r.valueWindow = glm::dvec2(c.valueWindow[0], c.valueWindow[1]);
   const CompositeMode live = liveMode(c);
   std::erase(r.compositing, live);
   r.compositing.insert(r.compositing.begin(), live);
@@ -119,7 +128,8 @@ std::uint32_t controlChanges(const comm::ControlState& a, const comm::ControlSta
   auto differs = [](const auto& x, const auto& y) { return std::memcmp(&x, &y, sizeof x) != 0; };
   if (a.projection != b.projection || differs(a.fovDeg, b.fovDeg) || differs(a.azimuthDeg, b.azimuthDeg) ||
       differs(a.elevationDeg, b.elevationDeg) || differs(a.distance, b.distance) || a.orbitValid != b.orbitValid ||
-      differs(a.orbitAxis, b.orbitAxis) || differs(a.orbitDeg, b.orbitDeg))
+      differs(a.orbitAxis, b.orbitAxis) || differs(a.orbitDeg, b.orbitDeg) ||
+      differs(a.stepScale, b.stepScale) || differs(a.panMm, b.panMm))
     ch |= comm::ControlMsg::kView;
   if (a.shadeMode != b.shadeMode || a.light != b.light || a.gradientOpacity != b.gradientOpacity ||
       differs(a.ambient, b.ambient) || differs(a.diffuse, b.diffuse) || differs(a.specular, b.specular) ||
@@ -130,7 +140,9 @@ std::uint32_t controlChanges(const comm::ControlState& a, const comm::ControlSta
   if (a.opacityPoints != b.opacityPoints || a.colourPoints != b.colourPoints || differs(a.opacity, b.opacity) ||
       differs(a.colour, b.colour))
     ch |= comm::ControlMsg::kTransfer;
-  if (a.liveMode != b.liveMode) ch |= comm::ControlMsg::kMode;
+  if (a.liveMode != b.liveMode || differs(a.valueWindow, b.valueWindow)) ch |= comm::ControlMsg::kMode;
+  // Between "over" and the grey-value modes the GPs shade and sample anew.
+  if (compositesGreyValues(liveMode(a)) != compositesGreyValues(liveMode(b))) ch |= comm::ControlMsg::kShading;
   return ch;
 }
 

@@ -197,23 +197,27 @@ template <SampleFormat F, CompositeMode M>
   return acc;
 }
 
+// What turns a ray's partial into its pixel: additive's scale, and for MIP
+// and additive (grey values, gp/ray_sampler) the window from grey level lo
+// (black) over 1 / invWidth grey levels (white).
+struct Finish {
+  float additiveScale = 1.0f, lo = 0.0f, invWidth = 1.0f / 255.0f;
+};
+
 template <CompositeMode M>
-inline void finish(const Partial& acc, float additiveScale, float* out) {
+inline void finish(const Partial& acc, const Finish& f, float* out) {
   if constexpr (M == CompositeMode::Over) {
     out[0] = acc.r;
     out[1] = acc.g;
     out[2] = acc.b;
     out[3] = 1.0f - acc.w;
-  } else if constexpr (M == CompositeMode::Additive) {
-    out[0] = std::min(1.0f, acc.r * additiveScale);
-    out[1] = std::min(1.0f, acc.g * additiveScale);
-    out[2] = std::min(1.0f, acc.b * additiveScale);
-    out[3] = std::min(1.0f, acc.w * additiveScale);
   } else {
-    out[0] = acc.r;
-    out[1] = acc.g;
-    out[2] = acc.b;
-    out[3] = acc.w;
+    // MIP: the largest grey value; additive: the sum of grey value times step.
+    const float grey = M == CompositeMode::Mip ? acc.r * 255.0f : acc.w * 255.0f * f.additiveScale;
+    const float v = std::min(1.0f, std::max(0.0f, (grey - f.lo) * f.invWidth));
+    // White of coverage v, premultiplied: v over black. A ray with no
+    // samples gives 0 like a cleared pixel, the window's black being >= 0.
+    out[0] = out[1] = out[2] = out[3] = v;
   }
 }
 

@@ -255,6 +255,14 @@ RayCache::RayCache(const TileRect& tile, int imageWidth, std::span<const std::ui
   reset(sampleCounts);
 }
 
+void RayCache::setValueWindow(double lo, double hi) {
+  if (!(hi > lo) || !(lo >= 0.0) || !std::isfinite(hi))
+    throw InputError(fmt::format("render.value_window = [{}, {}]: give 0 <= black < white (grey levels)", lo, hi));
+  valueLo_ = static_cast<float>(lo);
+  valueInvWidth_ = static_cast<float>(1.0 / (hi - lo));
+  invalidate();
+}
+
 void RayCache::reset(std::span<const std::uint16_t> sampleCounts) {
   const std::size_t n = static_cast<std::size_t>(tile_.width) * static_cast<std::size_t>(tile_.height);
   PP5_CHECK_EQ(sampleCounts.size(), n);
@@ -320,7 +328,8 @@ CompositeStats RayCache::compositeDirty() {
   float* image = image_.rgba.data();
   const std::uint32_t* list = dirtyRays_.data();
   const int bs = blockSize_, shift = blockShift_;
-  const float limit = transmittanceLimit_, scale = additiveScale_;
+  const float limit = transmittanceLimit_;
+  const Finish fin{additiveScale_, valueLo_, valueInvWidth_};
 
   // Rays ahead to prefetch: enough to cover a miss to memory per ray.
   constexpr std::size_t kAhead = 8;
@@ -354,7 +363,7 @@ CompositeStats RayCache::compositeDirty() {
       const Partial acc = walkRay<F, M>(RayView{r.sample, r.block, r.count}, store, bs, shift, partials, dirty, limit,
                                         end, blocks, scratch);
       r.end = static_cast<std::uint16_t>(end);
-      finish<M>(acc, scale, image + 4 * static_cast<std::size_t>(local));
+      finish<M>(acc, fin, image + 4 * static_cast<std::size_t>(local));
       r.listed = 0;
       const int x = static_cast<int>(local % tw), y = static_cast<int>(local / tw);
       xmin = std::min(xmin, x);
@@ -401,7 +410,8 @@ void RayCache::compositeAll(TileImage& out) const {
   const int nt = resolveThreads(threads_);
   const int w = tile_.width, h = tile_.height;
   const int bs = blockSize_, shift = blockShift_;
-  const float limit = transmittanceLimit_, scale = additiveScale_;
+  const float limit = transmittanceLimit_;
+  const Finish fin{additiveScale_, valueLo_, valueInvWidth_};
   const Ray* rays = rays_.data();
   float* image = out.rgba.data();
 #pragma omp parallel num_threads(nt) if (nt > 1 && rays_.size() >= kMinParallelRays)
@@ -416,7 +426,7 @@ void RayCache::compositeAll(TileImage& out) const {
         std::uint64_t computed = 0;
         const Partial acc = walkRay<F, M>(RayView{r.sample, r.block, r.count}, store, bs, shift, nullptr, nullptr,
                                           limit, end, computed, scratch);
-        finish<M>(acc, scale, image + 4 * local);
+        finish<M>(acc, fin, image + 4 * local);
       }
     }
   }

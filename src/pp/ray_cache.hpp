@@ -160,6 +160,9 @@ public:
     live_ = m;
     invalidate();
   }
+  // The grey levels MIP and additive show as black and white
+  // (render.value_window); recomposited by the next composite().
+  void setValueWindow(double lo, double hi);
 
   // Bytes held: the current view's samples, block partials, dirty and
   // touched-page flags, per-ray records, the image and the dirty-ray list.
@@ -199,6 +202,7 @@ private:
   int blockShift_;
   float transmittanceLimit_;  // terminate once T <= this; -1 = never
   float additiveScale_;
+  float valueLo_ = 0.0f, valueInvWidth_ = 1.0f / 255.0f;
   int threads_;
 
   std::uint64_t sampleTotal_ = 0, blockTotal_ = 0;

@@ -31,12 +31,19 @@ void TileCaches::reset(std::span<const std::uint16_t> imageCounts, CompositeMode
       caches_[i]->reset(counts, live);
     } else {
       caches_.push_back(std::make_unique<RayCache>(r, imageWidth_, counts, settings_, live, threads_));
+      caches_.back()->setValueWindow(window_[0], window_[1]);
     }
   }
 }
 
 void TileCaches::setLiveMode(CompositeMode m) {
   for (auto& c : caches_) c->setLiveMode(m);
+}
+
+void TileCaches::setValueWindow(double lo, double hi) {
+  window_[0] = lo;
+  window_[1] = hi;
+  for (auto& c : caches_) c->setValueWindow(lo, hi);
 }
 
 bool TileCaches::anyPut() const {

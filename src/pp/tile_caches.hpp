@@ -35,11 +35,14 @@ public:
 
   // A new live mode for every cache (each recomposited at the next composite()).
   void setLiveMode(CompositeMode m);
+  // Every cache's RayCache::setValueWindow, now and for caches made later.
+  void setValueWindow(double lo, double hi);
   // Whether any cache took samples since its counters were last reset.
   bool anyPut() const;
   std::uint64_t memoryBytes() const;
 
 private:
+  double window_[2] = {0.0, 255.0};
   std::vector<TileRect> rects_;
   int imageWidth_;
   RayCacheSettings settings_;

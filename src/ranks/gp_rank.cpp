@@ -271,8 +271,9 @@ private:
     ShadeSettings shading = update_->settings().shading;
     TransferFunctionSettings tfs;
     applyControlState(state_, r, shading, tfs);
+    if (ch & ControlMsg::kMode) update_->setLiveMode(liveMode(state_));
     if (ch & (ControlMsg::kShading | ControlMsg::kTransfer)) update_->setStyle(shading, tfs);
-    if (ch & ControlMsg::kView) update_->setCamera(controlCamera(state_, c_.render, c_.grid));
+    if (ch & ControlMsg::kView) update_->setCamera(controlCamera(state_, c_.render, c_.grid), state_.stepScale);
     if (ch & ControlMsg::kFinish) {
       clock_.start(kReconstruct);
       update_->reconstructor().finish();

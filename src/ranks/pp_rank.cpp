@@ -161,8 +161,11 @@ private:
   // (applyPending), and put in place at once when it is applied.
   void prepare(const ControlState& state) {
     const Camera cam = controlCamera(state, c_.render, c_.grid);
-    const SampleLattice lattice(cam, c_.grid, render_.step(c_.grid), render_.maxSamples, render_.threads);
+    RenderSettings r = render_;
+    r.stepScale = state.stepScale;
+    const SampleLattice lattice(cam, c_.grid, r.step(c_.grid), r.maxSamples, r.threads);
     spare_->reset(lattice.counts(), liveMode(state));
+    spare_->setValueWindow(state.valueWindow[0], state.valueWindow[1]);
     prepared_ = true;
   }
 
@@ -365,7 +368,10 @@ private:
       awaitingFull_ = !c_.parallel.lockstep();  // lockstep waits for whole updates anyway
       fullDone_ = 0;
     } else {
-      if (ch & ControlMsg::kMode) caches_->setLiveMode(live());
+      if (ch & ControlMsg::kMode) {
+        caches_->setLiveMode(live());
+        caches_->setValueWindow(state_.valueWindow[0], state_.valueWindow[1]);
+      }
       // A new live mode only: the same samples, composited again. In lockstep
       // every frame up to the change is in. In tick mode samples of earlier
       // frames may still be on their way (they are kept, see samplesEpoch_),

@@ -44,6 +44,7 @@ SerialPipeline::SerialPipeline(const Grid& grid, const PipelineSettings& s, std:
   if (s_.render.compositing.empty()) throw InputError("render.compositing: no composition mode given");
   live_ = checkedEnum(s_.render.compositing.front());
   s_.shading.threads = s_.render.threads;
+  s_.shading.greyValues = compositesGreyValues(live_);
   s_.cache.validate();
   gp::GpUpdateSettings us;
   us.recon = s_.recon;
@@ -53,11 +54,13 @@ SerialPipeline::SerialPipeline(const Grid& grid, const PipelineSettings& s, std:
   us.memoryLimitBytes = memoryLimitBytes;
   gp_ = std::make_unique<gp::GpUpdate>(grid_, us, makeCamera(s_.render, grid_), std::make_unique<gp::WholeShare>(grid_));
   resetCaches();
+  caches_->setValueWindow(s_.render.valueWindow.x, s_.render.valueWindow.y);
   resample(true);
 }
 
-void SerialPipeline::setCamera(const Camera& camera) {
-  gp_->setCamera(camera);
+void SerialPipeline::setCamera(const Camera& camera, double stepScale) {
+  s_.render.stepScale = stepScale;
+  gp_->setCamera(camera, stepScale);
   resetCaches();
   gp_->reshadeAll(true);
   resample(true);
@@ -71,9 +74,18 @@ void SerialPipeline::resetCaches() {
   caches_->reset(gp_->lattice().counts(), live_);
 }
 
-void SerialPipeline::setStyle(const gp::ShadeSettings& shading, const TransferFunctionSettings& tf) {
+void SerialPipeline::setStyle(const gp::ShadeSettings& shading, const TransferFunctionSettings& tf,
+                              std::optional<pp::CompositeMode> live) {
+  if (live) {
+    live_ = checkedEnum(*live);
+    std::erase(s_.render.compositing, live_);
+    s_.render.compositing.insert(s_.render.compositing.begin(), live_);
+    caches_->setLiveMode(live_);
+    gp_->setLiveMode(live_);
+  }
   s_.shading = shading;
   s_.shading.threads = s_.render.threads;
+  s_.shading.greyValues = compositesGreyValues(live_);
   s_.tf = tf;
   gp_->setStyle(shading, tf);
   gp_->reshadeAll(false);
@@ -81,8 +93,18 @@ void SerialPipeline::setStyle(const gp::ShadeSettings& shading, const TransferFu
 }
 
 void SerialPipeline::setLiveMode(pp::CompositeMode m) {
+  if (compositesGreyValues(m) != compositesGreyValues(live_)) return setStyle(s_.shading, s_.tf, m);
   live_ = m;
+  std::erase(s_.render.compositing, m);
+  s_.render.compositing.insert(s_.render.compositing.begin(), m);
   caches_->setLiveMode(m);
+  gp_->setLiveMode(m);
+  (*caches_)[0].composite();
+}
+
+void SerialPipeline::setValueWindow(double lo, double hi) {
+  s_.render.valueWindow = glm::dvec2(lo, hi);
+  caches_->setValueWindow(lo, hi);
   (*caches_)[0].composite();
 }
 
@@ -141,13 +163,18 @@ void SerialPipeline::finish() {
 pp::TileImage SerialPipeline::renderFromScratch(pp::CompositeMode mode) const {
   const Camera& camera = gp_->camera();
   gp::ShadeBuffer shade(grid_);
-  gp::shade(gp_->reconstructor().output(), gp_->transferFunction(), gp_->settings().shading, camera, wholeGrid(grid_),
-            shade);
+  gp::ShadeSettings shading = gp_->settings().shading;
+  shading.greyValues = compositesGreyValues(mode);
+  RenderSettings render = s_.render;
+  std::erase(render.compositing, mode);
+  render.compositing.insert(render.compositing.begin(), mode);
+  gp::shade(gp_->reconstructor().output(), gp_->transferFunction(), shading, camera, wholeGrid(grid_), shade);
   const gp::EmptySpaceMap space(shade, s_.render.threads);
   pp::RayCache cache(TileRect{0, 0, camera.width, camera.height}, camera.width, gp_->lattice().counts(), s_.cache, mode,
                      s_.render.threads);
+  cache.setValueWindow(s_.render.valueWindow.x, s_.render.valueWindow.y);
   CacheSink sink(cache);
-  gp::sampleAll(shade, gp_->lattice(), s_.render, sink, &space);
+  gp::sampleAll(shade, gp_->lattice(), render, sink, &space);
   cache.composite();
   return cache.image();
 }

@@ -12,6 +12,7 @@
 // changed blocks and rays of the live mode.
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -60,12 +61,17 @@ public:
 
   // A new view: the lattice is rebuilt, everything re-shaded (a light at the
   // viewer moves with it) and re-sampled, and the live image recomposited.
-  void setCamera(const Camera& camera);
+  void setCamera(const Camera& camera, double stepScale = 1.0);
   const Camera& camera() const { return gp_->camera(); }
   // New shading or transfer function: everything re-shaded and re-sampled.
-  void setStyle(const gp::ShadeSettings& shading, const TransferFunctionSettings& tf);
-  // A new live composition mode: the cache recomposited in it.
+  // With `live`, also a new live composition mode (one re-shade for both).
+  void setStyle(const gp::ShadeSettings& shading, const TransferFunctionSettings& tf,
+                std::optional<pp::CompositeMode> live = std::nullopt);
+  // A new live composition mode: the cache recomposited in it; between
+  // "over" and the grey-value modes (MIP, additive), shaded and sampled anew.
   void setLiveMode(pp::CompositeMode m);
+  // render.value_window: the live image recomposited.
+  void setValueWindow(double lo, double hi);
 
   // The live image (the first composition mode), maintained incrementally.
   const pp::TileImage& image() const { return cache().image(); }

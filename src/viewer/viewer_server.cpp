@@ -59,13 +59,13 @@ std::string queryValue(std::string_view target, std::string_view key) {
   return {};
 }
 
+}  // namespace
+
 bool isLoopback(const std::string& address) {
   boost::system::error_code ec;
   const auto a = net::ip::make_address(address, ec);
   return !ec && a.is_loopback();
 }
-
-}  // namespace
 
 // The handlers hold a plain pointer to the Impl: it outlives the io thread
 // (~Server joins it first), and the io_context, declared after everything the

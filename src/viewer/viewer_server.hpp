@@ -18,6 +18,9 @@
 
 namespace pp5::viewer {
 
+// Whether `address` is a loopback address (127.0.0.0/8, ::1).
+bool isLoopback(const std::string& address);
+
 struct ServerOptions {
   std::string address = "127.0.0.1";
   int port = 0;              // 0: any free port (port() says which)

@@ -1,0 +1,609 @@
+#include "host/live_view.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <condition_variable>
+#include <cstring>
+#include <deque>
+#include <fstream>
+#include <mutex>
+#include <random>
+#include <thread>
+
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+#include <spdlog/spdlog.h>
+
+#include "core/config.hpp"
+#include "core/error.hpp"
+#include "gp/shading.hpp"
+#include "host/coverage.hpp"
+#include "host/slices.hpp"
+#include "parallel/parallel_settings.hpp"
+#include "pp/ray_cache.hpp"
+#include "viewer/jpeg.hpp"
+#include "viewer/viewer_server.hpp"
+
+#ifndef PP5_WEB_ROOT
+#define PP5_WEB_ROOT ""
+#endif
+
+namespace pp5::host {
+
+using json = nlohmann::json;
+
+void registerOptions(ConfigSchema& c, ViewSettings& s) {
+  c.section("view", "The live viewer: a web page served by the host while the run goes on (docs/viewer.md).");
+  c.option("view.listen", &s.listen, "",
+           "Serve the viewer at \"[ADDR:]PORT\" (address 127.0.0.1 unless given; port 0 = any free one); \"\" = no "
+           "viewer. `run --view` sets it.");
+  c.option("view.token", &s.token, "",
+           "The token a browser must give (?token=...) when the address is not loopback; \"\" = a random one, "
+           "printed with the URL.");
+  c.option("view.serve", &s.serve, false,
+           "Keep the final volume interactive after the input ends, until Ctrl-C (`run --serve`).");
+  c.option("view.image_hz", &s.imageHz, 30.0, 1.0, 240.0, "At most this many 3D images per second to the browsers.");
+  c.option("view.jpeg_quality", &s.jpegQuality, 85, 10, 100, "JPEG quality of the streamed images.");
+  c.option("view.bmode_hz", &s.bmodeHz, 15.0, 0.5, 240.0, "B-mode frames per second shown beside the 3D view.");
+  c.option("view.slice_hz", &s.sliceHz, 2.0, 0.1, 30.0,
+           "How often the slices (MPR) fetch the growing volume, at most, while a browser watches.");
+  c.option("view.slice_size", &s.sliceSize, 384, 64, 4096, "Pixels on the longer side of the streamed slices.");
+  c.option("view.drag_step_scale", &s.dragStepScale, 2.0, 1.0, 8.0,
+           "While the user drags the view, the ray step is this many times longer (a faster, coarser image); "
+           "the full one follows when the mouse stops.");
+  c.option("view.web_root", &s.webRoot, "", "The page's folder; \"\" = the one in the source tree (src/viewer/web).");
+}
+
+void parseListen(const std::string& listen, std::string& address, int& port, const std::string& what) {
+  const auto colon = listen.rfind(':');
+  address = colon == std::string::npos ? "127.0.0.1" : listen.substr(0, colon);
+  const std::string p = colon == std::string::npos ? listen : listen.substr(colon + 1);
+  if (address.size() > 2 && address.front() == '[' && address.back() == ']') address = address.substr(1, address.size() - 2);
+  char* end = nullptr;
+  const long v = std::strtol(p.c_str(), &end, 10);
+  if (p.empty() || address.empty() || *end != '\0' || v < 0 || v > 65535)
+    throw InputError(fmt::format("{} = \"{}\": give [ADDRESS:]PORT, e.g. 8080 or 127.0.0.1:8080 (port 0..65535)",
+                                 what, listen));
+  port = static_cast<int>(v);
+}
+
+std::vector<glm::dvec4> rampOpacity(double level, double window, double opacity) {
+  const double lo = level - 0.5 * window, hi = level + 0.5 * window;
+  auto at = [&](double v) { return opacity * std::clamp((v - lo) / (hi - lo), 0.0, 1.0); };
+  std::vector<double> xs = {0.0, std::clamp(lo, 0.0, 255.0), std::clamp(hi, 0.0, 255.0), 255.0};
+  std::vector<glm::dvec4> pts;
+  for (const double x : xs)
+    if (pts.empty() || x > pts.back().x) pts.emplace_back(x, at(x), 0.0, 0.0);
+  return pts;
+}
+
+namespace {
+
+std::int64_t unixMs(std::chrono::system_clock::time_point t) {
+  return std::chrono::duration_cast<std::chrono::milliseconds>(t.time_since_epoch()).count();
+}
+
+// One message: a little-endian u32 header length, the JSON header, the payload.
+std::string pack(const json& header, const std::string& payload = {}) {
+  const std::string h = header.dump();
+  std::string out(4, '\0');
+  const auto n = static_cast<std::uint32_t>(h.size());
+  for (int i = 0; i < 4; ++i) out[static_cast<std::size_t>(i)] = static_cast<char>((n >> (8 * i)) & 0xFF);
+  out += h;
+  out += payload;
+  return out;
+}
+
+enum Channel { kImage = 0, kBmode = 1, kStats = 2, kState = 3, kSlice0 = 4 };
+
+struct Preset {
+  const char* name;
+  double level, window, opacity;
+};
+// Ramps over the grey levels of B-mode echoes; "run" is the run's own transfer function.
+constexpr Preset kPresets[] = {{"soft tissue", 70.0, 90.0, 0.35}, {"strong echoes", 150.0, 80.0, 0.9},
+                               {"all echoes", 40.0, 60.0, 0.15}};
+
+// The range check every number in a control message passes.
+double number(const json& m, const char* key, double lo, double hi) {
+  const auto it = m.find(key);
+  if (it == m.end()) throw InputError(fmt::format("\"{}\" is missing", key));
+  if (!it->is_number()) throw InputError(fmt::format("\"{}\" must be a number", key));
+  const double v = it->get<double>();
+  if (!std::isfinite(v) || v < lo || v > hi) throw InputError(fmt::format("\"{}\" = {}: must be in {} .. {}", key, v, lo, hi));
+  return v;
+}
+bool boolean(const json& m, const char* key) {
+  const auto it = m.find(key);
+  if (it == m.end() || !it->is_boolean()) throw InputError(fmt::format("\"{}\" must be true or false", key));
+  return it->get<bool>();
+}
+std::string text(const json& m, const char* key) {
+  const auto it = m.find(key);
+  if (it == m.end() || !it->is_string()) throw InputError(fmt::format("\"{}\" must be a string", key));
+  return it->get<std::string>();
+}
+void onlyKeys(const json& m, std::initializer_list<const char*> keys) {
+  for (auto it = m.begin(); it != m.end(); ++it) {
+    if (it.key() == "type") continue;
+    if (std::none_of(keys.begin(), keys.end(), [&](const char* k) { return it.key() == k; }))
+      throw InputError(fmt::format("unknown field \"{}\"", it.key()));
+  }
+}
+
+std::string randomToken() {
+  std::random_device rd;
+  std::string t;
+  for (int i = 0; i < 4; ++i) t += fmt::format("{:08x}", rd());
+  return t;
+}
+
+}  // namespace
+
+struct LiveView::Impl {
+  ViewSettings s;
+  Grid grid;
+  RenderSettings base;
+  TransferFunctionSettings runTf;
+  std::unique_ptr<viewer::Server> server;
+
+  mutable std::mutex m;
+  std::condition_variable cv;
+  bool quit = false;
+
+  // What the browsers want (guarded by m).
+  LiveWanted want;
+  std::uint64_t wantSeq = 0;  // the newest view message's seq
+  bool wantInteractive = false;
+  std::string preset = "run";
+  double tfLevel = 128, tfWindow = 128, tfOpacity = 1;
+  SlicePlane planes[3] = {{SliceAxis::Axial, 0.5, 0}, {SliceAxis::Coronal, 0.5, 0}, {SliceAxis::Sagittal, 0.5, 0}};
+  SliceLook sliceLook;
+  bool coverageMap = true;
+  bool slicesDirty = false;
+  std::deque<Clock::time_point> recent;  // control messages in the last second (rate bound)
+
+  // Per epoch: the camera, the view message it answers, whether it is a drag's image.
+  struct EpochView {
+    std::uint32_t epoch;
+    Camera camera;
+    std::uint64_t seq;
+    bool interactive;
+  };
+  std::deque<EpochView> epochs;
+
+  // From the pipeline (guarded by m), waiting for the encoder.
+  Coverage coverage;
+  std::array<Vec3, 4> lastCorners{};
+  bool haveCorners = false;
+  std::deque<std::pair<std::int64_t, std::int64_t>> arrivals;  // (frame, unix ms)
+  std::vector<float> pendingImage;
+  int imageW = 0, imageH = 0;
+  std::uint32_t imageEpoch = 0;
+  std::int64_t imageFrame = -1;
+  bool imagePending = false;
+  Frame pendingBmode;
+  std::uint64_t bmodeIndex = 0;
+  double bmodeTime = 0;
+  bool bmodePending = false;
+  Clock::time_point lastBmode{};
+  Volume pendingVolume;
+  bool volumePending = false;
+  Clock::time_point lastVolume{};
+  std::uint64_t framesAtVolume = 0, frames = 0;
+  LiveFigures fig;
+  bool ended = false;
+  std::string recording;
+  bool statsDirty = true;
+
+  std::thread encoder;
+
+  Impl(const ViewSettings& settings, const Grid& g, const RenderSettings& b, const gp::ReconSettings& recon,
+       const TransferFunctionSettings& tf)
+      : s(settings), grid(g), base(b), runTf(tf), coverage(g, recon) {}
+
+  // ---- control messages (the server's thread) ----
+  std::string control(const std::string& textIn) {
+    const std::lock_guard lock(m);
+    const auto now = Clock::now();
+    while (!recent.empty() && now - recent.front() > std::chrono::seconds(1)) recent.pop_front();
+    if (recent.size() >= 240) return "too many control messages: at most 240 a second";
+    recent.push_back(now);
+    json msg;
+    try {
+      msg = json::parse(textIn);
+    } catch (const json::exception&) {
+      return "a control message must be a JSON object";
+    }
+    if (!msg.is_object() || !msg.contains("type") || !msg["type"].is_string())
+      return "a control message must be a JSON object with a string \"type\"";
+    const std::string type = msg["type"].get<std::string>();
+    LiveWanted next = want;  // changed only when the whole message is valid
+    comm::ControlState& c = next.state;
+    try {
+      if (type == "view") {
+        onlyKeys(msg, {"seq", "azimuth", "elevation", "distance", "pan", "interactive"});
+        const auto seq = static_cast<std::uint64_t>(number(msg, "seq", 0, 1e15));
+        c.azimuthDeg = number(msg, "azimuth", -360, 360);
+        c.elevationDeg = number(msg, "elevation", -89, 89);
+        c.distance = number(msg, "distance", 0.2, 50);
+        const auto pan = msg.find("pan");
+        if (pan == msg.end() || !pan->is_array() || pan->size() != 2 || !(*pan)[0].is_number() ||
+            !(*pan)[1].is_number())
+          throw InputError("\"pan\" must be [right_mm, up_mm]");
+        for (int i = 0; i < 2; ++i) {
+          const double v = (*pan)[static_cast<std::size_t>(i)].get<double>();
+          if (!std::isfinite(v) || std::abs(v) > 1e4) throw InputError("\"pan\": each value in -10000 .. 10000 mm");
+          c.panMm[i] = v;
+        }
+        const bool interactive = boolean(msg, "interactive");
+        c.stepScale = interactive ? s.dragStepScale : 1.0;
+        c.orbitValid = 0;
+        wantSeq = std::max(wantSeq, seq);
+        wantInteractive = interactive;
+      } else if (type == "tf") {
+        if (msg.contains("preset")) {
+          onlyKeys(msg, {"preset"});
+          const std::string p = text(msg, "preset");
+          TransferFunctionSettings tf = runTf;
+          if (p != "run") {
+            const auto it = std::find_if(std::begin(kPresets), std::end(kPresets), [&](const Preset& q) { return p == q.name; });
+            if (it == std::end(kPresets)) throw InputError(fmt::format("no transfer-function preset \"{}\"", p));
+            tf.opacity = rampOpacity(it->level, it->window, it->opacity);
+            tfLevel = it->level, tfWindow = it->window, tfOpacity = it->opacity;
+          }
+          setTf(c, tf);
+          preset = p;
+        } else {
+          onlyKeys(msg, {"level", "window", "opacity"});
+          tfLevel = number(msg, "level", 0, 255);
+          tfWindow = number(msg, "window", 1, 510);
+          tfOpacity = number(msg, "opacity", 0, 1);
+          TransferFunctionSettings tf = runTf;
+          tf.opacity = rampOpacity(tfLevel, tfWindow, tfOpacity);
+          setTf(c, tf);
+          preset = "custom";
+        }
+      } else if (type == "composite") {
+        onlyKeys(msg, {"mode"});
+        c.liveMode = static_cast<std::uint8_t>(enumFromName<pp::CompositeMode>(text(msg, "mode"), "mode"));
+      } else if (type == "shading") {
+        onlyKeys(msg, {"mode", "light", "light_azimuth", "light_elevation"});
+        const auto sm = enumFromName<gp::ShadeMode>(text(msg, "mode"), "mode");
+        const auto lk = enumFromName<gp::LightKind>(text(msg, "light"), "light");
+        const double az = glm::radians(number(msg, "light_azimuth", -180, 180));
+        const double el = glm::radians(number(msg, "light_elevation", -90, 90));
+        c.shadeMode = static_cast<std::uint8_t>(sm);
+        c.light = static_cast<std::uint8_t>(lk);
+        // From the light towards the scene.
+        c.lightDirection[0] = -std::cos(el) * std::cos(az);
+        c.lightDirection[1] = -std::cos(el) * std::sin(az);
+        c.lightDirection[2] = -std::sin(el);
+      } else if (type == "mpr") {
+        onlyKeys(msg, {"axis", "position"});
+        const double a = number(msg, "axis", 0, 2);
+        if (a != std::floor(a)) throw InputError("\"axis\" must be 0, 1 or 2");
+        planes[static_cast<int>(a)].position = number(msg, "position", 0, 1);
+        slicesDirty = true;
+      } else if (type == "mpr_window") {
+        onlyKeys(msg, {"window", "level"});
+        sliceLook.window = number(msg, "window", 1, 65535);
+        sliceLook.level = number(msg, "level", -65535, 65535);
+        slicesDirty = true;
+      } else if (type == "mpr_tilt") {
+        onlyKeys(msg, {"degrees"});
+        const double t = number(msg, "degrees", -89, 89);
+        for (SlicePlane& p : planes) p.tiltDeg = t;
+        slicesDirty = true;
+      } else if (type == "coverage_map") {
+        onlyKeys(msg, {"on"});
+        coverageMap = boolean(msg, "on");
+        slicesDirty = true;
+      } else if (type == "pause" || type == "resume") {
+        onlyKeys(msg, {});
+        next.paused = type == "pause";
+      } else if (type == "record") {
+        onlyKeys(msg, {"on"});
+        next.recording = boolean(msg, "on");
+      } else {
+        return fmt::format("unknown control message type \"{}\"", type);
+      }
+    } catch (const InputError& e) {
+      return fmt::format("{}: {}", type, e.what());
+    }
+    want = next;
+    statsDirty = true;
+    cv.notify_one();
+    return {};
+  }
+
+  static void setTf(comm::ControlState& c, const TransferFunctionSettings& tf) {
+    c.opacityPoints = static_cast<std::int32_t>(std::min<std::size_t>(tf.opacity.size(), comm::ControlState::kMaxPoints));
+    for (int i = 0; i < c.opacityPoints; ++i) {
+      c.opacity[i][0] = tf.opacity[static_cast<std::size_t>(i)].x;
+      c.opacity[i][1] = tf.opacity[static_cast<std::size_t>(i)].y;
+    }
+  }
+
+  // ---- the encoder's thread ----
+  json stateJson() const {
+    const comm::ControlState& c = want.state;
+    json presets = json::array({"run"});
+    for (const Preset& p : kPresets) presets.push_back(p.name);
+    return {{"type", "state"},
+            {"azimuth", c.azimuthDeg},
+            {"elevation", c.elevationDeg},
+            {"distance", c.distance},
+            {"pan", {c.panMm[0], c.panMm[1]}},
+            {"composite", enumName(static_cast<pp::CompositeMode>(c.liveMode))},
+            {"shading", enumName(static_cast<gp::ShadeMode>(c.shadeMode))},
+            {"presets", presets},
+            {"preset", preset},
+            {"tf_level", tfLevel},
+            {"tf_window", tfWindow},
+            {"tf_opacity", tfOpacity},
+            {"value_window", 255},
+            {"value_level", 128},
+            {"mpr_window", sliceLook.window},
+            {"mpr_level", sliceLook.level}};
+  }
+
+  json statsJson() const {
+    return {{"type", "stats"},
+            {"frames", fig.frames},
+            {"frames_per_s", fig.framesPerS},
+            {"images_per_s", fig.imagesPerS},
+            {"latency_ms_median", fig.latencyMedianMs},
+            {"latency_ms_p95", fig.latencyP95Ms},
+            {"dropped", fig.dropped},
+            {"gp_load", fig.gpLoad},
+            {"pp_load", fig.ppLoad},
+            {"coverage", coverage.fraction()},
+            {"gap_mm", coverage.lastGapMm()},
+            {"gap_limit_mm", coverage.gapLimitMm()},
+            {"gap_warning", coverage.gapWarning()},
+            {"paused", want.paused},
+            {"recording", recording},
+            {"ended", ended}};
+  }
+
+  void run() {
+    viewer::JpegEncoder jpeg;
+    std::string lastImage, lastBmodeMsg, lastSlices[3];
+    std::size_t clients = 0;
+    Clock::time_point lastStats{}, lastEncoded{};
+    const auto period = std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(1.0 / s.imageHz));
+    std::unique_lock lock(m);
+    while (!quit) {
+      // Wake for work, but encode images no faster than view.image_hz.
+      const auto untilImage = lastEncoded + period - Clock::now();
+      cv.wait_for(lock, imagePending && untilImage > Clock::duration::zero()
+                            ? std::min<Clock::duration>(untilImage, std::chrono::milliseconds(100))
+                            : std::chrono::milliseconds(100));
+      if (quit) break;
+      const std::size_t nowClients = server->clients();
+      const bool newClient = nowClients > clients;
+      clients = nowClients;
+      if (!clients) continue;
+      if (newClient) {  // what it missed: the newest of each
+        for (auto* msg : {&lastImage, &lastBmodeMsg, &lastSlices[0], &lastSlices[1], &lastSlices[2]})
+          if (!msg->empty()) server->publish(msg == &lastImage ? kImage : msg == &lastBmodeMsg ? kBmode
+                                                                           : kSlice0 + static_cast<int>(msg - lastSlices),
+                                             *msg);
+        statsDirty = true;
+      }
+      if (imagePending && Clock::now() - lastEncoded >= period) {
+        imagePending = false;
+        lastEncoded = Clock::now();
+        pp::TileImage im{imageW, imageH, std::move(pendingImage)};
+        json h = {{"type", "image"}, {"epoch", imageEpoch}, {"frame", imageFrame}, {"width", imageW}, {"height", imageH}};
+        for (const EpochView& e : epochs)
+          if (e.epoch == imageEpoch) {
+            h["view_seq"] = e.seq;
+            h["interactive"] = e.interactive;
+            if (haveCorners)
+              if (const auto o = outlineOnScreen(e.camera, lastCorners))
+                h["outline"] = {{(*o)[0][0], (*o)[0][1]}, {(*o)[1][0], (*o)[1][1]}, {(*o)[2][0], (*o)[2][1]},
+                                {(*o)[3][0], (*o)[3][1]}};
+          }
+        h["gap_warning"] = coverage.gapWarning();
+        json arr = json::array();
+        for (const auto& [f, t] : arrivals)
+          if (f <= imageFrame) arr.push_back({f, t});
+        h["arrivals"] = arr;
+        lock.unlock();
+        const std::vector<std::uint8_t> rgb = pp::toRgb8(im);
+        std::string msg = pack(h, jpeg.encode(rgb.data(), im.width, im.height, s.jpegQuality));
+        lock.lock();
+        if (!imagePending) pendingImage = std::move(im.rgba);  // reuse the storage
+        lastImage = msg;
+        server->publish(kImage, std::move(msg));
+      }
+      if (bmodePending) {
+        bmodePending = false;
+        const Frame f = std::move(pendingBmode);
+        const json h = {{"type", "bmode"}, {"index", bmodeIndex}, {"time_s", bmodeTime}, {"pose_ok", f.imageValid},
+                        {"width", f.width}, {"height", f.height}};
+        lock.unlock();
+        std::vector<std::uint8_t> rgb(static_cast<std::size_t>(f.width) * static_cast<std::size_t>(f.height) * 3);
+        for (int y = 0; y < f.height; ++y)
+          for (int x = 0; x < f.width; ++x) {
+            const auto v = static_cast<std::uint8_t>(std::lround(std::clamp(f.value(x, y), 0.0, 255.0)));
+            std::uint8_t* p = &rgb[(static_cast<std::size_t>(y) * static_cast<std::size_t>(f.width) + x) * 3];
+            p[0] = p[1] = p[2] = v;
+          }
+        std::string msg = pack(h, jpeg.encode(rgb.data(), f.width, f.height, s.jpegQuality));
+        lock.lock();
+        lastBmodeMsg = msg;
+        server->publish(kBmode, std::move(msg));
+      }
+      if ((volumePending || slicesDirty) && !pendingVolume.bytes.empty()) {
+        volumePending = false;
+        slicesDirty = false;
+        const Volume v = pendingVolume;  // a copy: the host may hand over the next one meanwhile
+        const Coverage cov = coverage;
+        const SlicePlane planesNow[3] = {planes[0], planes[1], planes[2]};
+        SliceLook look = sliceLook;
+        look.longSide = s.sliceSize;
+        const bool withCoverage = coverageMap;
+        lock.unlock();
+        std::string msgs[3];
+        for (int a = 0; a < 3; ++a) {
+          const SliceImage im = slice(v, planesNow[a], look, withCoverage ? &cov : nullptr);
+          const json h = {{"type", "mpr"},          {"axis", a},
+                          {"name", sliceName(planesNow[a].axis)}, {"position", planesNow[a].position},
+                          {"tilt_deg", planesNow[a].tiltDeg},       {"window", look.window},
+                          {"level", look.level},    {"width", im.width},
+                          {"height", im.height}};
+          msgs[a] = pack(h, jpeg.encode(im.rgb.data(), im.width, im.height, s.jpegQuality));
+        }
+        lock.lock();
+        for (int a = 0; a < 3; ++a) {
+          lastSlices[a] = msgs[a];
+          server->publish(kSlice0 + a, std::move(msgs[a]));
+        }
+      }
+      const auto now = Clock::now();
+      if (statsDirty || now - lastStats > std::chrono::milliseconds(500)) {
+        statsDirty = false;
+        lastStats = now;
+        server->publish(kStats, pack(statsJson()));
+        server->publish(kState, pack(stateJson()));
+      }
+    }
+  }
+};
+
+LiveView::LiveView(const ViewSettings& settings, const Grid& grid, const RenderSettings& base,
+                   const gp::ReconSettings& recon, const TransferFunctionSettings& tf, const comm::ControlState& initial)
+    : impl_(std::make_unique<Impl>(settings, grid, base, recon, tf)) {
+  viewer::ServerOptions o;
+  parseListen(settings.listen, o.address, o.port, "view.listen");
+  o.root = settings.webRoot.empty() ? std::string(PP5_WEB_ROOT) : settings.webRoot;
+  o.token = settings.token;
+  if (o.token.empty() && !viewer::isLoopback(o.address)) o.token = randomToken();
+  impl_->server = std::make_unique<viewer::Server>(o);
+  Impl& I = *impl_;
+  I.want.state = initial;
+  const TransferFunctionSettings& t = tf;
+  if (t.opacity.size() >= 2) {  // the page's sliders start near the run's ramp
+    I.tfLevel = 0.5 * (t.opacity.front().x + t.opacity.back().x);
+    I.tfWindow = std::max(1.0, t.opacity.back().x - t.opacity.front().x);
+    I.tfOpacity = t.opacity.back().y;
+  }
+  I.epochs.push_back({0, parallel::controlCamera(initial, base, grid), 0, false});
+  I.server->onMessage([&I](const std::string& m) { return I.control(m); });
+  I.encoder = std::thread([&I] { I.run(); });
+}
+
+LiveView::~LiveView() {
+  {
+    const std::lock_guard lock(impl_->m);
+    impl_->quit = true;
+  }
+  impl_->cv.notify_one();
+  if (impl_->encoder.joinable()) impl_->encoder.join();
+  impl_->server.reset();
+}
+
+std::string LiveView::url() const { return impl_->server->url(); }
+bool LiveView::watched() const { return impl_->server->clients() > 0; }
+bool LiveView::serve() const { return impl_->s.serve; }
+
+void LiveView::frame(const Frame& f, const Mat4& pose, std::uint64_t k, double timeS, Clock::time_point arrival) {
+  Impl& I = *impl_;
+  const auto sysArrival = std::chrono::system_clock::now() -
+                          std::chrono::duration_cast<std::chrono::system_clock::duration>(Clock::now() - arrival);
+  const std::lock_guard lock(I.m);
+  I.coverage.add(pose, f.width, f.height);
+  I.lastCorners = frameCorners(pose, f.width, f.height);
+  I.haveCorners = true;
+  I.frames = k + 1;
+  I.arrivals.emplace_back(static_cast<std::int64_t>(k), unixMs(sysArrival));
+  while (I.arrivals.size() > 128) I.arrivals.pop_front();
+  const auto now = Clock::now();
+  if (I.server->clients() > 0 && now - I.lastBmode >= std::chrono::duration<double>(1.0 / I.s.bmodeHz)) {
+    I.lastBmode = now;
+    I.pendingBmode = f;
+    I.bmodeIndex = f.index;
+    I.bmodeTime = timeS;
+    I.bmodePending = true;
+    I.cv.notify_one();
+  }
+}
+
+void LiveView::epochStarted(std::uint32_t epoch, const comm::ControlState& state) {
+  Impl& I = *impl_;
+  const std::lock_guard lock(I.m);
+  const bool asked = parallel::controlChanges(state, I.want.state) == 0;
+  std::uint64_t seq = I.epochs.empty() ? 0 : I.epochs.back().seq;
+  bool interactive = false;
+  if (asked) {
+    seq = I.wantSeq;
+    interactive = I.wantInteractive;
+  } else {
+    I.want.state = state;  // a change of the run's own (run.script, the orbit): the page's changes start from it
+  }
+  I.epochs.push_back({epoch, parallel::controlCamera(state, I.base, I.grid), seq, interactive});
+  while (I.epochs.size() > 8) I.epochs.pop_front();
+}
+
+void LiveView::image(const std::vector<float>& rgba, int width, int height, std::uint32_t epoch, std::int64_t frame) {
+  Impl& I = *impl_;
+  if (I.server->clients() == 0) return;
+  const std::lock_guard lock(I.m);
+  I.pendingImage.assign(rgba.begin(), rgba.end());
+  I.imageW = width;
+  I.imageH = height;
+  I.imageEpoch = epoch;
+  I.imageFrame = frame;
+  I.imagePending = true;
+  I.cv.notify_one();
+}
+
+bool LiveView::wantsVolume() const {
+  Impl& I = *impl_;
+  if (I.server->clients() == 0) return false;
+  const std::lock_guard lock(I.m);
+  return (I.frames > I.framesAtVolume || I.pendingVolume.bytes.empty()) &&
+         Clock::now() - I.lastVolume >= std::chrono::duration<double>(1.0 / I.s.sliceHz);
+}
+
+void LiveView::volume(const Volume& v) {
+  Impl& I = *impl_;
+  const std::lock_guard lock(I.m);
+  I.pendingVolume = v;
+  I.volumePending = true;
+  I.lastVolume = Clock::now();
+  I.framesAtVolume = I.frames;
+  I.cv.notify_one();
+}
+
+void LiveView::figures(const LiveFigures& f) {
+  const std::lock_guard lock(impl_->m);
+  impl_->fig = f;
+}
+
+void LiveView::inputEnded() {
+  const std::lock_guard lock(impl_->m);
+  impl_->ended = true;
+  impl_->statsDirty = true;
+  impl_->cv.notify_one();
+}
+
+void LiveView::recordingTo(const std::string& path) {
+  const std::lock_guard lock(impl_->m);
+  impl_->recording = path;
+  impl_->want.recording = !path.empty();
+  impl_->statsDirty = true;
+  impl_->cv.notify_one();
+}
+
+LiveWanted LiveView::wanted() const {
+  const std::lock_guard lock(impl_->m);
+  return impl_->want;
+}
+
+std::string LiveView::control(const std::string& json) { return impl_->control(json); }
+
+}  // namespace pp5::host

@@ -1,0 +1,114 @@
+#pragma once
+// The live viewer on the host (issue 16): what the pipeline makes, streamed to
+// browsers while it makes it, and what the browsers change, handed back to
+// the pipeline.
+//
+// The host's thread only hands things over (a copy, under a lock, and only
+// while a browser watches); a thread of the viewer's own turns them into
+// JPEGs and messages, so the pipeline never waits for a browser. Each
+// browser gets the newest message of each kind (viewer/viewer_server.hpp).
+//
+// The page and its protocol: src/viewer/web/, docs/viewer.md and
+// docs/protocol.md ("The viewer's protocol").
+#include <chrono>
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "comm/messages.hpp"
+#include "core/frame.hpp"
+#include "core/grid.hpp"
+#include "core/render_settings.hpp"
+#include "core/transfer_function.hpp"
+#include "core/transform.hpp"
+#include "core/volume_io.hpp"
+#include "gp/reconstruction.hpp"
+
+namespace pp5 {
+class ConfigSchema;
+}
+
+namespace pp5::host {
+
+// [view]
+struct ViewSettings {
+  std::string listen;        // "[ADDR:]PORT"; "" = no viewer (`run --view` sets it)
+  std::string token;         // "" = a random one when the address is not loopback
+  bool serve = false;        // keep the final volume interactive after the input ends (`run --serve`)
+  double imageHz = 30.0;     // at most this many 3D images per second to the browsers
+  int jpegQuality = 85;
+  double bmodeHz = 15.0;     // B-mode frames per second to the browsers
+  double sliceHz = 2.0;      // the volume fetched for the slices at most this often
+  int sliceSize = 384;       // the slices' longer side, pixels
+  double dragStepScale = 2.0;  // the ray step times this while the user drags
+  std::string webRoot;       // the page's folder; "" = the one built in
+};
+void registerOptions(ConfigSchema& schema, ViewSettings& s);
+
+// "[ADDR:]PORT" into its parts; InputError naming `what` when malformed.
+void parseListen(const std::string& listen, std::string& address, int& port, const std::string& what);
+
+// The run's figures, as the host (or the serial run) measures them.
+struct LiveFigures {
+  double framesPerS = 0, imagesPerS = 0, latencyMedianMs = 0, latencyP95Ms = 0;
+  std::uint64_t frames = 0, dropped = 0;
+  double gpLoad = 0, ppLoad = 0;  // share of the wall time the GPs (PPs) were busy, 0..1
+};
+
+// What the browsers ask of the pipeline now.
+struct LiveWanted {
+  comm::ControlState state;  // the view, shading, transfer function and live mode
+  bool paused = false;
+  bool recording = false;
+};
+
+class LiveView {
+public:
+  using Clock = std::chrono::steady_clock;
+  // Starts serving (InputError when the address cannot be bound, or is not
+  // loopback and no token can be had). `initial`: the run's control state;
+  // `base`: the render settings it applies to.
+  LiveView(const ViewSettings& settings, const Grid& grid, const RenderSettings& base, const gp::ReconSettings& recon,
+           const TransferFunctionSettings& tf, const comm::ControlState& initial);
+  ~LiveView();
+  LiveView(const LiveView&) = delete;
+  LiveView& operator=(const LiveView&) = delete;
+
+  std::string url() const;
+  bool watched() const;  // a browser is connected
+  bool serve() const;
+
+  // ---- from the pipeline (the host's thread) ----
+  // Frame k went into the pipeline: coverage, the outline, the gap warning, the B-mode view.
+  void frame(const Frame& f, const Mat4& imageToReference, std::uint64_t k, double timeS, Clock::time_point arrival);
+  // The pipeline now renders `state` as `epoch`.
+  void epochStarted(std::uint32_t epoch, const comm::ControlState& state);
+  // The image (width * height RGBA floats, premultiplied) holding every frame
+  // up to `frame`, in `epoch`'s view.
+  void image(const std::vector<float>& rgba, int width, int height, std::uint32_t epoch, std::int64_t frame);
+  // Whether the slices want a newer volume; volume() hands one over (copied).
+  bool wantsVolume() const;
+  void volume(const Volume& v);
+  void figures(const LiveFigures& f);
+  void inputEnded();
+  void recordingTo(const std::string& path);  // "" = not recording
+
+  // ---- to the pipeline ----
+  LiveWanted wanted() const;
+
+  // For tests: applies a control message as if a browser had sent it;
+  // returns "" or the error the browser would get.
+  std::string control(const std::string& json);
+
+  struct Impl;
+
+private:
+  std::unique_ptr<Impl> impl_;
+};
+
+// The transfer function's opacity as a ramp: 0 below level - window / 2,
+// `opacity` above level + window / 2, linear between (clipped to 0..255).
+std::vector<glm::dvec4> rampOpacity(double level, double window, double opacity);
+
+}  // namespace pp5::host

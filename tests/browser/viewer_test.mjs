@@ -1,0 +1,202 @@
+// The live viewer in a real browser: Debian's chromium, headless, driven by
+// playwright-core, against `pp5echo run --view` streaming a paced simulated
+// sweep through the MPI pipeline. Checks what issue 16 asks of the page and
+// measures what a person would feel (docs/benchmarks.md).
+//
+// Usage: node viewer_test.mjs --pp5echo BIN --out DIR [--ranks 4] [--pace 15]
+//          [--set key=value ...] [--measure]
+// Exit status 0 when every check holds; DIR gets screenshot.png,
+// figures.json and the run's own outputs.
+import {chromium} from 'playwright-core';
+import {spawn} from 'node:child_process';
+import fs from 'node:fs';
+import path from 'node:path';
+import {fileURLToPath} from 'node:url';
+
+const here = path.dirname(fileURLToPath(import.meta.url));
+const repo = path.resolve(here, '..', '..');
+const args = process.argv.slice(2);
+const opt = (name, def) => {
+  const i = args.indexOf(name);
+  return i >= 0 ? args[i + 1] : def;
+};
+const sets = args.flatMap((a, i) => (a === '--set' ? ['--set', args[i + 1]] : []));
+const bin = opt('--pp5echo');
+const out = path.resolve(opt('--out', 'viewer-test'));
+const ranks = opt('--ranks', '4');
+const pace = opt('--pace', '15');
+const measure = args.includes('--measure');
+fs.mkdirSync(out, {recursive: true});
+
+const failures = [];
+function check(ok, what) {
+  console.log(`${ok ? 'ok  ' : 'FAIL'} ${what}`);
+  if (!ok) failures.push(what);
+}
+const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
+async function until(page, fn, arg, ms, what) {
+  try {
+    await page.waitForFunction(fn, arg, {timeout: ms, polling: 50});
+    return true;
+  } catch (e) {
+    console.log(`  (timed out after ${ms} ms waiting for ${what})`);
+    return false;
+  }
+}
+
+// ---- the run ------------------------------------------------------------------
+const runArgs = [ranks, bin, 'run', path.join(repo, 'configs/doll.toml'), '-o', path.join(out, 'run'), '--view', '127.0.0.1:0',
+                 '--serve', '--set', `run.pace_fps=${pace}`, '--set', 'run.orbit_frames=0', ...sets];
+console.log('run: scripts/mpirun.sh ' + runArgs.join(' '));
+const run = spawn('bash', [path.join(repo, 'scripts/mpirun.sh'), ...runArgs], {stdio: ['ignore', 'pipe', 'pipe']});
+let runLog = '';
+const urlPromise = new Promise((resolve, reject) => {
+  const onData = (d) => {
+    runLog += d.toString();
+    const m = runLog.match(/viewer: open (http:\/\/\S+)/);
+    if (m) resolve(m[1]);
+  };
+  run.stdout.on('data', onData);
+  run.stderr.on('data', onData);
+  run.on('exit', (code) => reject(new Error(`the run ended (${code}) before printing its URL:\n${runLog}`)));
+  setTimeout(() => reject(new Error('no viewer URL within 60 s:\n' + runLog)), 60000);
+});
+const runExit = new Promise((resolve) => run.on('exit', (code) => resolve(code)));
+const url = await urlPromise;
+console.log('viewer: ' + url);
+
+const browser = await chromium.launch({
+  executablePath: process.env.CHROMIUM || '/usr/bin/chromium',
+  args: ['--headless', '--no-sandbox', '--disable-gpu', '--disable-background-networking', '--disable-component-update',
+         '--disable-sync', '--no-first-run', '--disable-quic'],
+});
+const figures = {};
+try {
+  const context = await browser.newContext({viewport: {width: 1400, height: 1000}});
+  let page = await context.newPage();
+  page.on('pageerror', (e) => failures.push('page error: ' + e.message));
+  await page.goto(url);
+
+  // 1. The image builds up while frames arrive.
+  check(await until(page, () => window.pp5.images > 0, null, 30000, 'a first image'), 'the page shows an image');
+  const cov0 = await page.evaluate(() => window.pp5.coverage);
+  const t0 = Date.now(), n0 = await page.evaluate(() => window.pp5.images);
+  check(await until(page, () => window.pp5.distinct.size >= 20, null, 60000, '20 distinct images'),
+        'the 3D image changes as frames arrive (at least 20 distinct images)');
+  const sweep = await page.evaluate(() => ({images: window.pp5.images, distinct: window.pp5.distinct.size,
+                                            stats: window.pp5.stats, outlines: window.pp5.outlines}));
+  figures.sweep_images_per_s = (sweep.images - n0) / ((Date.now() - t0) / 1000);
+  check(sweep.outlines > 0, 'the newest frame\'s outline is drawn over the 3D view');
+  check(await until(page, (c) => window.pp5.coverage > c, cov0, 20000, 'coverage to rise'),
+        `the coverage fraction rises during the sweep (from ${cov0})`);
+  check(await until(page, () => window.pp5.bmodes > 0, null, 10000, 'a B-mode frame'), 'the B-mode frame is shown');
+
+  const snap = () => page.evaluate(() => ({images: window.pp5.images, epoch: window.pp5.epoch,
+                                           last: window.pp5.lastImage, distinct: window.pp5.distinct.size}));
+  // Waits for an image of a newer epoch than `e`, then for it to settle.
+  const newEpochImage = async (e, what) => until(page, (x) => window.pp5.epoch > x, e, 20000, what);
+
+  // 2. A drag rotates the view; the pipeline records the new epoch.
+  const box = await page.locator('#render').boundingBox();
+  const cx = box.x + box.width / 2, cy = box.y + box.height / 2;
+  let before = await snap();
+  const dragStart = Date.now();
+  await page.mouse.move(cx, cy);
+  await page.mouse.down();
+  const dragImages0 = (await snap()).images;
+  for (let i = 1; i <= 40; ++i) {
+    await page.mouse.move(cx + 3 * i, cy + i);
+    await sleep(50);
+  }
+  const dragSeconds = (Date.now() - dragStart) / 1000;
+  const dragImages = (await snap()).images - dragImages0;
+  await page.mouse.up();
+  const dragged = await newEpochImage(before.epoch, 'the dragged view');
+  const responses = await page.evaluate(() => window.pp5.viewResponses);
+  check(dragged && responses.length > 0, `a drag changes the view (epoch ${before.epoch} -> ${(await snap()).epoch})`);
+  figures.drag_images_per_s = dragImages / dragSeconds;
+  figures.drag_first_response_ms = responses.length ? responses[0].ms : null;
+  figures.drag_responses = responses.length;
+  const dragEpoch = (await snap()).epoch;
+
+  // 3. The transfer function, the MIP switch and a slice slider each change what is shown.
+  const changes = async (what, act) => {
+    const b = await snap();
+    await act();
+    const ok = await newEpochImage(b.epoch, what);
+    await sleep(300);
+    const a = await snap();
+    await page.screenshot({path: path.join(out, `after-${what.replace(/\W+/g, '-')}.png`)});
+    check(ok && a.distinct > b.distinct, `${what} changes the image (epoch ${b.epoch} -> ${a.epoch})`);
+  };
+  await changes('the transfer function', () => page.locator('#tf-preset').selectOption('strong echoes'));
+  await changes('the MIP switch', () => page.locator('input[name=composite][value=mip]').check());
+  const mpr0 = () => page.evaluate(() => document.getElementById('mpr0').toDataURL());
+  check(await until(page, () => window.pp5.mprs[0] > 0, null, 20000, 'a slice'), 'the slices are shown');
+  const sliceBefore = await mpr0();
+  const mprCount = await page.evaluate(() => window.pp5.mprs[0]);
+  await page.locator('#mpr-pos0').fill('200');
+  await page.locator('#mpr-pos0').dispatchEvent('input');
+  await until(page, (n) => window.pp5.mprs[0] > n, mprCount, 20000, 'a moved slice');
+  check((await mpr0()) !== sliceBefore, 'the MPR slider changes the slice');
+  await page.locator('input[name=composite][value=over]').check();
+
+  // 4. A bad control message gets an error reply and the run goes on.
+  figures.latency_ms = await page.evaluate(() => window.pp5.latencies);
+  const errs = await page.evaluate(() => window.pp5.errors.length);
+  await page.evaluate(() => window.pp5.send({type: 'tf', level: 999, window: 1, opacity: 1}));
+  await page.evaluate(() => window.pp5.send({type: 'no such thing'}));
+  check(await until(page, (n) => window.pp5.errors.length >= n + 2, errs, 10000, 'error replies'),
+        'bad control messages get error replies: ' + JSON.stringify(await page.evaluate(() => window.pp5.errors)));
+  const afterBad = await snap();
+  await page.locator('input[name=composite][value=additive]').check();
+  check(await newEpochImage(afterBad.epoch, 'an image after the bad messages'), 'the run goes on after them');
+  await page.locator('input[name=composite][value=over]').check();
+  await newEpochImage((await snap()).epoch, 'the over image again');
+  await sleep(500);
+  await page.screenshot({path: path.join(out, 'screenshot.png')});
+
+  // 5. Closing and reopening the page resumes the stream.
+  await page.close();
+  await sleep(500);
+  page = await context.newPage();
+  page.on('pageerror', (e) => failures.push('page error: ' + e.message));
+  await page.goto(url);
+  check(await until(page, () => window.pp5.images > 0 && window.pp5.state !== null, null, 20000, 'images again'),
+        'a reopened page gets the stream again');
+
+  figures.drag_epoch = dragEpoch;
+} finally {
+  await browser.close();
+}
+
+// The run ends cleanly on Ctrl-C (what mpirun.sh turns SIGINT into).
+run.kill('SIGINT');
+const code = await Promise.race([runExit, sleep(120000).then(() => 'timeout')]);
+check(code === 0, `the run ends cleanly after Ctrl-C (exit ${code})`);
+if (code !== 0) console.log(runLog.slice(-3000));
+
+// The pipeline recorded the dragged view's epoch.
+try {
+  const csv = fs.readFileSync(path.join(out, 'run', 'stats.csv'), 'utf8').trim().split('\n');
+  const col = csv[0].split(',').indexOf('epoch');
+  const epochs = new Set(csv.slice(1).map((l) => +l.split(',')[col]));
+  check(epochs.has(figures.drag_epoch), `stats.csv has rows of the dragged view's epoch ${figures.drag_epoch}`);
+} catch (e) {
+  check(false, 'stats.csv: ' + e.message);
+}
+
+const lat = (figures.latency_ms || []).slice().sort((a, b) => a - b);
+const q = (p) => (lat.length ? lat[Math.min(lat.length - 1, Math.ceil(p * lat.length) - 1)] : null);
+figures.latency_ms_median = q(0.5);
+figures.latency_ms_p95 = q(0.95);
+figures.latency_frames = lat.length;
+delete figures.latency_ms;
+fs.writeFileSync(path.join(out, 'figures.json'), JSON.stringify(figures, null, 2) + '\n');
+console.log('figures: ' + JSON.stringify(figures));
+if (measure) console.log('(measured: the checks above are what the test asserts; the figures go to docs/benchmarks.md)');
+if (failures.length) {
+  console.log(`${failures.length} check(s) failed:\n  ` + failures.join('\n  '));
+  process.exit(1);
+}
+console.log('all checks hold');
