@@ -155,6 +155,7 @@ struct LiveView::Impl {
   LiveWanted want;
   std::uint64_t wantSeq = 0;  // the newest view message's seq
   bool wantInteractive = false;
+  bool pageChange = false;  // the page changed `want` and the pipeline has not caught up
   std::string preset = "run";
   double tfLevel = 128, tfWindow = 128, tfOpacity = 1;
   SlicePlane planes[3] = {{SliceAxis::Axial, 0.5, 0}, {SliceAxis::Coronal, 0.5, 0}, {SliceAxis::Sagittal, 0.5, 0}};
@@ -169,6 +170,7 @@ struct LiveView::Impl {
     Camera camera;
     std::uint64_t seq;
     bool interactive;
+    std::string composite, preset;  // what the page may wait for
   };
   std::deque<EpochView> epochs;
 
@@ -256,9 +258,9 @@ struct LiveView::Impl {
           preset = p;
         } else {
           onlyKeys(msg, {"level", "window", "opacity"});
-          tfLevel = number(msg, "level", 0, 255);
-          tfWindow = number(msg, "window", 1, 510);
-          tfOpacity = number(msg, "opacity", 0, 1);
+          const double level = number(msg, "level", 0, 255), window = number(msg, "window", 1, 510),
+                       opacity = number(msg, "opacity", 0, 1);
+          tfLevel = level, tfWindow = window, tfOpacity = opacity;
           TransferFunctionSettings tf = runTf;
           tf.opacity = rampOpacity(tfLevel, tfWindow, tfOpacity);
           setTf(c, tf);
@@ -267,6 +269,11 @@ struct LiveView::Impl {
       } else if (type == "composite") {
         onlyKeys(msg, {"mode"});
         c.liveMode = static_cast<std::uint8_t>(enumFromName<pp::CompositeMode>(text(msg, "mode"), "mode"));
+      } else if (type == "value_window") {
+        onlyKeys(msg, {"window", "level"});
+        const double window = number(msg, "window", 1, 65535), level = number(msg, "level", 0, 65535);
+        c.valueWindow[0] = std::max(0.0, level - 0.5 * window);
+        c.valueWindow[1] = level + 0.5 * window;
       } else if (type == "shading") {
         onlyKeys(msg, {"mode", "light", "light_azimuth", "light_elevation"});
         const auto sm = enumFromName<gp::ShadeMode>(text(msg, "mode"), "mode");
@@ -283,12 +290,14 @@ struct LiveView::Impl {
         onlyKeys(msg, {"axis", "position"});
         const double a = number(msg, "axis", 0, 2);
         if (a != std::floor(a)) throw InputError("\"axis\" must be 0, 1 or 2");
-        planes[static_cast<int>(a)].position = number(msg, "position", 0, 1);
+        const double position = number(msg, "position", 0, 1);
+        planes[static_cast<int>(a)].position = position;
         slicesDirty = true;
       } else if (type == "mpr_window") {
         onlyKeys(msg, {"window", "level"});
-        sliceLook.window = number(msg, "window", 1, 65535);
-        sliceLook.level = number(msg, "level", -65535, 65535);
+        const double window = number(msg, "window", 1, 65535), level = number(msg, "level", -65535, 65535);
+        sliceLook.window = window;
+        sliceLook.level = level;
         slicesDirty = true;
       } else if (type == "mpr_tilt") {
         onlyKeys(msg, {"degrees"});
@@ -311,6 +320,7 @@ struct LiveView::Impl {
     } catch (const InputError& e) {
       return fmt::format("{}: {}", type, e.what());
     }
+    if (parallel::controlChanges(want.state, next.state)) pageChange = true;
     want = next;
     statsDirty = true;
     cv.notify_one();
@@ -342,8 +352,8 @@ struct LiveView::Impl {
             {"tf_level", tfLevel},
             {"tf_window", tfWindow},
             {"tf_opacity", tfOpacity},
-            {"value_window", 255},
-            {"value_level", 128},
+            {"value_window", c.valueWindow[1] - c.valueWindow[0]},
+            {"value_level", 0.5 * (c.valueWindow[0] + c.valueWindow[1])},
             {"mpr_window", sliceLook.window},
             {"mpr_level", sliceLook.level}};
   }
@@ -401,6 +411,8 @@ struct LiveView::Impl {
           if (e.epoch == imageEpoch) {
             h["view_seq"] = e.seq;
             h["interactive"] = e.interactive;
+            h["composite"] = e.composite;
+            h["preset"] = e.preset;
             if (haveCorners)
               if (const auto o = outlineOnScreen(e.camera, lastCorners))
                 h["outline"] = {{(*o)[0][0], (*o)[0][1]}, {(*o)[1][0], (*o)[1][1]}, {(*o)[2][0], (*o)[2][1]},
@@ -491,7 +503,8 @@ LiveView::LiveView(const ViewSettings& settings, const Grid& grid, const RenderS
     I.tfWindow = std::max(1.0, t.opacity.back().x - t.opacity.front().x);
     I.tfOpacity = t.opacity.back().y;
   }
-  I.epochs.push_back({0, parallel::controlCamera(initial, base, grid), 0, false});
+  I.epochs.push_back({0, parallel::controlCamera(initial, base, grid), 0, false,
+                      std::string(enumName(parallel::liveMode(initial))), I.preset});
   I.server->onMessage([&I](const std::string& m) { return I.control(m); });
   I.encoder = std::thread([&I] { I.run(); });
 }
@@ -541,10 +554,15 @@ void LiveView::epochStarted(std::uint32_t epoch, const comm::ControlState& state
   if (asked) {
     seq = I.wantSeq;
     interactive = I.wantInteractive;
-  } else {
-    I.want.state = state;  // a change of the run's own (run.script, the orbit): the page's changes start from it
+    I.pageChange = false;
+  } else if (!I.pageChange) {
+    // A change of the run's own (run.script, the final images, the orbit):
+    // the page's next changes start from it. One the page asked for and the
+    // pipeline has not yet made stays wanted.
+    I.want.state = state;
   }
-  I.epochs.push_back({epoch, parallel::controlCamera(state, I.base, I.grid), seq, interactive});
+  I.epochs.push_back({epoch, parallel::controlCamera(state, I.base, I.grid), seq, interactive,
+                      std::string(enumName(parallel::liveMode(state))), I.preset});
   while (I.epochs.size() > 8) I.epochs.pop_front();
 }
 

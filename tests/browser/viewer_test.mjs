@@ -86,6 +86,7 @@ try {
   const sweep = await page.evaluate(() => ({images: window.pp5.images, distinct: window.pp5.distinct.size,
                                             stats: window.pp5.stats, outlines: window.pp5.outlines}));
   figures.sweep_images_per_s = (sweep.images - n0) / ((Date.now() - t0) / 1000);
+  await page.screenshot({path: path.join(out, 'screenshot.png')});  // the doll building up (docs/viewer.md)
   check(sweep.outlines > 0, 'the newest frame\'s outline is drawn over the 3D view');
   check(await until(page, (c) => window.pp5.coverage > c, cov0, 20000, 'coverage to rise'),
         `the coverage fraction rises during the sweep (from ${cov0})`);
@@ -120,17 +121,20 @@ try {
   const dragEpoch = (await snap()).epoch;
 
   // 3. The transfer function, the MIP switch and a slice slider each change what is shown.
-  const changes = async (what, act) => {
+  // An image of a newer epoch whose header says `key` is `value`.
+  const changes = async (what, key, value, act) => {
     const b = await snap();
     await act();
-    const ok = await newEpochImage(b.epoch, what);
+    const ok = await until(page, ([e, k, v]) => window.pp5.epoch > e && window.pp5.lastImage[k] === v,
+                           [b.epoch, key, value], 20000, what);
     await sleep(300);
     const a = await snap();
     await page.screenshot({path: path.join(out, `after-${what.replace(/\W+/g, '-')}.png`)});
     check(ok && a.distinct > b.distinct, `${what} changes the image (epoch ${b.epoch} -> ${a.epoch})`);
   };
-  await changes('the transfer function', () => page.locator('#tf-preset').selectOption('strong echoes'));
-  await changes('the MIP switch', () => page.locator('input[name=composite][value=mip]').check());
+  await changes('the transfer function', 'preset', 'strong echoes',
+                () => page.locator('#tf-preset').selectOption('strong echoes'));
+  await changes('the MIP switch', 'composite', 'mip', () => page.locator('input[name=composite][value=mip]').check());
   const mpr0 = () => page.evaluate(() => document.getElementById('mpr0').toDataURL());
   check(await until(page, () => window.pp5.mprs[0] > 0, null, 20000, 'a slice'), 'the slices are shown');
   const sliceBefore = await mpr0();
@@ -140,6 +144,7 @@ try {
   await until(page, (n) => window.pp5.mprs[0] > n, mprCount, 20000, 'a moved slice');
   check((await mpr0()) !== sliceBefore, 'the MPR slider changes the slice');
   await page.locator('input[name=composite][value=over]').check();
+  await until(page, () => window.pp5.lastImage.composite === 'over', null, 20000, 'the over image again');
 
   // 4. A bad control message gets an error reply and the run goes on.
   figures.latency_ms = await page.evaluate(() => window.pp5.latencies);
@@ -150,11 +155,10 @@ try {
         'bad control messages get error replies: ' + JSON.stringify(await page.evaluate(() => window.pp5.errors)));
   const afterBad = await snap();
   await page.locator('input[name=composite][value=additive]').check();
-  check(await newEpochImage(afterBad.epoch, 'an image after the bad messages'), 'the run goes on after them');
+  check(await until(page, (e) => window.pp5.epoch > e && window.pp5.lastImage.composite === 'additive', afterBad.epoch,
+                    20000, 'an image after the bad messages'), 'the run goes on after them');
   await page.locator('input[name=composite][value=over]').check();
-  await newEpochImage((await snap()).epoch, 'the over image again');
-  await sleep(500);
-  await page.screenshot({path: path.join(out, 'screenshot.png')});
+  await until(page, () => window.pp5.lastImage.composite === 'over', null, 20000, 'the over image again');
 
   // 5. Closing and reopening the page resumes the stream.
   await page.close();
