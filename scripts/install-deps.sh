@@ -25,7 +25,22 @@ pkgs=(
   libgtest-dev libgmock-dev
   libbenchmark-dev
   python3-matplotlib  # the plots of `pp5echo bench` (scripts/bench_plots.py)
+  chromium  # the viewer's browser test (tests/browser), driven by npm's playwright-core
 )
+# Node.js and npm for the browser test, unless a node is already there (a
+# NodeSource nodejs brings its own npm and conflicts with Debian's).
+if ! command -v node >/dev/null 2>&1 || ! command -v npm >/dev/null 2>&1; then pkgs+=(nodejs npm); fi
+
+# playwright-core from npm (the browser itself is Debian's chromium).
+npm_deps() {
+  if [ -d tests/browser/node_modules/playwright-core ]; then
+    echo "install-deps: playwright-core already installed"
+  else
+    echo "install-deps: npm ci (tests/browser: playwright-core)" >&2
+    (cd tests/browser && npm ci --no-audit --no-fund)
+  fi
+}
+cd "$(dirname "$0")/.."
 
 missing=()
 for p in "${pkgs[@]}"; do
@@ -36,6 +51,7 @@ done
 
 if [ ${#missing[@]} -eq 0 ]; then
   echo "install-deps: all ${#pkgs[@]} packages already installed"
+  npm_deps
   exit 0
 fi
 
@@ -48,3 +64,4 @@ $SUDO apt-get update -q
 # -q, not -qq: one line per package as it is unpacked and set up, so a long
 # install shows that it is moving.
 $SUDO apt-get install -y -q --no-install-recommends "${missing[@]}"
+npm_deps

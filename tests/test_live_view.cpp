@@ -1,0 +1,247 @@
+// The live viewer's host side without a browser: control messages checked
+// field by field (a bad one changes nothing), the transfer-function ramp,
+// scan coverage and the gap warning, and slices at display resolution.
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "core/error.hpp"
+#include "host/coverage.hpp"
+#include "host/live_view.hpp"
+#include "host/slices.hpp"
+#include "parallel/parallel_settings.hpp"
+
+namespace {
+
+using namespace pp5;
+using host::LiveView;
+
+Grid smallGrid() {
+  Grid g;
+  g.dims = Index3(40, 30, 20);
+  g.spacing = Vec3(1.0);
+  g.origin = Vec3(0.0);
+  return g;
+}
+
+struct Viewer {
+  Grid grid = smallGrid();
+  RenderSettings render;
+  gp::ReconSettings recon;
+  TransferFunctionSettings tf;
+  comm::ControlState initial;
+  std::unique_ptr<LiveView> live;
+  Viewer() {
+    render.width = render.height = 64;
+    initial = parallel::makeControlState(render, gp::ShadeSettings{}, tf);
+    host::ViewSettings vs;
+    vs.listen = "127.0.0.1:0";
+    live = std::make_unique<LiveView>(vs, grid, render, recon, tf, initial);
+  }
+};
+
+TEST(LiveControls, BadMessagesGetAnErrorAndChangeNothing) {
+  Viewer v;
+  const comm::ControlState before = v.live->wanted().state;
+  for (const char* bad : {
+           "not json", "[1, 2]", "{\"no\": \"type\"}", "{\"type\": 3}", "{\"type\": \"warp\"}",
+           R"({"type": "view", "seq": 1, "azimuth": 10, "elevation": 95, "distance": 3, "pan": [0, 0], "interactive": false})",
+           R"({"type": "view", "seq": 1, "azimuth": 10, "elevation": 5, "distance": 3, "pan": [0], "interactive": false})",
+           R"({"type": "view", "seq": 1, "azimuth": "left", "elevation": 5, "distance": 3, "pan": [0, 0], "interactive": false})",
+           R"({"type": "view", "seq": 1, "azimuth": 10, "elevation": 5, "distance": 3, "pan": [0, 0], "interactive": 1})",
+           R"({"type": "view", "seq": 1, "azimuth": 10, "elevation": 5, "distance": 3, "pan": [0, 0], "interactive": false, "x": 1})",
+           R"({"type": "tf", "level": 999, "window": 10, "opacity": 1})",
+           R"({"type": "tf", "level": 100, "window": 10, "opacity": 1.5})",
+           R"({"type": "tf", "preset": "no such preset"})",
+           R"({"type": "composite", "mode": "brightest"})",
+           R"({"type": "shading", "mode": "phong", "light": "sun", "light_azimuth": 0, "light_elevation": 0})",
+           R"({"type": "mpr", "axis": 1.5, "position": 0.5})",
+           R"({"type": "mpr", "axis": 3, "position": 0.5})",
+           R"({"type": "value_window", "window": 0, "level": 100})",
+           R"({"type": "record", "on": "yes"})",
+           R"({"type": "pause", "now": true})"}) {
+    const std::string err = v.live->control(bad);
+    EXPECT_FALSE(err.empty()) << bad;
+    EXPECT_EQ(parallel::controlChanges(before, v.live->wanted().state), 0u) << bad;
+  }
+  EXPECT_FALSE(v.live->wanted().paused);
+  EXPECT_FALSE(v.live->wanted().recording);
+}
+
+TEST(LiveControls, GoodMessagesChangeWhatThePipelineIsAsked) {
+  Viewer v;
+  EXPECT_EQ(v.live->control(R"({"type": "view", "seq": 4, "azimuth": 10, "elevation": 5, "distance": 2.5,
+                                "pan": [3, -2], "interactive": true})"),
+            "");
+  comm::ControlState s = v.live->wanted().state;
+  EXPECT_EQ(s.azimuthDeg, 10.0);
+  EXPECT_EQ(s.elevationDeg, 5.0);
+  EXPECT_EQ(s.distance, 2.5);
+  EXPECT_EQ(s.panMm[0], 3.0);
+  EXPECT_EQ(s.stepScale, host::ViewSettings{}.dragStepScale);  // a drag: the coarser lattice
+  EXPECT_EQ(v.live->control(R"({"type": "view", "seq": 5, "azimuth": 10, "elevation": 5, "distance": 2.5,
+                                "pan": [3, -2], "interactive": false})"),
+            "");
+  EXPECT_EQ(v.live->wanted().state.stepScale, 1.0);  // the mouse stopped: full resolution
+
+  EXPECT_EQ(v.live->control(R"({"type": "composite", "mode": "mip"})"), "");
+  EXPECT_EQ(parallel::liveMode(v.live->wanted().state), CompositeMode::Mip);
+  EXPECT_EQ(v.live->control(R"({"type": "value_window", "window": 100, "level": 80})"), "");
+  EXPECT_EQ(v.live->wanted().state.valueWindow[0], 30.0);
+  EXPECT_EQ(v.live->wanted().state.valueWindow[1], 130.0);
+
+  EXPECT_EQ(v.live->control(R"({"type": "tf", "level": 100, "window": 40, "opacity": 0.5})"), "");
+  s = v.live->wanted().state;
+  ASSERT_EQ(s.opacityPoints, 4);
+  EXPECT_EQ(s.opacity[1][0], 80.0);
+  EXPECT_EQ(s.opacity[2][0], 120.0);
+  EXPECT_EQ(s.opacity[2][1], 0.5);
+  EXPECT_EQ(v.live->control(R"({"type": "tf", "preset": "strong echoes"})"), "");
+  EXPECT_NE(v.live->wanted().state.opacity[1][0], 80.0);
+
+  EXPECT_EQ(v.live->control(R"({"type": "pause"})"), "");
+  EXPECT_TRUE(v.live->wanted().paused);
+  EXPECT_EQ(v.live->control(R"({"type": "resume"})"), "");
+  EXPECT_FALSE(v.live->wanted().paused);
+  EXPECT_EQ(v.live->control(R"({"type": "record", "on": true})"), "");
+  EXPECT_TRUE(v.live->wanted().recording);
+  EXPECT_EQ(v.live->control(R"({"type": "mpr", "axis": 2, "position": 0.25})"), "");
+}
+
+TEST(LiveControls, TheRunsOwnChangesDoNotUndoThePages) {
+  Viewer v;
+  ASSERT_EQ(v.live->control(R"({"type": "composite", "mode": "additive"})"), "");
+  // The run changes the view itself (an orbit frame) before it gets to the page's change.
+  comm::ControlState orbit = v.initial;
+  orbit.orbitValid = 1;
+  orbit.orbitDeg = 40.0;
+  v.live->epochStarted(1, orbit);
+  EXPECT_EQ(parallel::liveMode(v.live->wanted().state), CompositeMode::Additive);
+  // Once the pipeline made it, the run's next change is the page's new base.
+  v.live->epochStarted(2, v.live->wanted().state);
+  orbit.orbitDeg = 80.0;
+  v.live->epochStarted(3, orbit);
+  EXPECT_EQ(v.live->wanted().state.orbitDeg, 80.0);
+}
+
+TEST(LiveControls, TooManyMessagesAreRefused) {
+  Viewer v;
+  int refused = 0;
+  for (int i = 0; i < 400; ++i) refused += v.live->control(R"({"type": "pause"})").empty() ? 0 : 1;
+  EXPECT_GE(refused, 400 - 240);
+}
+
+TEST(LiveControls, ListenAddresses) {
+  std::string a;
+  int p = -1;
+  host::parseListen("8080", a, p, "view.listen");
+  EXPECT_EQ(a, "127.0.0.1");
+  EXPECT_EQ(p, 8080);
+  host::parseListen("0.0.0.0:0", a, p, "view.listen");
+  EXPECT_EQ(a, "0.0.0.0");
+  EXPECT_EQ(p, 0);
+  host::parseListen("[::1]:9000", a, p, "view.listen");
+  EXPECT_EQ(a, "::1");
+  for (const char* bad : {"", "http", "127.0.0.1:", ":80", "127.0.0.1:70000", "8080x"})
+    EXPECT_THROW(host::parseListen(bad, a, p, "view.listen"), InputError) << bad;
+}
+
+TEST(LiveControls, OpacityRampIsIncreasingAndClipped) {
+  for (const auto& [level, window] : std::vector<std::pair<double, double>>{{128, 64}, {10, 100}, {250, 40}, {0, 1}}) {
+    const auto pts = host::rampOpacity(level, window, 0.7);
+    ASSERT_GE(pts.size(), 2u);
+    EXPECT_EQ(pts.front().x, 0.0);
+    EXPECT_EQ(pts.back().x, 255.0);
+    for (std::size_t i = 1; i < pts.size(); ++i) EXPECT_GT(pts[i].x, pts[i - 1].x);
+    for (const auto& p : pts) {
+      const double want = 0.7 * std::clamp((p.x - (level - window / 2)) / window, 0.0, 1.0);
+      EXPECT_NEAR(p.y, want, 1e-12);
+    }
+  }
+}
+
+// A frame of 20 x 10 pixels of 1 mm in the plane z = z0, its corner at (x0, 5).
+Mat4 framePose(double x0, double z0) {
+  Mat4 m(1.0);
+  m[3] = Vec4(x0, 5.0, z0, 1.0);
+  return m;
+}
+
+TEST(Coverage, SweptCellsGapsAndOutline) {
+  const Grid g = smallGrid();
+  gp::ReconSettings recon;
+  recon.fillInMaxGapMm = 6.0;
+  host::Coverage cov(g, recon, 4.0);
+  EXPECT_EQ(cov.fraction(), 0.0);
+  cov.add(framePose(5.0, 10.0), 20, 10);
+  const double one = cov.fraction();
+  EXPECT_GT(one, 0.0);
+  EXPECT_LT(one, 0.2);
+  EXPECT_TRUE(cov.covered(Vec3(10.0, 8.0, 10.0)));
+  EXPECT_FALSE(cov.covered(Vec3(10.0, 8.0, 2.0)));
+  cov.add(framePose(5.0, 10.0), 20, 10);  // the same plane again: nothing new
+  EXPECT_EQ(cov.fraction(), one);
+  EXPECT_FALSE(cov.gapWarning());
+  cov.add(framePose(5.0, 14.0), 20, 10);  // 4 mm on: fill-in reaches
+  EXPECT_GT(cov.fraction(), one);
+  EXPECT_NEAR(cov.lastGapMm(), 4.0, 1e-9);
+  EXPECT_FALSE(cov.gapWarning());
+  cov.add(framePose(5.0, 4.0), 20, 10);  // 10 mm back: too far, holes
+  EXPECT_TRUE(cov.gapWarning());
+  EXPECT_EQ(cov.gapLimitMm(), 6.0);
+
+  // The outline: the frame's corners where the camera draws them.
+  RenderSettings rs;
+  rs.width = rs.height = 100;
+  const Camera cam = makeCamera(rs, g);
+  const auto corners = host::frameCorners(framePose(5.0, 10.0), 20, 10);
+  const auto o = host::outlineOnScreen(cam, corners);
+  ASSERT_TRUE(o.has_value());
+  for (int i = 0; i < 4; ++i) {
+    const auto p = cam.project(corners[static_cast<std::size_t>(i)]);
+    EXPECT_NEAR((*o)[static_cast<std::size_t>(i)][0], p->px, 1e-9);
+    EXPECT_GT((*o)[static_cast<std::size_t>(i)][0], 0.0);
+    EXPECT_LT((*o)[static_cast<std::size_t>(i)][0], 100.0);
+  }
+}
+
+TEST(Slices, DisplayResolutionWindowLevelAndOblique) {
+  const Grid g = smallGrid();
+  Volume v;
+  v.allocate(g, ScalarType::F32);
+  for (std::int64_t k = 0; k < g.dims.z; ++k)
+    for (std::int64_t j = 0; j < g.dims.y; ++j)
+      for (std::int64_t i = 0; i < g.dims.x; ++i) v.setValue(g.linear(i, j, k), 5.0 * static_cast<double>(i) + k);
+  host::SliceLook look;
+  look.longSide = 200;
+  const host::SliceImage ax = host::slice(v, {host::SliceAxis::Axial, 0.5, 0.0}, look);
+  EXPECT_EQ(ax.width, 200);   // 40 mm on the long side
+  EXPECT_EQ(ax.height, 150);  // 30 mm: the proportions kept
+  auto at = [](const host::SliceImage& im, int x, int y) { return im.rgb[(static_cast<std::size_t>(y) * im.width + x) * 3]; };
+  // Trilinear: the grey level grows smoothly left to right (5 per mm).
+  EXPECT_LT(at(ax, 20, 75), at(ax, 100, 75));
+  EXPECT_NEAR(at(ax, 102, 75) - at(ax, 98, 75), 4.0 / 5.0 * 5.0, 1.01);
+  // Window and level: level 100 window 50 maps 75..125 to black..white.
+  look.window = 50;
+  look.level = 100;
+  const host::SliceImage wl = host::slice(v, {host::SliceAxis::Axial, 0.5, 0.0}, look);
+  EXPECT_EQ(at(wl, 5, 75), 0);
+  EXPECT_EQ(at(wl, 195, 75), 255);
+  // Oblique: tilted, the slice meets other depths (the value grows with z).
+  look = host::SliceLook{};
+  look.longSide = 200;
+  const host::SliceImage ob = host::slice(v, {host::SliceAxis::Coronal, 0.5, 30.0}, look);
+  const host::SliceImage co = host::slice(v, {host::SliceAxis::Coronal, 0.5, 0.0}, look);
+  EXPECT_EQ(ob.width, co.width);
+  EXPECT_NE(ob.rgb, co.rgb);
+  EXPECT_THROW(host::slice(v, {}, host::SliceLook{512, 0.0, 100.0}), InputError);
+  // Coverage: what no frame swept is tinted.
+  gp::ReconSettings recon;
+  host::Coverage cov(g, recon, 4.0);
+  cov.add(framePose(5.0, 10.0), 20, 10);
+  const host::SliceImage tinted = host::slice(v, {host::SliceAxis::Axial, 0.5, 0.0}, look, &cov);
+  const std::size_t far = (static_cast<std::size_t>(5) * tinted.width + 190) * 3;  // not swept
+  EXPECT_GT(tinted.rgb[far], tinted.rgb[far + 1]);
+}
+
+}  // namespace
