@@ -115,6 +115,9 @@ public:
       live_->image(pipe_.image().rgba, pipe_.image().width, pipe_.image().height, epoch_,
                    static_cast<std::int64_t>(frames_) - 1);
     }
+    if (live_->wantsImage())
+      live_->image(pipe_.image().rgba, pipe_.image().width, pipe_.image().height, epoch_,
+                   static_cast<std::int64_t>(frames_) - 1);
     if (w.recording && !recorder_) {
       const std::string path = (fs::path(dir_) / fmt::format("recording-{}.mha", ++recordings_)).string();
       recorder_ = std::make_unique<host::Recorder>(path);
@@ -509,6 +512,30 @@ void addRunOptions(CLI::App* cmd, const std::shared_ptr<RunOptions>& o) {
                 "Keep the final volume interactive in the viewer after the input ends, until Ctrl-C (view.serve)");
 }
 
+// `pp5echo view VOLUME.mha`: any volume (one pp5echo or PLUS wrote) in the
+// live viewer, rendered like a reconstructed one, until Ctrl-C.
+int viewVolume(const std::string& file, const std::string& config, const std::vector<std::string>& overrides,
+               const std::string& listen) {
+  Settings s;
+  ConfigSchema schema;
+  registerAll(schema, s);
+  loadSettings(schema, config, overrides);
+  if (!listen.empty()) s.view.listen = listen;
+  if (s.view.listen.empty()) s.view.listen = "127.0.0.1:8080";
+  s.view.serve = true;
+  std::signal(SIGINT, onInterrupt);
+  std::signal(SIGTERM, onInterrupt);
+  const Volume v = readVolume(file);
+  spdlog::info("view: {}: {}x{}x{} voxels of {} x {} x {} mm", file, v.grid.dims.x, v.grid.dims.y, v.grid.dims.z,
+               v.grid.spacing.x, v.grid.spacing.y, v.grid.spacing.z);
+  serial::SerialPipeline pipe(v, serial::PipelineSettings{s.recon, s.render, s.shading, s.tf, s.cache});
+  SerialViewer viewer(s, v.grid, pipe, s.output.dir);
+  viewer.live().volume(pipe.reconstructor().output());
+  viewer.ended();
+  viewer.serveFinal();
+  return 0;
+}
+
 // --source becomes overrides placed before the user's own --set ones.
 int runWithSource(RunOptions o, const std::string& record) {
   std::vector<std::string> extra;
@@ -527,6 +554,19 @@ void addRunCommand(CLI::App& app, int& exitCode) {
                                         "and write the images");
   addRunOptions(cmd, o);
   cmd->callback([o, &exitCode] { exitCode = runWithSource(*o, ""); });
+
+  struct ViewOptions {
+    std::string file, config, listen;
+    std::vector<std::string> overrides;
+  };
+  auto vo = std::make_shared<ViewOptions>();
+  auto* vcmd = app.add_subcommand("view", "Open a volume (.mha, .nrrd; one pp5echo or PLUS wrote) in the live viewer, "
+                                          "until Ctrl-C");
+  vcmd->add_option("VOLUME", vo->file, "The volume")->required();
+  vcmd->add_option("-c,--config", vo->config, "TOML configuration for the rendering (optional)");
+  vcmd->add_option("--set", vo->overrides, "Override an option: key=value (repeatable)");
+  vcmd->add_option("--view", vo->listen, "Serve at [ADDR:]PORT (default view.listen, else 127.0.0.1:8080)");
+  vcmd->callback([vo, &exitCode] { exitCode = viewVolume(vo->file, vo->config, vo->overrides, vo->listen); });
 
   auto r = std::make_shared<RunOptions>();
   auto rec = std::make_shared<std::string>();

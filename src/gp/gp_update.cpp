@@ -5,12 +5,12 @@
 namespace pp5::gp {
 
 GpUpdate::GpUpdate(const Grid& grid, const GpUpdateSettings& settings, const Camera& camera,
-                   std::unique_ptr<GpShare> share)
-    : grid_(grid), s_(settings), share_(std::move(share)), tf_(settings.tf), camera_(camera) {
+                   std::unique_ptr<GpShare> share, std::unique_ptr<Reconstructor> recon)
+    : grid_(grid), s_(settings), share_(std::move(share)), recon_(std::move(recon)), tf_(settings.tf), camera_(camera) {
   s_.shading.threads = s_.render.threads;
   s_.shading.greyValues = compositesGreyValues(s_.render.compositing.front());
   // The reconstruction, then the shade buffer (4 bytes a voxel) on top of it.
-  recon_ = makeReconstructor(grid_, s_.recon, s_.memoryLimitBytes, "reconstruction grid ([grid])");
+  if (!recon_) recon_ = makeReconstructor(grid_, s_.recon, s_.memoryLimitBytes, "reconstruction grid ([grid])");
   checkGridFits(grid_, 4, "shade buffer ([grid])", s_.memoryLimitBytes);
   shade_ = ShadeBuffer(grid_);
   lattice_ = SampleLattice(camera_, grid_, s_.render.step(grid_), s_.render.maxSamples, s_.render.threads);

@@ -78,7 +78,10 @@ public:
   // The empty grid, shaded under `camera` (nothing to sample yet: every
   // sample of an empty grid is transparent). InputError when the
   // reconstruction and the shade buffer do not fit in memory.
-  GpUpdate(const Grid& grid, const GpUpdateSettings& settings, const Camera& camera, std::unique_ptr<GpShare> share);
+  // `recon`: a reconstructor made elsewhere (e.g. gp/stored_volume), else one
+  // made from settings.recon.
+  GpUpdate(const Grid& grid, const GpUpdateSettings& settings, const Camera& camera, std::unique_ptr<GpShare> share,
+           std::unique_ptr<Reconstructor> recon = nullptr);
 
   Reconstructor& reconstructor() { return *recon_; }
   const Reconstructor& reconstructor() const { return *recon_; }

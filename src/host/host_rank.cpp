@@ -426,6 +426,7 @@ private:
         if (ref_) verify(fb_, ref_->image(), "after a change from the viewer");
       }
     }
+    if (live_->wantsImage()) live_->image(fb_, w_, h_, shownEpoch_, shownEpoch_ == epoch_ ? imageFrame_ : shownFrame_);
     if (w.recording && !recorder_) {
       const std::string path =
           (fs::path(j_.outDir) / fmt::format("recording-{}.mha", ++recordings_)).string();

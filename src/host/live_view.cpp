@@ -184,6 +184,7 @@ struct LiveView::Impl {
   std::uint32_t imageEpoch = 0;
   std::int64_t imageFrame = -1;
   bool imagePending = false;
+  bool needImage = false;  // a new browser: the host's current image, please
   Frame pendingBmode;
   std::uint64_t bmodeIndex = 0;
   double bmodeTime = 0;
@@ -396,6 +397,7 @@ struct LiveView::Impl {
       clients = nowClients;
       if (!clients) continue;
       if (newClient) {  // what it missed: the newest of each
+        needImage = true;
         for (auto* msg : {&lastImage, &lastBmodeMsg, &lastSlices[0], &lastSlices[1], &lastSlices[2]})
           if (!msg->empty()) server->publish(msg == &lastImage ? kImage : msg == &lastBmodeMsg ? kBmode
                                                                            : kSlice0 + static_cast<int>(msg - lastSlices),
@@ -570,6 +572,7 @@ void LiveView::image(const std::vector<float>& rgba, int width, int height, std:
   Impl& I = *impl_;
   if (I.server->clients() == 0) return;
   const std::lock_guard lock(I.m);
+  I.needImage = false;
   I.pendingImage.assign(rgba.begin(), rgba.end());
   I.imageW = width;
   I.imageH = height;
@@ -577,6 +580,11 @@ void LiveView::image(const std::vector<float>& rgba, int width, int height, std:
   I.imageFrame = frame;
   I.imagePending = true;
   I.cv.notify_one();
+}
+
+bool LiveView::wantsImage() const {
+  const std::lock_guard lock(impl_->m);
+  return impl_->needImage;
 }
 
 bool LiveView::wantsVolume() const {

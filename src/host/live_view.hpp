@@ -87,6 +87,8 @@ public:
   // The image (width * height RGBA floats, premultiplied) holding every frame
   // up to `frame`, in `epoch`'s view.
   void image(const std::vector<float>& rgba, int width, int height, std::uint32_t epoch, std::int64_t frame);
+  // Whether a browser came that has no image yet: the caller hands over the current one.
+  bool wantsImage() const;
   // Whether the slices want a newer volume; volume() hands one over (copied).
   bool wantsVolume() const;
   void volume(const Volume& v);

@@ -6,6 +6,7 @@
 #include <span>
 
 #include "core/error.hpp"
+#include "gp/stored_volume.hpp"
 
 namespace pp5::serial {
 
@@ -41,6 +42,14 @@ private:
 
 SerialPipeline::SerialPipeline(const Grid& grid, const PipelineSettings& s, std::uint64_t memoryLimitBytes)
     : s_(s), grid_(grid) {
+  init(nullptr, memoryLimitBytes);
+}
+
+SerialPipeline::SerialPipeline(const Volume& volume, const PipelineSettings& s) : s_(s), grid_(volume.grid) {
+  init(gp::storedVolume(volume), 0);
+}
+
+void SerialPipeline::init(std::unique_ptr<gp::Reconstructor> recon, std::uint64_t memoryLimitBytes) {
   if (s_.render.compositing.empty()) throw InputError("render.compositing: no composition mode given");
   live_ = checkedEnum(s_.render.compositing.front());
   s_.shading.threads = s_.render.threads;
@@ -52,7 +61,8 @@ SerialPipeline::SerialPipeline(const Grid& grid, const PipelineSettings& s, std:
   us.shading = s_.shading;
   us.tf = s_.tf;
   us.memoryLimitBytes = memoryLimitBytes;
-  gp_ = std::make_unique<gp::GpUpdate>(grid_, us, makeCamera(s_.render, grid_), std::make_unique<gp::WholeShare>(grid_));
+  gp_ = std::make_unique<gp::GpUpdate>(grid_, us, makeCamera(s_.render, grid_), std::make_unique<gp::WholeShare>(grid_),
+                                       std::move(recon));
   resetCaches();
   caches_->setValueWindow(s_.render.valueWindow.x, s_.render.valueWindow.y);
   resample(true);

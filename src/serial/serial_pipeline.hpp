@@ -53,6 +53,8 @@ class SerialPipeline {
 public:
   // Refuses (InputError) a grid whose reconstruction and shade buffer do not fit in memory.
   SerialPipeline(const Grid& grid, const PipelineSettings& settings, std::uint64_t memoryLimitBytes = 0);
+  // A volume read from a file, rendered like a reconstructed one; insert() refuses frames.
+  SerialPipeline(const Volume& volume, const PipelineSettings& settings);
 
   FrameStats insert(const Frame& f, const Mat4& imageToReference, double timeS);
   // The reconstruction's final passes (e.g. hole filling at the end), then a
@@ -96,6 +98,7 @@ private:
   std::unique_ptr<pp::TileCaches> caches_;  // one tile: the whole image
   std::uint64_t frames_ = 0;
 
+  void init(std::unique_ptr<gp::Reconstructor> recon, std::uint64_t memoryLimitBytes);
   // The caches reset for the current camera's lattice (every sample transparent).
   void resetCaches();
   // Samples the whole shade buffer into the cache and composites.

@@ -190,6 +190,44 @@ try {
   check(false, 'stats.csv: ' + e.message);
 }
 
+// `pp5echo view` shows the volume the run wrote, in the same page.
+{
+  const view = spawn(bin, ['view', path.join(out, 'run', 'volume.mha'), '--view', '127.0.0.1:0'],
+                     {stdio: ['ignore', 'pipe', 'pipe']});
+  let log = '';
+  const viewUrl = await new Promise((resolve) => {
+    const onData = (d) => {
+      log += d.toString();
+      const m = log.match(/viewer: open (http:\/\/\S+)/);
+      if (m) resolve(m[1]);
+    };
+    view.stdout.on('data', onData);
+    view.stderr.on('data', onData);
+    view.on('exit', () => resolve(null));
+    setTimeout(() => resolve(null), 30000);
+  });
+  check(viewUrl !== null, 'pp5echo view prints its URL' + (viewUrl ? '' : ':\n' + log));
+  if (viewUrl) {
+    const b = await chromium.launch({executablePath: process.env.CHROMIUM || '/usr/bin/chromium',
+                                     args: ['--headless', '--no-sandbox', '--disable-gpu', '--no-first-run']});
+    try {
+      const p = await b.newPage();
+      await p.goto(viewUrl);
+      check(await until(p, () => window.pp5.images > 0 && window.pp5.mprs[1] > 0, null, 30000, 'the volume'),
+            'pp5echo view shows the volume and its slices');
+      await p.locator('input[name=composite][value=mip]').check();
+      check(await until(p, () => window.pp5.lastImage && window.pp5.lastImage.composite === 'mip', null, 30000, 'MIP'),
+            'pp5echo view steers like a run (MIP)');
+    } finally {
+      await b.close();
+    }
+  }
+  const viewExit = new Promise((resolve) => view.on('exit', (c) => resolve(c)));
+  view.kill('SIGINT');
+  const c = await Promise.race([viewExit, sleep(30000).then(() => 'timeout')]);
+  check(c === 0, `pp5echo view ends cleanly on Ctrl-C (exit ${c})`);
+}
+
 const lat = (figures.latency_ms || []).slice().sort((a, b) => a - b);
 const q = (p) => (lat.length ? lat[Math.min(lat.length - 1, Math.ceil(p * lat.length) - 1)] : null);
 figures.latency_ms_median = q(0.5);
