@@ -59,6 +59,10 @@ enum Tag : int {
   // reconstruction grid, which only the host's source knows (its extent comes
   // from the frames it reads or simulates).
   kTagGrid = 14,
+  // host -> GP, PP (EmptyMsg): nothing to do, the host is alive. Sent while
+  // the pipeline idles for the live viewer (acquisition paused, the final
+  // volume served), so that no rank's parallel.timeout_s runs out.
+  kTagKeepAlive = 15,
 };
 
 struct Header {

@@ -120,7 +120,7 @@ private:
   std::deque<std::pair<Clock::time_point, std::uint64_t>> rateWindow_;  // (time, frames sent) every figures()
   std::deque<std::pair<Clock::time_point, std::uint64_t>> imageWindow_;
   std::deque<std::pair<Clock::time_point, std::pair<double, double>>> busyWindow_;
-  Clock::time_point lastFigures_{};
+  Clock::time_point lastFigures_{}, lastKeepAlive_ = Clock::now();
   std::unique_ptr<Recorder> recorder_;
   int recordings_ = 0;
   std::uint64_t pausedFrames_ = 0;
@@ -445,6 +445,13 @@ private:
       for (int g = 0; g < L_.gps; ++g) t_.send(L_.gpRank(g), rq);
     }
     const auto now = Clock::now();
+    if (std::chrono::duration<double>(now - lastKeepAlive_).count() > 0.25 * j_.parallel.timeoutS) {
+      // The viewer can keep the pipeline idle (a pause, the served final volume).
+      lastKeepAlive_ = now;
+      EmptyMsg ka;
+      ka.h = {kTagKeepAlive, epoch_, sent_ ? sent_ - 1 : 0};
+      for (int r = 1; r < L_.worldSize(); ++r) t_.send(r, ka);
+    }
     if (now - lastFigures_ > std::chrono::milliseconds(250)) {
       lastFigures_ = now;
       rateWindow_.emplace_back(now, sent_);

@@ -98,6 +98,7 @@ public:
         case kTagPrevious: onPrevious(m); break;
         case kTagControl: onControl(m); break;
         case kTagVolumeRequest: sendVolume(h); break;
+        case kTagKeepAlive: break;
         case kTagQuit: {
           const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
           const std::uint64_t mem =
