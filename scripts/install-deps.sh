@@ -19,6 +19,7 @@ pkgs=(
   libpugixml-dev
   libspdlog-dev libfmt-dev
   zlib1g-dev
+  libgif-dev  # giflib: buildup.gif and orbit.gif, whole frames (src/core/image_io)
   nlohmann-json3-dev
   libboost-dev  # Boost.Beast: the live viewer's HTTP and WebSocket server (src/viewer)
   libturbojpeg0-dev  # the viewer's JPEG images (src/viewer/jpeg)

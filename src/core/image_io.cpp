@@ -1,11 +1,14 @@
 #include "core/image_io.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <memory>
+#include <vector>
 
 #include <OpenImageIO/imageio.h>
+#include <gif_lib.h>
 
 #include "core/error.hpp"
 
@@ -52,54 +55,97 @@ void writeRgbPng(const std::string& path, int width, int height, const std::uint
   writeImage(path, width, height, 3, rgb);
 }
 
+// GIF with giflib, each frame whole with its own palette (median cut, no
+// dithering) and no transparency. OpenImageIO's writer (gif.h) encodes a
+// frame as a delta: it keeps the previous frame's pixel wherever the new
+// colour quantises close to the old one, which left fragments of earlier
+// views in orbit.gif (tests/gif_frames.py).
 struct AnimatedGif::Impl {
   std::filesystem::path final, tmp;
-  std::unique_ptr<OIIO::ImageOutput> out;
-  OIIO::ImageSpec spec;
+  GifFileType* gif = nullptr;
+  int width = 0, height = 0, delay = 0;
+  void fail(const char* what, int error) const {
+    inputError(final.string(), "cannot write the animation ({}): {}", what, GifErrorString(error));
+  }
 };
 
 AnimatedGif::AnimatedGif(const std::string& path, int width, int height, double fps) : impl_(std::make_unique<Impl>()) {
   PP5_CHECK_GT(width, 0);
   PP5_CHECK_GT(height, 0);
   PP5_CHECK(fps > 0.0);
-  impl_->final = path;
-  impl_->tmp = impl_->final.parent_path() / (".tmp-" + impl_->final.filename().string());
-  impl_->out = OIIO::ImageOutput::create(impl_->tmp.string());
-  if (!impl_->out) inputError(path, "cannot write a GIF ({})", OIIO::geterror());
-  impl_->spec = OIIO::ImageSpec(width, height, 3, OIIO::TypeDesc::UINT8);
-  // GIF stores frame delays in hundredths of a second.
-  const int rate[2] = {static_cast<int>(std::lround(fps * 100.0)), 100};
-  impl_->spec.attribute("FramesPerSecond", OIIO::TypeRational, rate);
-  impl_->spec.attribute("oiio:Movie", 1);
-  impl_->spec.attribute("gif:LoopCount", 0);
+  if (width > 65535 || height > 65535) inputError(path, "a GIF is at most 65535 pixels a side");
+  Impl& I = *impl_;
+  I.final = path;
+  I.tmp = I.final.parent_path() / (".tmp-" + I.final.filename().string());
+  I.width = width;
+  I.height = height;
+  I.delay = std::max(1, static_cast<int>(std::lround(100.0 / fps)));  // hundredths of a second
+  int err = 0;
+  I.gif = EGifOpenFileName(I.tmp.string().c_str(), false, &err);
+  if (!I.gif) I.fail("open", err);
+  EGifSetGifVersion(I.gif, true);
+  if (EGifPutScreenDesc(I.gif, width, height, 8, 0, nullptr) == GIF_ERROR) I.fail("screen", I.gif->Error);
+  // Loop forever (the NETSCAPE2.0 application extension).
+  const GifByteType loop[3] = {1, 0, 0};
+  if (EGifPutExtensionLeader(I.gif, APPLICATION_EXT_FUNC_CODE) == GIF_ERROR ||
+      EGifPutExtensionBlock(I.gif, 11, "NETSCAPE2.0") == GIF_ERROR || EGifPutExtensionBlock(I.gif, 3, loop) == GIF_ERROR ||
+      EGifPutExtensionTrailer(I.gif) == GIF_ERROR)
+    I.fail("loop", I.gif->Error);
 }
 
 AnimatedGif::~AnimatedGif() {
-  if (impl_ && impl_->out) {
-    if (frames_ > 0) impl_->out->close();
+  if (impl_ && impl_->gif) {
+    int err = 0;
+    EGifCloseFile(impl_->gif, &err);
     std::error_code ec;
     std::filesystem::remove(impl_->tmp, ec);
   }
 }
 
 void AnimatedGif::add(const std::uint8_t* rgb) {
-  PP5_CHECK(impl_->out != nullptr);
-  const auto mode = frames_ == 0 ? OIIO::ImageOutput::Create : OIIO::ImageOutput::AppendSubimage;
-  if (!impl_->out->open(impl_->tmp.string(), impl_->spec, mode))
-    inputError(impl_->final.string(), "cannot add frame {}: {}", frames_, impl_->out->geterror());
-  if (!impl_->out->write_image(OIIO::TypeDesc::UINT8, rgb))
-    inputError(impl_->final.string(), "cannot write frame {}: {}", frames_, impl_->out->geterror());
+  Impl& I = *impl_;
+  PP5_CHECK(I.gif != nullptr);
+  const std::size_t n = static_cast<std::size_t>(I.width) * static_cast<std::size_t>(I.height);
+  std::vector<GifByteType> r(n), g(n), b(n), index(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    r[i] = rgb[3 * i];
+    g[i] = rgb[3 * i + 1];
+    b[i] = rgb[3 * i + 2];
+  }
+  int colours = 256;
+  GifColorType palette[256] = {};
+  if (GifQuantizeBuffer(static_cast<unsigned>(I.width), static_cast<unsigned>(I.height), &colours, r.data(), g.data(),
+                        b.data(), index.data(), palette) == GIF_ERROR)
+    inputError(I.final.string(), "cannot quantise frame {}", frames_);
+  ColorMapObject* map = GifMakeMapObject(256, palette);
+  if (!map) inputError(I.final.string(), "cannot make the palette of frame {}", frames_);
+  GraphicsControlBlock gcb{};
+  gcb.DisposalMode = DISPOSE_DO_NOT;  // every frame covers the whole image
+  gcb.UserInputFlag = false;
+  gcb.DelayTime = I.delay;
+  gcb.TransparentColor = NO_TRANSPARENT_COLOR;
+  GifByteType ext[4];
+  const auto extLen = static_cast<int>(EGifGCBToExtension(&gcb, ext));
+  bool ok = EGifPutExtension(I.gif, GRAPHICS_EXT_FUNC_CODE, extLen, ext) != GIF_ERROR &&
+            EGifPutImageDesc(I.gif, 0, 0, I.width, I.height, false, map) != GIF_ERROR;
+  for (int y = 0; ok && y < I.height; ++y)
+    ok = EGifPutLine(I.gif, index.data() + static_cast<std::size_t>(y) * I.width, I.width) != GIF_ERROR;
+  GifFreeMapObject(map);
+  if (!ok) inputError(I.final.string(), "cannot write frame {}: {}", frames_, GifErrorString(I.gif->Error));
   ++frames_;
 }
 
 void AnimatedGif::close() {
-  PP5_CHECK(impl_->out != nullptr);
-  if (frames_ == 0) inputError(impl_->final.string(), "an animation needs at least one frame");
-  impl_->out->close();
-  impl_->out.reset();
+  Impl& I = *impl_;
+  PP5_CHECK(I.gif != nullptr);
+  if (frames_ == 0) inputError(I.final.string(), "an animation needs at least one frame");
+  int err = 0;
+  const int rc = EGifCloseFile(I.gif, &err);
+  I.gif = nullptr;
+  if (rc == GIF_ERROR) I.fail("close", err);
   std::error_code ec;
-  std::filesystem::rename(impl_->tmp, impl_->final, ec);
-  if (ec) inputError(impl_->final.string(), "cannot rename the finished animation into place: {}", ec.message());
+  std::filesystem::rename(I.tmp, I.final, ec);
+  if (ec) inputError(I.final.string(), "cannot rename the finished animation into place: {}", ec.message());
 }
 
 Image8 readImage8(const std::string& path) {

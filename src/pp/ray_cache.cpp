@@ -65,9 +65,9 @@ void registerOptions(ConfigSchema& c, RayCacheSettings& s) {
   c.option("render.cache.termination_alpha", &s.terminationAlpha, 1.0 - 1.0 / 512.0, 0.5, 1.0,
            "Accumulated alpha that ends a ray (early termination); what lies behind can change the pixel by at "
            "most 1 - termination_alpha. 1 stops only at full opacity, which changes nothing.");
-  c.option("render.cache.additive_scale", &s.additiveScale, 0.25, 1e-6, 1e6,
-           "\"additive\": the sums of the samples' premultiplied colour and alpha are multiplied by this, then "
-           "clamped to 1, for display.");
+  c.option("render.cache.additive_scale", &s.additiveScale, 0.02, 1e-6, 1e6,
+           "\"additive\": the integral of the grey value along the ray (grey level x mm) times this is the grey "
+           "level shown through render.value_window; 0.02 shows the mean over 50 mm.");
 }
 
 namespace {

@@ -25,12 +25,14 @@
 // Output: a float RGBA image of the tile, premultiplied by alpha and not
 // composited over anything; toRgb8 puts it over a background for display.
 //  - over:     front to back (Levoy), premultiplied colour and its alpha.
-//  - additive: the sums of the samples' premultiplied colour and alpha, each
-//              times `additive_scale`, clamped to [0, 1].
-//  - mip:      the per-channel maximum of the samples' premultiplied colour
-//              and alpha (a max of each channel alone is associative and needs
-//              no tie-break; for a grey transfer function it is the max by
-//              luminance).
+//  - additive and mip composite grey-value samples (r = g = b = v / 255, a =
+//              v / 255 x step / opacity unit; gp/ray_sampler): additive the
+//              sum of a times `additive_scale` (an integral of the grey level
+//              along the ray), mip the largest r (the brightest grey level).
+//              Either is shown through the value window (setValueWindow) as
+//              premultiplied white: v over black. The fold is per channel (a
+//              max of each channel alone is associative and needs no
+//              tie-break).
 //
 // One RayCache is used by one thread at a time; caches of different tiles
 // share nothing, so they can be used concurrently. composite() may use OpenMP
@@ -77,7 +79,7 @@ struct RayCacheSettings {
   SampleFormat format = SampleFormat::Half;
   bool earlyTermination = true;
   double terminationAlpha = 1.0 - 1.0 / 512.0;
-  double additiveScale = 0.25;
+  double additiveScale = 0.02;
 
   // Throws InputError naming the key when a value the schema cannot express
   // (block_size a power of two) is wrong.
