@@ -90,12 +90,7 @@ public:
   void frame(const Frame& f, const Mat4& pose, double t, std::chrono::steady_clock::time_point arrival, double ms) {
     if (!live_) return;
     live_->frame(f, pose, frames_, t, arrival);
-    if (recorder_) {
-      Frame r = f;
-      std::erase_if(r.transforms, [](const FrameTransform& x) { return x.name == "ImageToReference"; });
-      r.transforms.push_back({"ImageToReference", pose, true});
-      recorder_->write(r);
-    }
+    if (recorder_) recorder_->writePlaced(f, pose);
     ++frames_;
     frameMs_.push_back(ms);
     live_->image(pipe_.image().rgba, pipe_.image().width, pipe_.image().height, epoch_,

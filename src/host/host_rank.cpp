@@ -405,11 +405,9 @@ private:
 
   // ---- the live viewer -------------------------------------------------
   void record(const AcquiredFrame& a) {
-    Frame f = a.frame;  // as sent, placed: its ImageToReference with it
-    std::erase_if(f.transforms, [](const FrameTransform& t) { return t.name == "ImageToReference"; });
-    f.transforms.push_back({"ImageToReference", a.imageToReference, true});
+    Frame f = a.frame;
     f.timestamp = a.timeS;
-    recorder_->write(f);
+    recorder_->writePlaced(f, a.imageToReference);
   }
 
   // What the page asks: a control change (once the last one's image is in,

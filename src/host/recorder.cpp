@@ -21,6 +21,13 @@ void Recorder::write(const Frame& f) {
   ++frames_;
 }
 
+void Recorder::writePlaced(const Frame& f, const Mat4& imageToReference) {
+  Frame placed = f;
+  std::erase_if(placed.transforms, [](const FrameTransform& t) { return t.name == "ImageToReference"; });
+  placed.transforms.push_back({"ImageToReference", imageToReference, true});
+  write(placed);
+}
+
 void Recorder::close() {
   if (!w_) return;
   auto w = std::move(w_);

@@ -24,6 +24,9 @@ public:
   Recorder(const Recorder&) = delete;
   Recorder& operator=(const Recorder&) = delete;
   void write(const Frame& f);
+  // A frame as it went into the pipeline: with its ImageToReference (replacing
+  // any it had), so that the file replays without a device-set configuration.
+  void writePlaced(const Frame& f, const Mat4& imageToReference);
   void close();
 
 private:

@@ -46,7 +46,8 @@ async function until(page, fn, arg, ms, what) {
 
 // ---- the run ------------------------------------------------------------------
 const runArgs = [ranks, bin, 'run', path.join(repo, 'configs/doll.toml'), '-o', path.join(out, 'run'), '--view', '127.0.0.1:0',
-                 '--serve', '--set', `run.pace_fps=${pace}`, '--set', 'run.orbit_frames=0', ...sets];
+                 '--serve', '--set', `run.pace_fps=${pace}`, '--set', 'run.orbit_frames=0',
+                 '--set', 'sim.sweep.capture_interval_mm=1.5', ...sets];
 console.log('run: scripts/mpirun.sh ' + runArgs.join(' '));
 const run = spawn('bash', [path.join(repo, 'scripts/mpirun.sh'), ...runArgs], {stdio: ['ignore', 'pipe', 'pipe']});
 let runLog = '';
@@ -79,6 +80,10 @@ try {
 
   // 1. The image builds up while frames arrive.
   check(await until(page, () => window.pp5.images > 0, null, 30000, 'a first image'), 'the page shows an image');
+  // Recording from the page, while the sweep goes on (checked in the file after the run).
+  await page.locator('#record').click();
+  check(await until(page, () => window.pp5.stats && window.pp5.stats.recording !== '', null, 10000, 'recording'),
+        'the record button starts a recording');
   const cov0 = await page.evaluate(() => window.pp5.coverage);
   const t0 = Date.now(), n0 = await page.evaluate(() => window.pp5.images);
   check(await until(page, () => window.pp5.distinct.size >= 20, null, 60000, '20 distinct images'),
@@ -88,6 +93,21 @@ try {
   figures.sweep_images_per_s = (sweep.images - n0) / ((Date.now() - t0) / 1000);
   await page.screenshot({path: path.join(out, 'screenshot.png')});  // the doll building up (docs/viewer.md)
   check(sweep.outlines > 0, 'the newest frame\'s outline is drawn over the 3D view');
+  await page.locator('#record').click();
+  check(await until(page, () => window.pp5.stats.recording === '', null, 10000, 'recording to stop'),
+        'the record button stops it');
+  // Pause: no frame goes into the pipeline until resume.
+  await page.locator('#pause').click();
+  check(await until(page, () => window.pp5.stats.paused, null, 10000, 'the pause'), 'pause is acknowledged');
+  await sleep(600);
+  const f1 = await page.evaluate(() => window.pp5.stats.frames);
+  await sleep(1200);
+  const f2 = await page.evaluate(() => window.pp5.stats.frames);
+  check(f2 === f1, `no frame goes in while paused (${f1} then ${f2})`);
+  await page.locator('#pause').click();
+  if (!(await page.evaluate(() => window.pp5.stats.ended)))
+    check(await until(page, (f) => window.pp5.stats.frames > f || window.pp5.stats.ended, f2, 10000, 'frames again'),
+          'frames go in again after resume');
   check(await until(page, (c) => window.pp5.coverage > c, cov0, 20000, 'coverage to rise'),
         `the coverage fraction rises during the sweep (from ${cov0})`);
   check(await until(page, () => window.pp5.bmodes > 0, null, 10000, 'a B-mode frame'), 'the B-mode frame is shown');
@@ -112,7 +132,9 @@ try {
   const dragSeconds = (Date.now() - dragStart) / 1000;
   const dragImages = (await snap()).images - dragImages0;
   await page.mouse.up();
-  const dragged = await newEpochImage(before.epoch, 'the dragged view');
+  // The drag's own image: one answering its view messages (the run may open
+  // epochs of its own meanwhile, e.g. at the end of the sweep).
+  const dragged = await until(page, () => window.pp5.viewResponses.length > 0, null, 60000, 'the dragged view');
   const responses = await page.evaluate(() => window.pp5.viewResponses);
   check(dragged && responses.length > 0, `a drag changes the view (epoch ${before.epoch} -> ${(await snap()).epoch})`);
   figures.drag_images_per_s = dragImages / dragSeconds;
@@ -126,7 +148,7 @@ try {
     const b = await snap();
     await act();
     const ok = await until(page, ([e, k, v]) => window.pp5.epoch > e && window.pp5.lastImage[k] === v,
-                           [b.epoch, key, value], 20000, what);
+                           [b.epoch, key, value], 60000, what);
     await sleep(300);
     const a = await snap();
     await page.screenshot({path: path.join(out, `after-${what.replace(/\W+/g, '-')}.png`)});
@@ -144,7 +166,7 @@ try {
   await until(page, (n) => window.pp5.mprs[0] > n, mprCount, 20000, 'a moved slice');
   check((await mpr0()) !== sliceBefore, 'the MPR slider changes the slice');
   await page.locator('input[name=composite][value=over]').check();
-  await until(page, () => window.pp5.lastImage.composite === 'over', null, 20000, 'the over image again');
+  await until(page, () => window.pp5.lastImage.composite === 'over', null, 60000, 'the over image again');
 
   // 4. A bad control message gets an error reply and the run goes on.
   figures.latency_ms = await page.evaluate(() => window.pp5.latencies);
@@ -156,9 +178,9 @@ try {
   const afterBad = await snap();
   await page.locator('input[name=composite][value=additive]').check();
   check(await until(page, (e) => window.pp5.epoch > e && window.pp5.lastImage.composite === 'additive', afterBad.epoch,
-                    20000, 'an image after the bad messages'), 'the run goes on after them');
+                    60000, 'an image after the bad messages'), 'the run goes on after them');
   await page.locator('input[name=composite][value=over]').check();
-  await until(page, () => window.pp5.lastImage.composite === 'over', null, 20000, 'the over image again');
+  await until(page, () => window.pp5.lastImage.composite === 'over', null, 60000, 'the over image again');
 
   // 5. Closing and reopening the page resumes the stream.
   await page.close();
@@ -188,6 +210,20 @@ try {
   check(epochs.has(figures.drag_epoch), `stats.csv has rows of the dragged view's epoch ${figures.drag_epoch}`);
 } catch (e) {
   check(false, 'stats.csv: ' + e.message);
+}
+
+// The page's recording: a PLUS sequence of the frames sent while it was on.
+try {
+  const info = JSON.parse(await new Promise((resolve, reject) => {
+    const p = spawn(bin, ['info', path.join(out, 'run', 'recording-1.mha')]);
+    let o = '';
+    p.stdout.on('data', (d) => (o += d));
+    p.on('exit', (c) => (c === 0 ? resolve(o) : reject(new Error('pp5echo info exit ' + c))));
+  }));
+  check(info.frame_count > 0 && info.transforms.ImageToReference && info.transforms.ImageToReference.valid_frames === info.frame_count,
+        `the recording holds ${info.frame_count} frames, each with its ImageToReference`);
+} catch (e) {
+  check(false, 'the recording: ' + e.message);
 }
 
 // `pp5echo view` shows the volume the run wrote, in the same page.
