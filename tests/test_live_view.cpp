@@ -124,6 +124,21 @@ TEST(LiveControls, TheRunsOwnChangesDoNotUndoThePages) {
   EXPECT_EQ(v.live->wanted().state.orbitDeg, 80.0);
 }
 
+// The final image of another mode is rendered live and undone: a change the
+// page makes meanwhile is built on the lasting state, not on that one.
+TEST(LiveControls, APassingChangeIsNoBaseForThePage) {
+  Viewer v;
+  comm::ControlState mip = v.initial;
+  mip.liveMode = static_cast<std::uint8_t>(CompositeMode::Mip);
+  v.live->epochStarted(1, mip, false);
+  EXPECT_EQ(parallel::liveMode(v.live->wanted().state), parallel::liveMode(v.initial));
+  ASSERT_EQ(v.live->control(R"({"type": "tf", "preset": "strong echoes"})"), "");
+  v.live->epochStarted(2, v.initial, false);  // back to the live mode
+  EXPECT_EQ(parallel::liveMode(v.live->wanted().state), parallel::liveMode(v.initial));
+  ASSERT_EQ(v.live->control(R"({"type": "composite", "mode": "mip"})"), "");
+  EXPECT_NE(parallel::controlChanges(v.initial, v.live->wanted().state) & comm::ControlMsg::kMode, 0u);
+}
+
 TEST(LiveControls, TooManyMessagesAreRefused) {
   Viewer v;
   int refused = 0;

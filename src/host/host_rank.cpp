@@ -332,7 +332,8 @@ private:
     hasPrev_ = true;
   }
 
-  void sendControl(std::uint32_t changes, const ControlState& next) {
+  // lasting = false: a change of the run's own that it undoes (LiveView::epochStarted).
+  void sendControl(std::uint32_t changes, const ControlState& next, bool lasting = true) {
     waitCredits();
     if (shownEpoch_ == epoch_) {  // the view shown until the new one is whole
       shownPp_ = pp_;
@@ -350,7 +351,7 @@ private:
     for (PpProgress& p : pp_) p = {epoch_, -1};
     imageFrame_ = -1;
     if (ref_) applyControl(*ref_, changes, next, j_.pipeline.render, j_.grid);
-    if (live_) live_->epochStarted(epoch_, next);
+    if (live_) live_->epochStarted(epoch_, next, lasting);
   }
 
   // The image after the last update, compared with the serial pipeline's.
@@ -415,7 +416,11 @@ private:
   // slices; and the figures it shows. Returns whether acquisition is paused.
   bool serveViewer(bool lockstep) {
     if (!live_) return false;
-    const LiveWanted w = live_->wanted();
+    if (live_->version() != wantedVersion_) {  // fetched (under the viewer's lock) only when it changed
+      wantedVersion_ = live_->version();
+      wanted_ = live_->wanted();
+    }
+    const LiveWanted& w = wanted_;
     const std::uint32_t ch = controlChanges(state_, w.state);
     if (ch && shownEpoch_ == epoch_) {
       sendControl(ch, w.state);
@@ -478,6 +483,8 @@ private:
     return w.paused;
   }
   std::function<std::uint64_t()> dropped_;
+  LiveWanted wanted_;
+  std::uint64_t wantedVersion_ = 0;
 
   // After the input: the page steers the final volume until Ctrl-C.
   void serveFinal() {
@@ -623,7 +630,7 @@ int HostRank::run() {
       // The cache holds the other kind of samples: render this mode live.
       ControlState s = state_;
       s.liveMode = static_cast<std::uint8_t>(m);
-      sendControl(controlChanges(state_, s), s);
+      sendControl(controlChanges(state_, s), s, false);
       waitImage(static_cast<std::int64_t>(sent_) - 1);
       im = fb_;
     } else {
@@ -635,7 +642,7 @@ int HostRank::run() {
     wrote.push_back(name);
   }
   if (const std::uint32_t ch = controlChanges(state_, liveState)) {  // back to the live mode
-    sendControl(ch, liveState);
+    sendControl(ch, liveState, false);
     waitImage(static_cast<std::int64_t>(sent_) - 1);
   }
   if (j_.mpr || j_.volume || ref_) {
@@ -664,7 +671,7 @@ int HostRank::run() {
       s.orbitValid = 1;
       s.orbitDeg = 360.0 * i / j_.orbitFrames;
       const auto t0 = Clock::now();
-      sendControl(ControlMsg::kView, s);
+      sendControl(ControlMsg::kView, s, false);
       waitImage(static_cast<std::int64_t>(sent_) - 1);
       orbitMs.push_back(msBetween(t0, Clock::now()));
       if (ref_) verify(fb_, ref_->image(), fmt::format("orbit view {}", i));

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <condition_variable>
 #include <cstring>
+#include <atomic>
 #include <deque>
 #include <fstream>
 #include <mutex>
@@ -156,6 +157,7 @@ struct LiveView::Impl {
   std::uint64_t wantSeq = 0;  // the newest view message's seq
   bool wantInteractive = false;
   bool pageChange = false;  // the page changed `want` and the pipeline has not caught up
+  std::atomic<std::uint64_t> version{1};  // bumped with every change of `want`
   std::string preset = "run";
   double tfLevel = 128, tfWindow = 128, tfOpacity = 1;
   SlicePlane planes[3] = {{SliceAxis::Axial, 0.5, 0}, {SliceAxis::Coronal, 0.5, 0}, {SliceAxis::Sagittal, 0.5, 0}};
@@ -323,6 +325,7 @@ struct LiveView::Impl {
     }
     if (parallel::controlChanges(want.state, next.state)) pageChange = true;
     want = next;
+    ++version;
     statsDirty = true;
     cv.notify_one();
     return {};
@@ -547,7 +550,7 @@ void LiveView::frame(const Frame& f, const Mat4& pose, std::uint64_t k, double t
   }
 }
 
-void LiveView::epochStarted(std::uint32_t epoch, const comm::ControlState& state) {
+void LiveView::epochStarted(std::uint32_t epoch, const comm::ControlState& state, bool lasting) {
   Impl& I = *impl_;
   const std::lock_guard lock(I.m);
   const bool asked = parallel::controlChanges(state, I.want.state) == 0;
@@ -557,11 +560,12 @@ void LiveView::epochStarted(std::uint32_t epoch, const comm::ControlState& state
     seq = I.wantSeq;
     interactive = I.wantInteractive;
     I.pageChange = false;
-  } else if (!I.pageChange) {
+  } else if (!I.pageChange && lasting) {
     // A change of the run's own (run.script, the final images, the orbit):
     // the page's next changes start from it. One the page asked for and the
     // pipeline has not yet made stays wanted.
     I.want.state = state;
+    ++I.version;
   }
   I.epochs.push_back({epoch, parallel::controlCamera(state, I.base, I.grid), seq, interactive,
                       std::string(enumName(parallel::liveMode(state))), I.preset});
@@ -583,6 +587,7 @@ void LiveView::image(const std::vector<float>& rgba, int width, int height, std:
 }
 
 bool LiveView::wantsImage() const {
+  if (impl_->server->clients() == 0) return false;
   const std::lock_guard lock(impl_->m);
   return impl_->needImage;
 }
@@ -621,9 +626,12 @@ void LiveView::recordingTo(const std::string& path) {
   const std::lock_guard lock(impl_->m);
   impl_->recording = path;
   impl_->want.recording = !path.empty();
+  ++impl_->version;
   impl_->statsDirty = true;
   impl_->cv.notify_one();
 }
+
+std::uint64_t LiveView::version() const { return impl_->version.load(); }
 
 LiveWanted LiveView::wanted() const {
   const std::lock_guard lock(impl_->m);

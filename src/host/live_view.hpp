@@ -82,8 +82,10 @@ public:
   // ---- from the pipeline (the host's thread) ----
   // Frame k went into the pipeline: coverage, the outline, the gap warning, the B-mode view.
   void frame(const Frame& f, const Mat4& imageToReference, std::uint64_t k, double timeS, Clock::time_point arrival);
-  // The pipeline now renders `state` as `epoch`.
-  void epochStarted(std::uint32_t epoch, const comm::ControlState& state);
+  // The pipeline now renders `state` as `epoch`. `lasting` = false for a
+  // change of the run's own that it undoes (a final image of another mode,
+  // the orbit): the page's next change is not built on it.
+  void epochStarted(std::uint32_t epoch, const comm::ControlState& state, bool lasting = true);
   // The image (width * height RGBA floats, premultiplied) holding every frame
   // up to `frame`, in `epoch`'s view.
   void image(const std::vector<float>& rgba, int width, int height, std::uint32_t epoch, std::int64_t frame);
@@ -98,6 +100,9 @@ public:
 
   // ---- to the pipeline ----
   LiveWanted wanted() const;
+  // Changes whenever wanted() may have: the host's loop asks this (no lock)
+  // and fetches wanted() only then.
+  std::uint64_t version() const;
 
   // For tests: applies a control message as if a browser had sent it;
   // returns "" or the error the browser would get.

@@ -44,6 +44,16 @@ async function until(page, fn, arg, ms, what) {
   }
 }
 
+// The browser first, as a person's would be open before the scan starts.
+const browser = await chromium.launch({
+  executablePath: process.env.CHROMIUM || '/usr/bin/chromium',
+  args: ['--headless', '--no-sandbox', '--disable-gpu', '--disable-background-networking', '--disable-component-update',
+         '--disable-sync', '--no-first-run', '--disable-quic'],
+});
+const context = await browser.newContext({viewport: {width: 1400, height: 1000}});
+let page = await context.newPage();
+page.on('pageerror', (e) => failures.push('page error: ' + e.message));
+
 // ---- the run ------------------------------------------------------------------
 const runArgs = [ranks, bin, 'run', path.join(repo, 'configs/doll.toml'), '-o', path.join(out, 'run'), '--view', '127.0.0.1:0',
                  '--serve', '--set', `run.pace_fps=${pace}`, '--set', 'run.orbit_frames=0',
@@ -66,16 +76,8 @@ const runExit = new Promise((resolve) => run.on('exit', (code) => resolve(code))
 const url = await urlPromise;
 console.log('viewer: ' + url);
 
-const browser = await chromium.launch({
-  executablePath: process.env.CHROMIUM || '/usr/bin/chromium',
-  args: ['--headless', '--no-sandbox', '--disable-gpu', '--disable-background-networking', '--disable-component-update',
-         '--disable-sync', '--no-first-run', '--disable-quic'],
-});
 const figures = {};
 try {
-  const context = await browser.newContext({viewport: {width: 1400, height: 1000}});
-  let page = await context.newPage();
-  page.on('pageerror', (e) => failures.push('page error: ' + e.message));
   await page.goto(url);
 
   // 1. The image builds up while frames arrive.
