@@ -120,8 +120,10 @@ try {
   const newEpochImage = async (e, what) => until(page, (x) => window.pp5.epoch > x, e, 20000, what);
 
   // 2. A drag rotates the view; the pipeline records the new epoch.
+  await page.locator('#render').scrollIntoViewIfNeeded();  // clicks elsewhere may have scrolled the page
   const box = await page.locator('#render').boundingBox();
   const cx = box.x + box.width / 2, cy = box.y + box.height / 2;
+  if (process.env.PP5_DEBUG) await page.screenshot({path: path.join(out, 'before-drag.png')});
   let before = await snap();
   const dragStart = Date.now();
   await page.mouse.move(cx, cy);
@@ -139,6 +141,12 @@ try {
   const dragged = await until(page, () => window.pp5.viewResponses.length > 0, null, 60000, 'the dragged view');
   const responses = await page.evaluate(() => window.pp5.viewResponses);
   check(dragged && responses.length > 0, `a drag changes the view (epoch ${before.epoch} -> ${(await snap()).epoch})`);
+  if (!dragged) {  // what the page knew, to tell a lost message from a lost image
+    console.log('  diagnostics: ' + JSON.stringify(await page.evaluate(() => ({
+      sent: window.pp5.viewSent(), last: window.pp5.lastImage && {...window.pp5.lastImage, arrivals: undefined},
+      state: window.pp5.state && {azimuth: window.pp5.state.azimuth, elevation: window.pp5.state.elevation},
+      stats: window.pp5.stats, errors: window.pp5.errors}))));
+  }
   figures.drag_images_per_s = dragImages / dragSeconds;
   figures.drag_first_response_ms = responses.length ? responses[0].ms : null;
   figures.drag_responses = responses.length;

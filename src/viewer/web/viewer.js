@@ -162,7 +162,8 @@ function onStats(h) {
     w.hidden = true;
   }
   $('acq-state').textContent = (h.paused ? 'paused' : h.ended ? 'input ended' : 'acquiring') +
-      (h.recording ? ' · recording to ' + h.recording : '');
+      (h.recording ? ' · recording to ' + h.recording.split('/').pop() : '');
+  $('acq-state').title = h.recording || '';
   $('pause').textContent = h.paused ? 'resume' : 'pause';
   $('record').textContent = h.recording ? 'stop recording' : 'start recording';
 }
@@ -271,4 +272,5 @@ $('pause').addEventListener('click', () => send({type: pp5.stats && pp5.stats.pa
 $('record').addEventListener('click', () => send({type: 'record', on: !(pp5.stats && pp5.stats.recording)}));
 
 pp5.send = send;  // for the browser test's bad message
+pp5.viewSent = () => viewSeq;  // view messages sent so far (the test's diagnostics)
 connect();
