@@ -157,6 +157,32 @@ TEST(Shading, ClassificationIsContinuousInTheGreyValue) {
   }
 }
 
+// grey mode: the image value as the colour, the table's opacity, no light;
+// and the grey-value shading of MIP and additive: (v, v, v, v).
+TEST(Shading, GreyModeShowsTheImageValue) {
+  TransferFunctionSettings ts;
+  ts.opacity = {{0, 0, 0, 0}, {50, 0, 0, 0}, {150, 0.8, 0, 0}, {255, 0.8, 0, 0}};
+  ts.colour = {{0, 1, 0, 0}, {255, 1, 0.2, 0}};  // red: grey mode must not use it
+  const TransferFunction tf(ts);
+  const Grid g = makeGrid({3, 3, 3});
+  const Camera cam;
+  for (const double v : {40.0, 100.0, 200.0}) {
+    ShadeSettings s;
+    s.mode = pp5::gp::ShadeMode::Grey;
+    const Volume vol = makeVolume(g, [&](auto, auto, auto) { return v; });
+    const ShadeVoxel got = shadeFull(vol, tf, s, cam).at(13);
+    const double a = tf(static_cast<float>(v)).a;
+    EXPECT_NEAR(got.a, a * 255.0, 0.5) << v;
+    EXPECT_NEAR(got.r, v / 255.0 * a * 255.0, 0.6) << v;  // premultiplied grey
+    EXPECT_EQ(got.r, got.g);
+    EXPECT_EQ(got.r, got.b);
+    s.greyValues = true;  // what MIP and additive shade
+    const ShadeVoxel grey = shadeFull(vol, tf, s, cam).at(13);
+    EXPECT_EQ(grey, (ShadeVoxel{static_cast<std::uint8_t>(v), static_cast<std::uint8_t>(v), static_cast<std::uint8_t>(v),
+                                static_cast<std::uint8_t>(v)}));
+  }
+}
+
 TEST(Shading, TransparentUpToIsExactAndTight) {
   // transparentUpTo(v) lets shading skip a run whose largest value is v: it
   // may say so only when every value up to v classifies to opacity 0, and

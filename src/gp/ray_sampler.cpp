@@ -79,18 +79,7 @@ public:
   }
   void emit(std::uint32_t pixel, Batcher& out) {
     if (n_ == 0) return;
-    if (grey_) {
-      for (std::size_t i = 0; i < n_;) {
-        std::size_t m;
-        RaySample* dst = out.append(n_ - i, m);
-        for (std::size_t j = 0; j < m; ++j, ++i) {
-          const float v = rgba_[4 * i] * (1.0f / 255.0f);
-          dst[j] = RaySample{pixel, k_[i], v, v, v, v * e_};
-        }
-      }
-      n_ = 0;
-      return;
-    }
+    if (grey_) return emitGrey(pixel, out);
     for (std::size_t i = n_; i % 4 != 0; ++i) a_[i] = 0.0f;
     for (std::size_t i = 0; i < n_; i += 4) {
       F4 a255;
@@ -116,6 +105,20 @@ public:
   }
 
 private:
+  // The grey-value samples of MIP and additive, out of line so that the
+  // colour path inlines as it did.
+  [[gnu::noinline]] void emitGrey(std::uint32_t pixel, Batcher& out) {
+    for (std::size_t i = 0; i < n_;) {
+      std::size_t m;
+      RaySample* dst = out.append(n_ - i, m);
+      for (std::size_t j = 0; j < m; ++j, ++i) {
+        const float v = rgba_[4 * i] * (1.0f / 255.0f);
+        dst[j] = RaySample{pixel, k_[i], v, v, v, v * e_};
+      }
+    }
+    n_ = 0;
+  }
+
   float e_;
   bool grey_;
   std::size_t n_ = 0;

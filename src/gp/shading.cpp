@@ -53,7 +53,8 @@ void registerOptions(ConfigSchema& c, ShadeSettings& s) {
             "([render.tf]), lit in `phong` mode, stored premultiplied for the ray sampler.");
   enumOption(c, "render.shading.mode", &s.mode, d.mode,
            "`phong`: the transfer function's colour lit by the grey-value gradient (two-sided Phong); "
-           "`value`: the transfer function's colour and opacity unlit.");
+           "`value`: the transfer function's colour and opacity unlit; `grey`: the voxel's own grey level as its "
+           "colour (the image value) with the transfer function's opacity, unlit.");
   c.option("render.shading.ambient", &s.ambient, d.ambient, kCoefficient.lo, kCoefficient.hi,
            "Phong: ambient coefficient.");
   c.option("render.shading.diffuse", &s.diffuse, d.diffuse, kCoefficient.lo, kCoefficient.hi,
@@ -158,6 +159,7 @@ struct Context {
   glm::vec3 L{0.0f}, H{0.0f};  // unit, towards the light / half vector (Fixed)
   glm::vec3 eyeRel{0.0f};      // eye - origin, mm
   PowTable spec;  // phong only
+  bool greyColour = false;  // grey mode: colour = grey level / 255
 };
 
 inline std::uint8_t quantise(float x) { return static_cast<std::uint8_t>(x + 0.5f); }  // x in [0, 255]
@@ -258,6 +260,8 @@ void shadeRow(const Context& c, std::int64_t j, std::int64_t k, std::int64_t x0,
     }
     std::fill_n(out, n, ShadeVoxel{});
     const int m = visible;
+    if (c.greyColour)  // grey mode: the image value as the colour (a pass of its own, off the table loop)
+      for (int p = 0; p < m; ++p) buf.r[p] = buf.g[p] = buf.b[p] = buf.v[buf.idx[p]] * (1.0f / 255.0f);
 
     if constexpr (kGradient) {
       for (int p = 0; p < m; ++p) {
@@ -404,6 +408,7 @@ void shadeAll(const Volume& values, const TransferFunction& tf, const ShadeSetti
   c.goLow = static_cast<float>(s.gradientOpacityLow);
   c.goInvWidth = static_cast<float>(1.0 / std::max(s.gradientOpacityWidth, 1e-12));
   c.eyeRel = glm::vec3(view.eye - g.origin);
+  c.greyColour = mode == ShadeMode::Grey;
 
   Lighting k = Lighting::None;
   if (mode == ShadeMode::Phong) {

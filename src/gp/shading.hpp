@@ -5,6 +5,8 @@
 //  - Classification by table lookup (TransferFunction, [render.tf]): continuous
 //    in the grey value, never a threshold.
 //  - `value` mode: the tables' colour and opacity as they are.
+//  - `grey` mode: the voxel's own grey level as its colour (the image value),
+//    the table's opacity, unlit.
 //  - `phong` mode: the tables' colour lit by ambient + diffuse |N.L| and a white
 //    specular highlight, N from central differences of the grey values in mm
 //    (one-sided at the grid's faces). Lighting is two-sided, because an echo
@@ -36,7 +38,7 @@ class ConfigSchema;
 
 namespace pp5::gp {
 
-enum class ShadeMode { Phong, Value };
+enum class ShadeMode { Phong, Value, Grey };
 enum class LightKind { Viewer, Direction };
 
 // [render.shading]. The transfer function is separate ([render.tf]).
@@ -107,9 +109,10 @@ namespace pp5 {
 template <>
 struct EnumNames<gp::ShadeMode> {
   static constexpr std::string_view key = "render.shading.mode";
-  static constexpr std::array<std::pair<gp::ShadeMode, std::string_view>, 2> names{{
+  static constexpr std::array<std::pair<gp::ShadeMode, std::string_view>, 3> names{{
       {gp::ShadeMode::Phong, "phong"},
-      {gp::ShadeMode::Value, "value"}}};
+      {gp::ShadeMode::Value, "value"},
+      {gp::ShadeMode::Grey, "grey"}}};
 };
 
 template <>

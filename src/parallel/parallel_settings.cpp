@@ -93,7 +93,7 @@ void applyControlState(const comm::ControlState& c, RenderSettings& r, gp::Shade
   const CompositeMode live = liveMode(c);
   std::erase(r.compositing, live);
   r.compositing.insert(r.compositing.begin(), live);
-  sh.mode = static_cast<gp::ShadeMode>(c.shadeMode) == gp::ShadeMode::Value ? gp::ShadeMode::Value : gp::ShadeMode::Phong;
+  sh.mode = checkedEnum(static_cast<gp::ShadeMode>(c.shadeMode));
   sh.light = static_cast<gp::LightKind>(c.light) == gp::LightKind::Direction ? gp::LightKind::Direction : gp::LightKind::Viewer;
   sh.gradientOpacity = c.gradientOpacity != 0;
   sh.ambient = c.ambient;
