@@ -36,7 +36,7 @@ struct Viewer {
     initial = parallel::makeControlState(render, gp::ShadeSettings{}, tf);
     host::ViewSettings vs;
     vs.listen = "127.0.0.1:0";
-    live = std::make_unique<LiveView>(vs, grid, render, recon, tf, initial);
+    live = std::make_unique<LiveView>(vs, grid, render, recon, tf, initial, ::testing::TempDir());
   }
 };
 

@@ -29,7 +29,6 @@
 #include "host/host_rank.hpp"
 #include "host/live_view.hpp"
 #include "host/outputs.hpp"
-#include "host/recorder.hpp"
 #include "parallel/parallel_settings.hpp"
 #include "ranks/gp_rank.hpp"
 #include "ranks/pp_rank.hpp"
@@ -78,9 +77,9 @@ void checkView(const Settings& s) {
 class SerialViewer {
 public:
   SerialViewer(const Settings& s, const Grid& grid, serial::SerialPipeline& pipe, const std::string& dir)
-      : s_(s), grid_(grid), pipe_(pipe), dir_(dir), cur_(parallel::makeControlState(s.render, s.shading, s.tf)) {
+      : s_(s), grid_(grid), pipe_(pipe), cur_(parallel::makeControlState(s.render, s.shading, s.tf)) {
     if (s.view.listen.empty()) return;
-    live_ = std::make_unique<host::LiveView>(s.view, grid, s.render, s.recon, s.tf, cur_);
+    live_ = std::make_unique<host::LiveView>(s.view, grid, s.render, s.recon, s.tf, cur_, dir);
     std::printf("viewer: open %s\n", live_->url().c_str());
     std::fflush(stdout);
   }
@@ -90,7 +89,6 @@ public:
   void frame(const Frame& f, const Mat4& pose, double t, std::chrono::steady_clock::time_point arrival, double ms) {
     if (!live_) return;
     live_->frame(f, pose, frames_, t, arrival);
-    if (recorder_) recorder_->writePlaced(f, pose);
     ++frames_;
     frameMs_.push_back(ms);
     live_->image(pipe_.image().rgba, pipe_.image().width, pipe_.image().height, epoch_,
@@ -113,14 +111,6 @@ public:
     if (live_->wantsImage())
       live_->image(pipe_.image().rgba, pipe_.image().width, pipe_.image().height, epoch_,
                    static_cast<std::int64_t>(frames_) - 1);
-    if (w.recording && !recorder_) {
-      const std::string path = (fs::path(dir_) / fmt::format("recording-{}.mha", ++recordings_)).string();
-      recorder_ = std::make_unique<host::Recorder>(path);
-      live_->recordingTo(path);
-    } else if (!w.recording && recorder_) {
-      recorder_.reset();
-      live_->recordingTo("");
-    }
     if (frames_ > 0 && live_->wantsVolume()) live_->volume(pipe_.reconstructor().output());
     const auto now = std::chrono::steady_clock::now();
     if (now - lastFigures_ > std::chrono::milliseconds(250)) {
@@ -145,7 +135,6 @@ public:
 
   void ended() {
     if (!live_) return;
-    recorder_.reset();
     live_->inputEnded();
     serve();
   }
@@ -165,11 +154,8 @@ private:
   const Settings& s_;
   Grid grid_;
   serial::SerialPipeline& pipe_;
-  std::string dir_;
   comm::ControlState cur_;
   std::unique_ptr<host::LiveView> live_;
-  std::unique_ptr<host::Recorder> recorder_;
-  int recordings_ = 0;
   std::uint32_t epoch_ = 0;
   std::uint64_t frames_ = 0;
   std::vector<double> frameMs_;

@@ -22,7 +22,6 @@
 #include "core/volume_io.hpp"
 #include "gp/slice_geometry.hpp"
 #include "host/outputs.hpp"
-#include "host/recorder.hpp"
 #include "host/slices.hpp"
 
 namespace pp5::host {
@@ -117,12 +116,13 @@ private:
   std::unique_ptr<LiveView> live_;
   bool volumeOutstanding_ = false;  // a volume for the viewer's slices is on its way
   double gpBusyMs_ = 0.0, ppBusyMs_ = 0.0;
-  std::deque<std::pair<Clock::time_point, std::uint64_t>> rateWindow_;  // (time, frames sent) every figures()
-  std::deque<std::pair<Clock::time_point, std::uint64_t>> imageWindow_;
-  std::deque<std::pair<Clock::time_point, std::pair<double, double>>> busyWindow_;
+  struct Sample {  // the counters every 250 ms, for the viewer's rates over the last two seconds
+    Clock::time_point t;
+    std::uint64_t frames, images;
+    double gpBusyMs, ppBusyMs;
+  };
+  std::deque<Sample> window_;
   Clock::time_point lastFigures_{}, lastKeepAlive_ = Clock::now();
-  std::unique_ptr<Recorder> recorder_;
-  int recordings_ = 0;
   std::uint64_t pausedFrames_ = 0;
   std::unique_ptr<StatsCsv> stats_;
   std::unique_ptr<AnimatedGif> buildup_;
@@ -325,7 +325,6 @@ private:
     arrival_.push_back(a.arrival);
     latencyMs_.push_back(-1.0);
     if (live_) live_->frame(f, a.imageToReference, k, a.timeS, a.arrival);
-    if (recorder_) record(a);
     ++sent_;
     if (ref_) ref_->insert(f, a.imageToReference, a.timeS);
     prev_ = std::move(a);
@@ -405,14 +404,8 @@ private:
   }
 
   // ---- the live viewer -------------------------------------------------
-  void record(const AcquiredFrame& a) {
-    Frame f = a.frame;
-    f.timestamp = a.timeS;
-    recorder_->writePlaced(f, a.imageToReference);
-  }
-
   // What the page asks: a control change (once the last one's image is in,
-  // so that a drag does not queue views), a recording, a volume for the
+  // so that a drag does not queue views), a volume for the
   // slices; and the figures it shows. Returns whether acquisition is paused.
   bool serveViewer(bool lockstep) {
     if (!live_) return false;
@@ -430,16 +423,6 @@ private:
       }
     }
     if (live_->wantsImage()) live_->image(fb_, w_, h_, shownEpoch_, shownEpoch_ == epoch_ ? imageFrame_ : shownFrame_);
-    if (w.recording && !recorder_) {
-      const std::string path =
-          (fs::path(j_.outDir) / fmt::format("recording-{}.mha", ++recordings_)).string();
-      recorder_ = std::make_unique<Recorder>(path);
-      live_->recordingTo(path);
-      spdlog::info("run: recording the frames sent to {}", path);
-    } else if (!w.recording && recorder_) {
-      recorder_.reset();
-      live_->recordingTo("");
-    }
     if (!volumeOutstanding_ && sent_ > 0 && live_->wantsVolume()) {
       EmptyMsg rq;
       rq.h = {kTagVolumeRequest, epoch_, sent_ - 1};
@@ -457,19 +440,16 @@ private:
     }
     if (now - lastFigures_ > std::chrono::milliseconds(250)) {
       lastFigures_ = now;
-      rateWindow_.emplace_back(now, sent_);
-      imageWindow_.emplace_back(now, images_);
-      busyWindow_.emplace_back(now, std::make_pair(gpBusyMs_, ppBusyMs_));
-      while (rateWindow_.size() > 9) rateWindow_.pop_front();
-      while (imageWindow_.size() > 9) imageWindow_.pop_front();
-      while (busyWindow_.size() > 9) busyWindow_.pop_front();
+      window_.push_back({now, sent_, images_, gpBusyMs_, ppBusyMs_});
+      while (window_.size() > 9) window_.pop_front();
+      const Sample& first = window_.front();
       LiveFigures f;
-      const double span = std::chrono::duration<double>(now - rateWindow_.front().first).count();
+      const double span = std::chrono::duration<double>(now - first.t).count();
       if (span > 0) {
-        f.framesPerS = static_cast<double>(sent_ - rateWindow_.front().second) / span;
-        f.imagesPerS = static_cast<double>(images_ - imageWindow_.front().second) / span;
-        f.gpLoad = (gpBusyMs_ - busyWindow_.front().second.first) / (1e3 * span * L_.gps);
-        f.ppLoad = (ppBusyMs_ - busyWindow_.front().second.second) / (1e3 * span * L_.pps);
+        f.framesPerS = static_cast<double>(sent_ - first.frames) / span;
+        f.imagesPerS = static_cast<double>(images_ - first.images) / span;
+        f.gpLoad = (gpBusyMs_ - first.gpBusyMs) / (1e3 * span * L_.gps);
+        f.ppLoad = (ppBusyMs_ - first.ppBusyMs) / (1e3 * span * L_.pps);
       }
       std::vector<double> lat;
       for (std::size_t i = latencyMs_.size(); i-- > 0 && lat.size() < 90;)
@@ -535,7 +515,8 @@ int HostRank::run() {
   std::size_t nextScript = 0;
 
   if (!j_.view.listen.empty()) {
-    live_ = std::make_unique<LiveView>(j_.view, j_.grid, j_.pipeline.render, j_.pipeline.recon, j_.pipeline.tf, state_);
+    live_ = std::make_unique<LiveView>(j_.view, j_.grid, j_.pipeline.render, j_.pipeline.recon, j_.pipeline.tf, state_,
+                                       j_.outDir);
     std::printf("viewer: open %s\n", live_->url().c_str());
     std::fflush(stdout);
   }
@@ -609,7 +590,6 @@ int HostRank::run() {
   const double streamS = std::chrono::duration<double>(Clock::now() - firstSent).count();
   if (live_) {
     live_->inputEnded();
-    recorder_.reset();
     waitUntil([&] { return !volumeOutstanding_; }, "the volume for the viewer's slices");
   }
   streamImages_ = images_;

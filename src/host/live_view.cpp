@@ -6,6 +6,7 @@
 #include <cstring>
 #include <atomic>
 #include <deque>
+#include <filesystem>
 #include <fstream>
 #include <mutex>
 #include <random>
@@ -19,6 +20,7 @@
 #include "core/error.hpp"
 #include "gp/shading.hpp"
 #include "host/coverage.hpp"
+#include "host/recorder.hpp"
 #include "host/slices.hpp"
 #include "parallel/parallel_settings.hpp"
 #include "pp/ray_cache.hpp"
@@ -198,7 +200,12 @@ struct LiveView::Impl {
   std::uint64_t framesAtVolume = 0, frames = 0;
   LiveFigures fig;
   bool ended = false;
-  std::string recording;
+  std::string recording;  // the page's recording: its file, "" = none (guarded by m)
+  std::string recordDir;
+  int recordings = 0;
+  // The open recording; the caller's thread only (frame(), inputEnded()).
+  std::unique_ptr<Recorder> recorder;
+  std::string recorderPath;
   bool statsDirty = true;
 
   std::thread encoder;
@@ -317,6 +324,9 @@ struct LiveView::Impl {
       } else if (type == "record") {
         onlyKeys(msg, {"on"});
         next.recording = boolean(msg, "on");
+        if (next.recording && recording.empty())
+          recording = (std::filesystem::path(recordDir) / fmt::format("recording-{}.mha", ++recordings)).string();
+        if (!next.recording) recording.clear();
       } else {
         return fmt::format("unknown control message type \"{}\"", type);
       }
@@ -492,8 +502,10 @@ struct LiveView::Impl {
 };
 
 LiveView::LiveView(const ViewSettings& settings, const Grid& grid, const RenderSettings& base,
-                   const gp::ReconSettings& recon, const TransferFunctionSettings& tf, const comm::ControlState& initial)
+                   const gp::ReconSettings& recon, const TransferFunctionSettings& tf, const comm::ControlState& initial,
+                   const std::string& recordDir)
     : impl_(std::make_unique<Impl>(settings, grid, base, recon, tf)) {
+  impl_->recordDir = recordDir;
   viewer::ServerOptions o;
   parseListen(settings.listen, o.address, o.port, "view.listen");
   o.root = settings.webRoot.empty() ? std::string(PP5_WEB_ROOT) : settings.webRoot;
@@ -532,6 +544,20 @@ void LiveView::frame(const Frame& f, const Mat4& pose, std::uint64_t k, double t
   Impl& I = *impl_;
   const auto sysArrival = std::chrono::system_clock::now() -
                           std::chrono::duration_cast<std::chrono::system_clock::duration>(Clock::now() - arrival);
+  std::string recording;
+  {
+    const std::lock_guard lock(I.m);
+    recording = I.recording;
+  }
+  if (recording != I.recorderPath) {  // the page started or stopped a recording
+    I.recorder.reset();
+    if (!recording.empty()) {
+      I.recorder = std::make_unique<Recorder>(recording);
+      spdlog::info("viewer: recording the frames that go into the pipeline to {}", recording);
+    }
+    I.recorderPath = recording;
+  }
+  if (I.recorder) I.recorder->writePlaced(f, pose, timeS);
   const std::lock_guard lock(I.m);
   I.coverage.add(pose, f.width, f.height);
   I.lastCorners = frameCorners(pose, f.width, f.height);
@@ -616,20 +642,16 @@ void LiveView::figures(const LiveFigures& f) {
 }
 
 void LiveView::inputEnded() {
+  impl_->recorder.reset();
   const std::lock_guard lock(impl_->m);
+  impl_->recording.clear();
+  impl_->want.recording = false;
+  ++impl_->version;
   impl_->ended = true;
   impl_->statsDirty = true;
   impl_->cv.notify_one();
 }
 
-void LiveView::recordingTo(const std::string& path) {
-  const std::lock_guard lock(impl_->m);
-  impl_->recording = path;
-  impl_->want.recording = !path.empty();
-  ++impl_->version;
-  impl_->statsDirty = true;
-  impl_->cv.notify_one();
-}
 
 std::uint64_t LiveView::version() const { return impl_->version.load(); }
 

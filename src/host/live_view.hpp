@@ -68,9 +68,10 @@ public:
   using Clock = std::chrono::steady_clock;
   // Starts serving (InputError when the address cannot be bound, or is not
   // loopback and no token can be had). `initial`: the run's control state;
-  // `base`: the render settings it applies to.
+  // `base`: the render settings it applies to; recordings the page asks for
+  // go to `recordDir`/recording-N.mha.
   LiveView(const ViewSettings& settings, const Grid& grid, const RenderSettings& base, const gp::ReconSettings& recon,
-           const TransferFunctionSettings& tf, const comm::ControlState& initial);
+           const TransferFunctionSettings& tf, const comm::ControlState& initial, const std::string& recordDir);
   ~LiveView();
   LiveView(const LiveView&) = delete;
   LiveView& operator=(const LiveView&) = delete;
@@ -80,7 +81,9 @@ public:
   bool serve() const;
 
   // ---- from the pipeline (the host's thread) ----
-  // Frame k went into the pipeline: coverage, the outline, the gap warning, the B-mode view.
+  // Frame k went into the pipeline: coverage, the outline, the gap warning,
+  // the B-mode view, and the page's recording (written here, on the caller's
+  // thread: with its ImageToReference and time).
   void frame(const Frame& f, const Mat4& imageToReference, std::uint64_t k, double timeS, Clock::time_point arrival);
   // The pipeline now renders `state` as `epoch`. `lasting` = false for a
   // change of the run's own that it undoes (a final image of another mode,
@@ -95,8 +98,7 @@ public:
   bool wantsVolume() const;
   void volume(const Volume& v);
   void figures(const LiveFigures& f);
-  void inputEnded();
-  void recordingTo(const std::string& path);  // "" = not recording
+  void inputEnded();  // also closes a recording
 
   // ---- to the pipeline ----
   LiveWanted wanted() const;

@@ -21,8 +21,9 @@ void Recorder::write(const Frame& f) {
   ++frames_;
 }
 
-void Recorder::writePlaced(const Frame& f, const Mat4& imageToReference) {
+void Recorder::writePlaced(const Frame& f, const Mat4& imageToReference, double timeS) {
   Frame placed = f;
+  placed.timestamp = timeS;
   std::erase_if(placed.transforms, [](const FrameTransform& t) { return t.name == "ImageToReference"; });
   placed.transforms.push_back({"ImageToReference", imageToReference, true});
   write(placed);

@@ -26,7 +26,7 @@ public:
   void write(const Frame& f);
   // A frame as it went into the pipeline: with its ImageToReference (replacing
   // any it had), so that the file replays without a device-set configuration.
-  void writePlaced(const Frame& f, const Mat4& imageToReference);
+  void writePlaced(const Frame& f, const Mat4& imageToReference, double timeS);
   void close();
 
 private:
