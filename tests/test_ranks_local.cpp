@@ -174,7 +174,7 @@ void runJob(parallel::GpPartition partition, const std::string& name) {
       try {
         if (j.layout.role(r) == parallel::Role::Gp) {
           ranks::GpRankConfig c{grid, j.pipeline.recon, j.pipeline.render, j.pipeline.shading, j.pipeline.tf,
-                                j.parallel, j.layout, 0};
+                                j.parallel, j.layout, 0, pp::sampleWireFor(j.pipeline.cache.format)};
           ranks::runGpRank(job.rank(r), c);
         } else {
           ranks::PpRankConfig c{grid, j.pipeline.render, j.pipeline.shading, j.pipeline.tf, j.pipeline.cache,

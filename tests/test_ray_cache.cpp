@@ -13,7 +13,7 @@
 
 #include "core/config.hpp"
 #include "core/error.hpp"
-#include "pp/half_float.hpp"
+#include "core/half_float.hpp"
 #include "pp/ray_cache.hpp"
 
 namespace {
@@ -55,7 +55,7 @@ bool sameBits(const TileImage& x, const TileImage& y) {
 float quantised(SampleFormat f, float v) {
   switch (f) {
     case SampleFormat::Rgba8: return std::round(std::clamp(v, 0.0f, 1.0f) * 255.0f) * (1.0f / 255.0f);
-    case SampleFormat::Half: return pp5::pp::halfToFloat(pp5::pp::floatToHalf(v));
+    case SampleFormat::Half: return pp5::halfToFloat(pp5::floatToHalf(v));
     case SampleFormat::Float: return v;
   }
   return v;
@@ -72,7 +72,7 @@ TEST(HalfFloat, HalfToFloatMatchesFloat16ForEveryHalf) {
     _Float16 x;
     const auto hh = static_cast<std::uint16_t>(h);
     std::memcpy(&x, &hh, 2);
-    const float want = static_cast<float>(x), got = pp5::pp::halfToFloat(hh);
+    const float want = static_cast<float>(x), got = pp5::halfToFloat(hh);
     if (std::isnan(want)) {
       ASSERT_TRUE(std::isnan(got)) << h;
       continue;
@@ -91,7 +91,7 @@ TEST(HalfFloat, FloatToHalfRoundsAsFloat16) {
     const _Float16 x = static_cast<_Float16>(f);
     std::uint16_t want;
     std::memcpy(&want, &x, 2);
-    const std::uint16_t got = pp5::pp::floatToHalf(f);
+    const std::uint16_t got = pp5::floatToHalf(f);
     if (std::isnan(f)) return (got & 0x7c00u) == 0x7c00u && (got & 0x3ffu) != 0;
     return got == want;
   };
@@ -110,9 +110,9 @@ TEST(HalfFloat, BatchConversionsMatchScalar) {
   std::vector<std::uint16_t> h(65536);
   for (std::uint32_t i = 0; i < 65536; ++i) h[i] = static_cast<std::uint16_t>(i);
   std::vector<float> f(h.size());
-  pp5::pp::halfToFloatN(h.data(), h.size(), f.data());
+  pp5::halfToFloatN(h.data(), h.size(), f.data());
   for (std::uint32_t i = 0; i < 65536; ++i) {
-    const float want = pp5::pp::halfToFloat(h[i]);
+    const float want = pp5::halfToFloat(h[i]);
     if (std::isnan(want)) {
       ASSERT_TRUE(std::isnan(f[i]));
       continue;
@@ -127,9 +127,9 @@ TEST(HalfFloat, BatchConversionsMatchScalar) {
     if (!std::isnan(x)) in.push_back(x);
   }
   std::vector<std::uint16_t> out(in.size() + 5);
-  pp5::pp::floatToHalfN(in.data(), in.size(), out.data());
-  for (std::size_t i = 0; i < in.size(); ++i) ASSERT_EQ(out[i], pp5::pp::floatToHalf(in[i])) << in[i];
-  std::printf("half conversions use F16C: %s\n", pp5::pp::halfConversionUsesF16c() ? "yes" : "no");
+  pp5::floatToHalfN(in.data(), in.size(), out.data());
+  for (std::size_t i = 0; i < in.size(); ++i) ASSERT_EQ(out[i], pp5::floatToHalf(in[i])) << in[i];
+  std::printf("half conversions use F16C: %s\n", pp5::halfConversionUsesF16c() ? "yes" : "no");
 }
 
 // ---------------------------------------------------------------------------

@@ -444,7 +444,8 @@ int runDistributed(const RunOptions& o) {
         break;
       }
       case parallel::Role::Gp: {
-        ranks::GpRankConfig c{grid, s.recon, s.render, s.shading, s.tf, s.parallel, layout, s.grid.memoryLimitBytes()};
+        ranks::GpRankConfig c{grid,   s.recon, s.render, s.shading, s.tf, s.parallel, layout, s.grid.memoryLimitBytes(),
+                              pp::sampleWireFor(s.cache.format)};
         ranks::runGpRank(t, c);
         break;
       }

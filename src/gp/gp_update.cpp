@@ -13,6 +13,9 @@ GpUpdate::GpUpdate(const Grid& grid, const GpUpdateSettings& settings, const Cam
   if (!recon_) recon_ = makeReconstructor(grid_, s_.recon, s_.memoryLimitBytes, "reconstruction grid ([grid])");
   checkGridFits(grid_, 4, "shade buffer ([grid])", s_.memoryLimitBytes);
   shade_ = ShadeBuffer(grid_);
+  checkGridFits(grid_, ChangeTracker::memoryBytes(grid_, recon_->output().type) / std::max<std::uint64_t>(1, grid_.voxelCount()),
+                "change tracker ([grid])", s_.memoryLimitBytes);
+  changes_ = ChangeTracker(recon_->output());
   lattice_ = SampleLattice(camera_, grid_, s_.render.step(grid_), s_.render.maxSamples, s_.render.threads);
   reshadeAll(false);
 }
@@ -20,17 +23,23 @@ GpUpdate::GpUpdate(const Grid& grid, const GpUpdateSettings& settings, const Cam
 bool GpUpdate::shadeChanged(const DirtyRegion& dirty) {
   // The dirty bricks and their gradient margin (what shade(dirty) shades),
   // worked out once for shading, the empty-space map and the D-buffer.
+  // Of those, only the voxels within a face step of a changed value, and of
+  // their samples only those whose cell has a changed shade (ChangeTracker).
   needed_ = shadingBoxes(dirty);
-  shaded_ = share_->shadeShare(needed_, camera_);
-  shade(recon_->output(), tf_, s_.shading, camera_, shaded_, shade_);
+  shaded_ = changes_.shadingRuns(recon_->output(), needed_, share_->shadeShare(needed_, camera_),
+                                 s_.shading.greyValues ? nullptr : &tf_);
+  changedVoxels_.clear();
+  shade(recon_->output(), tf_, s_.shading, camera_, shaded_, shade_, &changedVoxels_);
+  changes_.setShadeChanges(changedVoxels_);
   spaceBefore_ = space_;  // a few kB (a byte per 8^3 cells); assigning keeps the storage
-  space_.update(shade_, shaded_);
-  return !shaded_.empty();
+  space_.update(shade_, changes_.changedBricks().boxes());
+  return changes_.changedShades() > 0;
 }
 
 void GpUpdate::sampleChanged(SampleSink& sink) {
-  dbuf_.build(camera_, stencilBoxes(grid_, share_->dbufferFromOwnShades() ? shaded_ : needed_));
-  sampleRegion(shade_, lattice_, dbuf_, s_.render, sink, &space_, share_->sampler(), &spaceBefore_);
+  dbuf_.build(camera_, stencilBoxes(changes_.changedBricks()));
+  sampleRegion(shade_, lattice_, dbuf_, s_.render, sink, &space_, share_->sampler(), &spaceBefore_,
+               changes_.changedCells());
 }
 
 void GpUpdate::setCamera(const Camera& camera, double stepScale) {
@@ -64,6 +73,7 @@ void GpUpdate::reshadeAll(bool viewOnly) {
   }
   shade(recon_->output(), tf_, s_.shading, camera_, share_->shadeAll(camera_), shade_);
   space_ = EmptySpaceMap(shade_, s_.render.threads);
+  changes_.resync(recon_->output());
 }
 
 void GpUpdate::sampleAll(SampleSink& sink) {

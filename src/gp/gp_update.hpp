@@ -20,6 +20,7 @@
 #include "core/render_settings.hpp"
 #include "core/sample_lattice.hpp"
 #include "core/transfer_function.hpp"
+#include "gp/change_tracker.hpp"
 #include "gp/dbuffer.hpp"
 #include "gp/dirty_region.hpp"
 #include "gp/empty_space.hpp"
@@ -43,9 +44,6 @@ public:
   // visible voxels get new light, the empty-space map kept. nullopt: shade
   // everything anew (shadeAll) and rebuild the map.
   virtual std::optional<Box3> relightRegion() const = 0;
-  // Whether the D-buffer scan-converts only this GP's own new shades (only
-  // its samples can read them) rather than every shade the change needed.
-  virtual bool dbufferFromOwnShades() const = 0;
   // The samples this GP takes.
   virtual const SamplerOptions& sampler() const = 0;
 };
@@ -57,7 +55,6 @@ public:
   std::vector<Box3> shadeShare(const std::vector<Box3>& needed, const Camera&) const override { return needed; }
   std::vector<Box3> shadeAll(const Camera&) const override { return {whole_}; }
   std::optional<Box3> relightRegion() const override { return whole_; }
-  bool dbufferFromOwnShades() const override { return true; }
   const SamplerOptions& sampler() const override { return options_; }
 
 private:
@@ -138,7 +135,9 @@ private:
   ShadeBuffer shade_;
   EmptySpaceMap space_;
   EmptySpaceMap spaceBefore_;  // space_ before the last shadeChanged()
+  ChangeTracker changes_;
   std::vector<Box3> needed_, shaded_;
+  std::vector<std::int64_t> changedVoxels_;
   DBuffer dbuf_;
 };
 

@@ -467,7 +467,7 @@ void sampleAll(const ShadeBuffer& shade, const SampleLattice& lattice, const Ren
 
 void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const DBuffer& dbuffer,
                   const RenderSettings& settings, SampleSink& sink, const EmptySpaceMap* space,
-                  const SamplerOptions& options, const EmptySpaceMap* before) {
+                  const SamplerOptions& options, const EmptySpaceMap* before, const std::uint8_t* changedCells) {
   checkSameGrid(shade.grid(), lattice.grid());
   PP5_CHECK(!before || space);
   if (before) {
@@ -617,6 +617,7 @@ void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const 
               }
               const int lanes = static_cast<int>(std::min<std::int64_t>(4, s1 - g + 1));
               for (int l = 0; l < lanes; ++l) {
+                if (changedCells && changedCells[interp.index(c, l)] == 0) continue;
                 const std::size_t brick = brickOf(c, l, bd);
                 if (dist[brick] == 0) {
                   interp.blendLane(c, l, loaded, vox, stage.slot());
@@ -641,6 +642,7 @@ void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const 
             }
             const int lanes = static_cast<int>(std::min<std::int64_t>(4, s1 - g + 1));
             for (int l = 0; l < lanes; ++l) {
+              if (changedCells && changedCells[interp.index(c, l)] == 0) continue;
               float* rgba = stage.slot();
               if (!dist || dist[brickOf(c, l, bd)] == 0) {
                 interp.blendLane(c, l, loaded, vox, rgba);

@@ -357,7 +357,8 @@ struct Work {
 // Every voxel of `boxes` (disjoint, inside the grid). Rows are grouped into
 // pieces of about kPieceVoxels so that small boxes are not split across
 // threads and large ones are; the split never changes a voxel's value.
-void shadeBoxes(const Context& c, RowFn fn, const std::vector<Box3>& boxes, int threads) {
+void shadeBoxes(const Context& c, RowFn fn, const std::vector<Box3>& boxes, int threads,
+                std::vector<std::int64_t>* changed) {
   constexpr std::int64_t kPieceVoxels = 8192;
   std::vector<Work> work;
   std::uint64_t total = 0;
@@ -369,20 +370,42 @@ void shadeBoxes(const Context& c, RowFn fn, const std::vector<Box3>& boxes, int 
     for (std::int64_t r = 0; r < rows; r += per) work.push_back({static_cast<std::uint32_t>(b), r, std::min(rows, r + per)});
     total += x.voxelCount();
   }
-  auto run = [&](const Work& w) {
-    const Box3& x = boxes[w.box];
-    const std::int64_t height = x.hi.y - x.lo.y;
-    for (std::int64_t r = w.rowBegin; r < w.rowEnd; ++r) fn(c, x.lo.y + r % height, x.lo.z + r / height, x.lo.x, x.hi.x);
-  };
   const auto n = static_cast<std::int64_t>(work.size());
   // Starting a team costs more than a few thousand voxels take.
   const bool parallel = threads > 1 && n > 1 && total >= 2 * static_cast<std::uint64_t>(kPieceVoxels);
-#pragma omp parallel for num_threads(threads) schedule(dynamic, 1) if (parallel)
-  for (std::int64_t w = 0; w < n; ++w) run(work[static_cast<std::size_t>(w)]);
+  const int team = parallel ? threads : 1;
+  // With `changed`: each thread lists the voxels whose shade it changed,
+  // comparing a row's old shades (kept in `before`) with its new ones.
+  std::vector<std::vector<std::int64_t>> found(changed ? static_cast<std::size_t>(team) : 0);
+#pragma omp parallel num_threads(team) if (parallel)
+  {
+    std::vector<ShadeVoxel> before;
+    std::vector<std::int64_t>* mine = changed ? &found[static_cast<std::size_t>(omp_get_thread_num())] : nullptr;
+#pragma omp for schedule(dynamic, 1)
+    for (std::int64_t w = 0; w < n; ++w) {
+      const Work& wk = work[static_cast<std::size_t>(w)];
+      const Box3& x = boxes[wk.box];
+      const std::int64_t height = x.hi.y - x.lo.y;
+      for (std::int64_t r = wk.rowBegin; r < wk.rowEnd; ++r) {
+        const std::int64_t j = x.lo.y + r % height, k = x.lo.z + r / height;
+        if (!mine) {
+          fn(c, j, k, x.lo.x, x.hi.x);
+          continue;
+        }
+        const std::int64_t first = (k * c.ny + j) * c.nx + x.lo.x, len = x.hi.x - x.lo.x;
+        before.assign(c.out + first, c.out + first + len);
+        fn(c, j, k, x.lo.x, x.hi.x);
+        for (std::int64_t i = 0; i < len; ++i)
+          if (!(before[static_cast<std::size_t>(i)] == c.out[first + i])) mine->push_back(first + i);
+      }
+    }
+  }
+  if (changed)
+    for (const auto& f : found) changed->insert(changed->end(), f.begin(), f.end());
 }
 
 void shadeAll(const Volume& values, const TransferFunction& tf, const ShadeSettings& s, const Camera& view,
-              const std::vector<Box3>& boxes, ShadeBuffer& out) {
+              const std::vector<Box3>& boxes, ShadeBuffer& out, std::vector<std::int64_t>* changed = nullptr) {
   const Grid& g = values.grid;
   PP5_CHECK(g.dims == out.grid().dims);
   PP5_CHECK_EQ(values.bytes.size(), g.voxelCount() * static_cast<std::uint64_t>(scalarBytes(values.type)));
@@ -437,7 +460,7 @@ void shadeAll(const Volume& values, const TransferFunction& tf, const ShadeSetti
   }
   PP5_CHECK(fn != nullptr);
   const int threads = resolveThreads(s.threads);
-  shadeBoxes(c, fn, boxes, threads);
+  shadeBoxes(c, fn, boxes, threads, changed);
 }
 
 // Merges boxes that share their extent on the two other axes and touch along
@@ -532,14 +555,16 @@ void shade(const Volume& values, const TransferFunction& tf, const ShadeSettings
 }
 
 void shade(const Volume& values, const TransferFunction& tf, const ShadeSettings& s, const Camera& view,
-           std::span<const Box3> boxes, ShadeBuffer& out) {
+           std::span<const Box3> boxes, ShadeBuffer& out, std::vector<std::int64_t>* changed) {
   std::vector<Box3> clipped;
   clipped.reserve(boxes.size());
   for (const Box3& b : boxes) {
     const Box3 c = b.intersect({Index3(0), values.grid.dims});
     if (!c.empty()) clipped.push_back(c);
   }
-  shadeAll(values, tf, s, view, clipped, out);
+  const std::size_t had = changed ? changed->size() : 0;
+  shadeAll(values, tf, s, view, clipped, out, changed);
+  if (changed) std::sort(changed->begin() + static_cast<std::ptrdiff_t>(had), changed->end());
 }
 
 void shade(const Volume& values, const TransferFunction& tf, const ShadeSettings& s, const Camera& view,

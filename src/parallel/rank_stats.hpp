@@ -67,6 +67,7 @@ inline comm::ReportMsg makeReport(const comm::Transport& t, Role role, const com
   r.messagesReceived = c.messagesReceived;
   r.dropped = dropped;
   r.memoryBytes = memoryBytes;
+  for (int k = 0; k < comm::kTrafficKinds; ++k) r.bytesByKind[k] = t.bytesSentByKind()[static_cast<std::size_t>(k)];
   return r;
 }
 

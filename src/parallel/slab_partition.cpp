@@ -30,8 +30,6 @@ public:
     return {region_};
   }
   std::optional<gp::Box3> relightRegion() const override { return region_; }
-  // Only this GP's cells' samples can change, and they read only its shades.
-  bool dbufferFromOwnShades() const override { return true; }
   const gp::SamplerOptions& sampler() const override { return options_; }
 
 private:

@@ -52,9 +52,6 @@ public:
   // This GP shaded only what its tiles saw under the old view, so a new view
   // needs its bricks shaded anew.
   std::optional<gp::Box3> relightRegion() const override { return std::nullopt; }
-  // The whole change's few merged boxes: the work-tile mask keeps the rays to
-  // this GP's tiles, whose samples read only voxels of visible bricks.
-  bool dbufferFromOwnShades() const override { return false; }
   const gp::SamplerOptions& sampler() const override { return options_; }
 
 private:

@@ -14,7 +14,7 @@
 #include <emmintrin.h>
 #endif
 
-#include "pp/half_float.hpp"
+#include "core/half_float.hpp"
 #include "pp/ray_cache.hpp"
 
 namespace pp5::pp::composite {

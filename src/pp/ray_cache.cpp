@@ -13,7 +13,7 @@
 #include "core/config.hpp"
 #include "core/error.hpp"
 #include "pp/composite_kernels.hpp"
-#include "pp/half_float.hpp"
+#include "core/half_float.hpp"
 #include "core/threads.hpp"
 
 namespace pp5::pp {

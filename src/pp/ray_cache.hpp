@@ -46,6 +46,7 @@
 #include <vector>
 
 #include "core/ray_sample.hpp"
+#include "core/sample_runs.hpp"
 #include "core/render_settings.hpp"
 #include "core/tiles.hpp"
 #include "pp/zeroed_array.hpp"
@@ -70,6 +71,9 @@ enum class SampleFormat : std::uint8_t {
   Float,  // 16 bytes, exact
 };
 SampleFormat sampleFormatFromName(const std::string& name);  // "rgba8" | "half" | "float"
+// The wire form GPs send samples in for caches of format f: half for half
+// (exact, see core/sample_runs.hpp), float otherwise.
+inline SampleWire sampleWireFor(SampleFormat f) { return f == SampleFormat::Half ? SampleWire::Half : SampleWire::Float; }
 const char* sampleFormatName(SampleFormat f);
 std::size_t sampleFormatBytes(SampleFormat f);
 

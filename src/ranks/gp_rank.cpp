@@ -11,6 +11,7 @@
 #include <fmt/format.h>
 
 #include "core/error.hpp"
+#include "core/sample_runs.hpp"
 #include "gp/gp_update.hpp"
 #include "gp/ray_sampler.hpp"
 #include "parallel/partition.hpp"
@@ -41,12 +42,12 @@ public:
     for (const auto& t : buf_) n += t[static_cast<std::size_t>(tile)].size();
     return n;
   }
-  // Appends tile `tile`'s samples to `out` and empties its buckets.
-  void drain(int tile, std::byte* out) {
+  // Appends tile `tile`'s samples to `out` in their wire form and empties
+  // its buckets.
+  void drain(int tile, SampleWire wire, std::vector<std::byte>& out) {
     for (auto& t : buf_) {
       auto& v = t[static_cast<std::size_t>(tile)];
-      if (!v.empty()) std::memcpy(out, v.data(), v.size() * sizeof(RaySample));
-      out += v.size() * sizeof(RaySample);
+      encodeSampleRuns(v, wire, out);
       // A full view's buckets are large; keep small ones for the next frame.
       if (v.capacity() > (std::size_t{1} << 20)) std::vector<RaySample>().swap(v);
       else v.clear();
@@ -308,9 +309,9 @@ private:
       sm.gp = static_cast<std::uint32_t>(g_);
       sm.tile = static_cast<std::uint32_t>(tile);
       sm.count = n;
-      std::vector<std::byte> buf(sizeof sm + n * sizeof(RaySample));
+      std::vector<std::byte> buf(sizeof sm);
       std::memcpy(buf.data(), &sm, sizeof sm);
-      buckets_->drain(tile, buf.data() + sizeof sm);
+      buckets_->drain(tile, c_.wire, buf);
       const int dest = ppOfTile_[static_cast<std::size_t>(tile)];
       t_.sendBuffer(dest, kTagSamples, std::move(buf));
       ++batches[static_cast<std::size_t>(c_.layout.ppIndex(dest))];

@@ -15,6 +15,7 @@
 #include "comm/transport.hpp"
 #include "core/grid.hpp"
 #include "core/render_settings.hpp"
+#include "core/sample_runs.hpp"
 #include "core/transfer_function.hpp"
 #include "gp/reconstruction.hpp"
 #include "gp/shading.hpp"
@@ -30,6 +31,9 @@ struct GpRankConfig {
   parallel::ParallelSettings parallel;
   pp5::parallel::RankLayout layout;
   std::uint64_t memoryLimitBytes = 0;
+  // The samples' wire form: half where the PPs' caches store half
+  // (pp::sampleWireFor(render.cache.format)).
+  SampleWire wire = SampleWire::Half;
 };
 
 // Runs until the host says quit; throws on any error (the caller ends the job).

@@ -11,6 +11,7 @@
 
 #include "parallel/rank_stats.hpp"
 #include "core/error.hpp"
+#include "core/sample_runs.hpp"
 #include "core/sample_lattice.hpp"
 #include "pp/tile_caches.hpp"
 
@@ -144,7 +145,7 @@ private:
   int fullDone_ = 0;
   std::uint64_t dropped_ = 0;
   std::uint64_t samplesPut_ = 0, rays_ = 0, blocks_ = 0;
-  std::vector<RaySample> scratch_;  // one batch's samples, aligned
+  std::vector<RaySample> scratch_;  // one batch's samples, decoded
   std::deque<ControlMsg> pending_;  // tick: control changes not applied yet, in order
 
   CompositeMode live() const { return liveMode(state_); }
@@ -179,16 +180,14 @@ private:
   void put(const Message& m) {
     const SamplesMsg& sm = m.as<SamplesMsg>();
     const auto payload = m.payload<SamplesMsg>();
-    if (payload.size() != sm.count * sizeof(RaySample))
-      throw CommError(fmt::format("a sample batch from rank {} holds {} bytes for {} samples", m.source,
-                                  payload.size(), sm.count));
     if (sm.tile >= slot_.size() || slot_[sm.tile] < 0)
       throw CommError(fmt::format("rank {} sent samples of tile {}, which PP {} does not own", m.source, sm.tile, p_ + 1));
     clock_.start(kReceive);
-    // The payload is not aligned for RaySample in general; copy it out (into
-    // storage kept from batch to batch).
-    scratch_.resize(sm.count);
-    if (sm.count) std::memcpy(scratch_.data(), payload.data(), payload.size());
+    // Decoded into storage kept from batch to batch.
+    scratch_.clear();
+    if (!decodeSampleRuns(payload, pp::sampleWireFor(c_.cache.format), scratch_) || scratch_.size() != sm.count)
+      throw CommError(fmt::format("a sample batch from rank {} is malformed: {} bytes do not hold {} samples' runs",
+                                  m.source, payload.size(), sm.count));
     clock_.start(kComposite);
     (*caches_)[static_cast<std::size_t>(slot_[sm.tile])].put(scratch_.data(), scratch_.size());
     clock_.stop();

@@ -3,7 +3,7 @@
 #include <cstdint>
 #include <cstring>
 
-namespace pp5::pp {
+namespace pp5 {
 
 // IEEE binary16 conversions used by the half format, bit-identical to GCC's
 // _Float16 conversions (round to nearest even; subnormals, inf and NaN kept).
@@ -66,4 +66,4 @@ inline bool halfConversionUsesF16c() {
   return has;
 }
 
-}  // namespace pp5::pp
+}  // namespace pp5

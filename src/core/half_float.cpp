@@ -1,8 +1,8 @@
-#include "pp/half_float.hpp"
+#include "core/half_float.hpp"
 
 #include <immintrin.h>
 
-namespace pp5::pp {
+namespace pp5 {
 
 // Half conversions. F16C converts 8 values an instruction; the target
 // attribute confines AVX to these functions (and to the half put loop), so
@@ -37,4 +37,4 @@ void floatToHalfN(const float* src, std::size_t n, std::uint16_t* dst) {
   for (std::size_t i = 0; i < n; ++i) dst[i] = floatToHalf(src[i]);
 }
 
-}  // namespace pp5::pp
+}  // namespace pp5

@@ -1,0 +1,230 @@
+#include "gp/change_tracker.hpp"
+
+#include <algorithm>
+#include <bit>
+#include <type_traits>
+#include <climits>
+#include <cstring>
+
+#include "core/error.hpp"
+
+namespace pp5::gp {
+
+namespace {
+constexpr std::int32_t kNone = INT32_MAX;
+constexpr std::int64_t kAhead = 8;  // rows fetched ahead
+}
+
+ChangeTracker::ChangeTracker(const Volume& values)
+    : grid_(values.grid),
+      copy_(values),
+      rowLo_(static_cast<std::size_t>(values.grid.dims.y * values.grid.dims.z), kNone),
+      rowHi_(static_cast<std::size_t>(values.grid.dims.y * values.grid.dims.z), -1),
+      selfLo_(rowLo_),
+      selfHi_(rowHi_),
+      visLo_(rowLo_),
+      visHi_(rowHi_),
+      cells_(values.grid.voxelCount(), 0),
+      bricks_(values.grid, kBrick) {}
+
+std::uint64_t ChangeTracker::memoryBytes(const Grid& g, ScalarType t) {
+  return g.voxelCount() * (static_cast<std::uint64_t>(scalarBytes(t)) + 1) +
+         static_cast<std::uint64_t>(g.dims.y * g.dims.z) * 32;
+}
+
+void ChangeTracker::resync(const Volume& values) {
+  PP5_CHECK(values.grid.dims == grid_.dims);
+  PP5_CHECK(values.type == copy_.type);
+  copy_.bytes = values.bytes;
+}
+
+namespace {
+
+// A voxel's value as the shading reads it, by type.
+float valueAt(const std::uint8_t* p, ScalarType t) {
+  switch (t) {
+    case ScalarType::U8: return static_cast<float>(*p);
+    case ScalarType::U16: {
+      std::uint16_t v;
+      std::memcpy(&v, p, 2);
+      return static_cast<float>(v);
+    }
+    case ScalarType::F32: {
+      float v;
+      std::memcpy(&v, p, 4);
+      return v;
+    }
+  }
+  return 0.0f;
+}
+
+// One row's ranges (lo > hi: none), x relative to the row's first voxel.
+struct RowScan {
+  std::int32_t changedLo = kNone, changedHi = -1;  // values that changed
+  std::int32_t selfLo = kNone, selfHi = -1;        // ... and were or are visible
+  std::int32_t visibleLo = kNone, visibleHi = -1;  // values visible now
+};
+
+// Compares n values of a row with the copy (by their bits), takes the new
+// ones into the copy, and notes the ranges.
+template <class T>
+RowScan scanRow(const std::uint8_t* nowBytes, std::uint8_t* wasBytes, std::int32_t n, const TransferFunction* tf) {
+  using Bits = std::conditional_t<sizeof(T) == 1, std::uint8_t,
+                                  std::conditional_t<sizeof(T) == 2, std::uint16_t, std::uint32_t>>;
+  RowScan s;
+  auto visible = [&](Bits b) { return !tf || !tf->transparentUpTo(static_cast<float>(std::bit_cast<T>(b))); };
+  for (std::int32_t v = 0; v < n; ++v) {
+    Bits now, was;
+    std::memcpy(&now, nowBytes + v * static_cast<std::int64_t>(sizeof(T)), sizeof(T));
+    std::memcpy(&was, wasBytes + v * static_cast<std::int64_t>(sizeof(T)), sizeof(T));
+    const bool vis = visible(now);
+    if (vis) {
+      s.visibleLo = std::min(s.visibleLo, v);
+      s.visibleHi = v;
+    }
+    if (now == was) continue;
+    s.changedLo = std::min(s.changedLo, v);
+    s.changedHi = v;
+    if (vis || visible(was)) {
+      s.selfLo = std::min(s.selfLo, v);
+      s.selfHi = v;
+    }
+  }
+  if (s.changedLo <= s.changedHi) {
+    const auto B = static_cast<std::int64_t>(sizeof(T));
+    std::memcpy(wasBytes + s.changedLo * B, nowBytes + s.changedLo * B,
+                static_cast<std::size_t>((s.changedHi - s.changedLo + 1) * B));
+  }
+  return s;
+}
+
+}  // namespace
+
+std::vector<Box3> ChangeTracker::shadingRuns(const Volume& values, std::span<const Box3> dirty,
+                                             std::span<const Box3> within, const TransferFunction* tf) {
+  PP5_CHECK(values.grid.dims == grid_.dims);
+  PP5_CHECK(values.type == copy_.type);
+  const Index3 d = grid_.dims;
+  const ScalarType type = values.type;
+  const std::int64_t B = scalarBytes(type);
+  const Box3 all{Index3(0), d};
+  auto widen = [](std::int32_t& lo, std::int32_t& hi, std::int32_t a, std::int32_t z, std::int64_t x0) {
+    if (a > z) return;
+    lo = std::min(lo, static_cast<std::int32_t>(x0 + a));
+    hi = std::max(hi, static_cast<std::int32_t>(x0 + z));
+  };
+  // One pass over the values: what changed, and what is visible (the rows
+  // next to a change need it too, so every row of `dirty` is scanned).
+  for (const Box3& b0 : dirty) {
+    const Box3 b = b0.intersect(all);
+    if (b.empty()) continue;
+    const std::int64_t len = (b.hi.x - b.lo.x) * B;
+    const auto n = static_cast<std::int32_t>(b.hi.x - b.lo.x);
+    for (std::int64_t k = b.lo.z; k < b.hi.z; ++k)
+      for (std::int64_t j = b.lo.y; j < b.hi.y; ++j) {
+        const std::int64_t row = k * d.y + j;
+        const std::int64_t off = (row * d.x + b.lo.x) * B;
+        // Rows of a box thin in x are short and a kilobyte or more apart,
+        // which the hardware does not fetch ahead: fetch the row kAhead on.
+        if (j + kAhead < b.hi.y) {
+          const std::int64_t ahead = off + kAhead * d.x * B;
+          for (std::int64_t o = 0; o < len + 63; o += 64) {
+            __builtin_prefetch(values.bytes.data() + ahead + std::min(o, len - 1), 0, 3);
+            __builtin_prefetch(copy_.bytes.data() + ahead + std::min(o, len - 1), 1, 3);
+          }
+        }
+        RowScan r;
+        switch (type) {
+          case ScalarType::U8: r = scanRow<std::uint8_t>(values.bytes.data() + off, copy_.bytes.data() + off, n, tf); break;
+          case ScalarType::U16: r = scanRow<std::uint16_t>(values.bytes.data() + off, copy_.bytes.data() + off, n, tf); break;
+          case ScalarType::F32: r = scanRow<float>(values.bytes.data() + off, copy_.bytes.data() + off, n, tf); break;
+        }
+        if (r.changedLo > r.changedHi && r.visibleLo > r.visibleHi) continue;
+        const auto i = static_cast<std::size_t>(row);
+        if (rowLo_[i] > rowHi_[i] && selfLo_[i] > selfHi_[i] && visLo_[i] > visHi_[i]) rowsTouched_.push_back(row);
+        widen(rowLo_[i], rowHi_[i], r.changedLo, r.changedHi, b.lo.x);
+        widen(selfLo_[i], selfHi_[i], r.selfLo, r.selfHi, b.lo.x);
+        widen(visLo_[i], visHi_[i], r.visibleLo, r.visibleHi, b.lo.x);
+      }
+  }
+  std::vector<Box3> out;
+  bool any = false;
+  for (const std::int64_t row : rowsTouched_) any = any || rowLo_[static_cast<std::size_t>(row)] <= rowHi_[static_cast<std::size_t>(row)];
+  if (any) {
+    for (const Box3& w0 : within) {
+      const Box3 w = w0.intersect(all);
+      if (w.empty()) continue;
+      for (std::int64_t k = w.lo.z; k < w.hi.z; ++k)
+        for (std::int64_t j = w.lo.y; j < w.hi.y; ++j) {
+          // The row and its four face-neighbour rows: a voxel reads x - 1 and
+          // x + 1 of its own row and x of the others.
+          std::int32_t lo = kNone, hi = -1;
+          auto take = [&](std::int64_t jj, std::int64_t kk) {
+            if (jj < 0 || jj >= d.y || kk < 0 || kk >= d.z) return;
+            const auto r = static_cast<std::size_t>(kk * d.y + jj);
+            lo = std::min(lo, rowLo_[r]);
+            hi = std::max(hi, rowHi_[r]);
+          };
+          take(j, k);
+          take(j - 1, k);
+          take(j + 1, k);
+          take(j, k - 1);
+          take(j, k + 1);
+          if (lo > hi) continue;
+          // Of the voxels next to a change, the visible ones (this row's
+          // visible range, so a few more); and this row's own changes that
+          // were or are visible.
+          const auto r = static_cast<std::size_t>(k * d.y + j);
+          std::int32_t a = std::max(lo - 1, visLo_[r]), z = std::min(hi + 1, visHi_[r]);
+          if (a > z) {
+            a = selfLo_[r];
+            z = selfHi_[r];
+          } else if (selfLo_[r] <= selfHi_[r]) {
+            a = std::min(a, selfLo_[r]);
+            z = std::max(z, selfHi_[r]);
+          }
+          const std::int64_t s0 = std::max<std::int64_t>(a, w.lo.x), s1 = std::min<std::int64_t>(z, w.hi.x - 1);
+          if (s0 <= s1) out.push_back({Index3(s0, j, k), Index3(s1 + 1, j + 1, k + 1)});
+        }
+    }
+  }
+  for (const std::int64_t row : rowsTouched_) {
+    const auto r = static_cast<std::size_t>(row);
+    rowLo_[r] = selfLo_[r] = visLo_[r] = kNone;
+    rowHi_[r] = selfHi_[r] = visHi_[r] = -1;
+  }
+  rowsTouched_.clear();
+  return out;
+}
+
+void ChangeTracker::markCells(std::uint8_t value) {
+  const Index3 d = grid_.dims;
+  for (const std::int64_t v : changed_) {
+    const std::int64_t i = v % d.x, j = (v / d.x) % d.y, k = v / (d.x * d.y);
+    // Voxel v is a corner of cells v - 1 and v on each axis (those in 0 .. dims - 2).
+    for (std::int64_t ck = std::max<std::int64_t>(k - 1, 0); ck <= std::min(k, d.z - 2); ++ck)
+      for (std::int64_t cj = std::max<std::int64_t>(j - 1, 0); cj <= std::min(j, d.y - 2); ++cj) {
+        std::uint8_t* row = cells_.data() + (ck * d.y + cj) * d.x;
+        for (std::int64_t ci = std::max<std::int64_t>(i - 1, 0); ci <= std::min(i, d.x - 2); ++ci) row[ci] = value;
+      }
+  }
+}
+
+void ChangeTracker::setShadeChanges(std::span<const std::int64_t> voxels) {
+  const Index3 d = grid_.dims;
+  markCells(0);
+  changed_.assign(voxels.begin(), voxels.end());
+  markCells(1);
+  bricks_.clear();
+  std::int64_t lastBrick = -1;
+  for (const std::int64_t v : changed_) {
+    PP5_CHECK(v >= 0 && static_cast<std::uint64_t>(v) < grid_.voxelCount());
+    const std::int64_t bi = (v % d.x) / kBrick, bj = ((v / d.x) % d.y) / kBrick, bk = v / (d.x * d.y) / kBrick;
+    const std::int64_t id = (bk * bricks_.brickDims().y + bj) * bricks_.brickDims().x + bi;
+    if (id == lastBrick) continue;
+    lastBrick = id;
+    bricks_.addBrick(bi, bj, bk);
+  }
+}
+
+}  // namespace pp5::gp

@@ -1,0 +1,125 @@
+// The change tracker (gp/change_tracker.hpp) against brute force: shading
+// only the runs it lists gives the bits of a full re-shade, for random
+// changes of values, visible and transparent, for every voxel type; and the
+// cells it marks are exactly those with a changed voxel among their 8.
+#include <gtest/gtest.h>
+
+#include <cstring>
+#include <random>
+#include <vector>
+
+#include "gp/change_tracker.hpp"
+#include "gp/shading.hpp"
+
+namespace {
+
+using namespace pp5;
+using namespace pp5::gp;
+
+Grid smallGrid() {
+  Grid g;
+  g.dims = Index3(23, 17, 13);
+  g.spacing = Vec3(0.5, 0.7, 0.6);
+  g.origin = Vec3(-3.0, 2.0, 1.0);
+  return g;
+}
+
+Camera cameraFor(const Grid& g) {
+  Camera c;
+  c.target = g.voxelToWorld(0.5 * Vec3(g.dims - Index3(1)));
+  c.eye = c.target + Vec3(40.0, -25.0, 30.0);
+  c.up = Vec3(0, 0, 1);
+  return c;
+}
+
+class Tracker : public ::testing::TestWithParam<std::tuple<ScalarType, bool>> {};
+
+TEST_P(Tracker, ShadingTheRunsEqualsAFullReshade) {
+  const auto [type, grey] = GetParam();
+  const Grid g = smallGrid();
+  Volume v;
+  v.allocate(g, type);
+  std::mt19937 rng(7);
+  // Water below the opacity ramp with tissue in it: most changes are to
+  // transparent values, as in a real sweep.
+  auto randomValue = [&] {
+    return std::uniform_real_distribution<double>(0.0, 1.0)(rng) < 0.8
+               ? std::uniform_real_distribution<double>(0.0, 20.0)(rng)
+               : std::uniform_real_distribution<double>(20.0, 255.0)(rng);
+  };
+  for (std::size_t i = 0; i < g.voxelCount(); ++i) v.setValue(i, randomValue());
+  const TransferFunction tf;
+  ShadeSettings s;
+  s.greyValues = grey;
+  s.threads = 2;
+  const Camera cam = cameraFor(g);
+  const Box3 all{Index3(0), g.dims};
+  ShadeBuffer buf(g);
+  shade(v, tf, s, cam, all, buf);
+  ChangeTracker tracker(v);
+
+  for (int round = 0; round < 12; ++round) {
+    // Change values in a random box (the "dirty region"), some of them.
+    Index3 lo, hi;
+    for (int a = 0; a < 3; ++a) {
+      const auto n = g.dims[a];
+      lo[a] = std::uniform_int_distribution<std::int64_t>(0, n - 2)(rng);
+      hi[a] = std::uniform_int_distribution<std::int64_t>(lo[a] + 1, n)(rng);
+    }
+    const Box3 dirty{lo, hi};
+    for (std::int64_t k = lo.z; k < hi.z; ++k)
+      for (std::int64_t j = lo.y; j < hi.y; ++j)
+        for (std::int64_t i = lo.x; i < hi.x; ++i)
+          if (std::uniform_int_distribution<int>(0, 2)(rng) == 0)
+            v.setValue(static_cast<std::size_t>((k * g.dims.y + j) * g.dims.x + i), randomValue());
+    const Box3 needed = dirty.grown(1).intersect(all);
+    const std::vector<Box3> runs =
+        tracker.shadingRuns(v, std::span<const Box3>(&needed, 1), std::span<const Box3>(&needed, 1), grey ? nullptr : &tf);
+    std::vector<std::int64_t> changed;
+    shade(v, tf, s, cam, runs, buf, &changed);
+
+    ShadeBuffer full(g);
+    shade(v, tf, s, cam, all, full);
+    ASSERT_EQ(std::memcmp(full.data(), buf.data(), g.voxelCount() * sizeof(ShadeVoxel)), 0) << "round " << round;
+    std::uint64_t runVoxels = 0;
+    for (const Box3& r : runs) runVoxels += r.voxelCount();
+    if (!grey) {
+      EXPECT_LT(runVoxels, needed.voxelCount()) << "transparent voxels are left out";
+    }
+
+    // The cells: marked exactly where one of the 8 voxels changed its shade.
+    tracker.setShadeChanges(changed);
+    std::vector<std::uint8_t> flag(g.voxelCount(), 0);
+    for (const std::int64_t c : changed) flag[static_cast<std::size_t>(c)] = 1;
+    for (std::size_t c = 1; c < changed.size(); ++c) ASSERT_LT(changed[c - 1], changed[c]) << "ascending, unique";
+    std::size_t marked = 0;
+    for (std::int64_t k = 0; k + 1 < g.dims.z; ++k)
+      for (std::int64_t j = 0; j + 1 < g.dims.y; ++j)
+        for (std::int64_t i = 0; i + 1 < g.dims.x; ++i) {
+          bool any = false;
+          for (int c = 0; c < 8; ++c)
+            any = any || flag[static_cast<std::size_t>(((k + (c >> 2)) * g.dims.y + j + ((c >> 1) & 1)) * g.dims.x + i +
+                                                       (c & 1))];
+          const auto idx = static_cast<std::size_t>((k * g.dims.y + j) * g.dims.x + i);
+          ASSERT_EQ(tracker.changedCells()[idx] != 0, any) << "cell " << i << " " << j << " " << k;
+          marked += any;
+        }
+    // Every changed voxel's 8^3 brick is listed, and only those.
+    for (const std::int64_t c : changed)
+      EXPECT_TRUE(tracker.changedBricks().containsVoxel(c % g.dims.x, (c / g.dims.x) % g.dims.y,
+                                                        c / (g.dims.x * g.dims.y)));
+    EXPECT_LE(tracker.changedBricks().bricks().size(), changed.size());
+    if (changed.empty()) {
+      EXPECT_EQ(marked, 0u);
+    }
+  }
+  // Nothing changed: nothing to shade.
+  const std::vector<Box3> none = tracker.shadingRuns(v, std::span<const Box3>(&all, 1), std::span<const Box3>(&all, 1), &tf);
+  EXPECT_TRUE(none.empty());
+}
+
+INSTANTIATE_TEST_SUITE_P(Types, Tracker,
+                         ::testing::Combine(::testing::Values(ScalarType::U8, ScalarType::U16, ScalarType::F32),
+                                            ::testing::Bool()));
+
+}  // namespace

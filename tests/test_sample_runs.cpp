@@ -1,0 +1,95 @@
+// The samples' wire form (core/sample_runs.hpp): what a PP decodes is what
+// the GP encoded (float exactly; half exactly as the half cache stores it),
+// transparent runs cost a header, and malformed input is refused.
+#include <gtest/gtest.h>
+
+#include <cstring>
+#include <random>
+#include <vector>
+
+#include "core/half_float.hpp"
+#include "core/sample_runs.hpp"
+
+namespace {
+
+using namespace pp5;
+
+// Rays of consecutive samples, some transparent in runs, some not, in
+// scrambled ray order, with a few isolated samples.
+std::vector<RaySample> someSamples(std::mt19937& rng) {
+  std::vector<RaySample> s;
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  for (std::uint32_t ray = 0; ray < 40; ++ray) {
+    const std::uint32_t pixel = (ray * 7919u) % 5000u;
+    std::uint32_t k = std::uniform_int_distribution<std::uint32_t>(0, 60000)(rng);
+    const int n = std::uniform_int_distribution<int>(1, 90)(rng);
+    for (int i = 0; i < n; ++i, ++k) {
+      const bool clear = (i / 7) % 2 == 0;
+      const float a = clear ? 0.0f : u(rng);
+      s.push_back({pixel, k, a * u(rng), a * u(rng), a * u(rng), a});
+    }
+    if (ray % 5 == 0) s.push_back({pixel + 1, 3, 0.25f, 0.5f, 0.125f, 0.75f});
+  }
+  return s;
+}
+
+TEST(SampleRuns, FloatRoundTripsExactly) {
+  std::mt19937 rng(3);
+  const std::vector<RaySample> in = someSamples(rng);
+  std::vector<std::byte> wire;
+  encodeSampleRuns(in, SampleWire::Float, wire);
+  std::vector<RaySample> out;
+  ASSERT_TRUE(decodeSampleRuns(wire, SampleWire::Float, out));
+  ASSERT_EQ(out.size(), in.size());
+  EXPECT_EQ(std::memcmp(out.data(), in.data(), in.size() * sizeof(RaySample)), 0);
+}
+
+TEST(SampleRuns, HalfGivesTheBitsTheHalfCacheStores) {
+  std::mt19937 rng(4);
+  const std::vector<RaySample> in = someSamples(rng);
+  std::vector<std::byte> wire;
+  encodeSampleRuns(in, SampleWire::Half, wire);
+  std::vector<RaySample> out;
+  ASSERT_TRUE(decodeSampleRuns(wire, SampleWire::Half, out));
+  ASSERT_EQ(out.size(), in.size());
+  std::size_t clear = 0;
+  for (std::size_t i = 0; i < in.size(); ++i) {
+    ASSERT_EQ(out[i].pixel, in[i].pixel);
+    ASSERT_EQ(out[i].k, in[i].k);
+    const float a[4] = {in[i].r, in[i].g, in[i].b, in[i].a}, b[4] = {out[i].r, out[i].g, out[i].b, out[i].a};
+    for (int c = 0; c < 4; ++c) ASSERT_EQ(floatToHalf(b[c]), floatToHalf(a[c])) << "sample " << i << " channel " << c;
+    clear += in[i].a == 0.0f;
+  }
+  // Transparent samples cost nothing beyond their runs' headers; a visible
+  // one costs its 8 bytes of values: far below 24 bytes a sample.
+  const std::size_t visible = in.size() - clear;
+  EXPECT_LT(wire.size(), visible * 8 + in.size() / 2 * sizeof(SampleRunHeader));
+  EXPECT_LT(wire.size() * 2, in.size() * sizeof(RaySample));
+}
+
+TEST(SampleRuns, MalformedInputIsRefusedAndLeavesTheOutputAlone) {
+  std::mt19937 rng(5);
+  const std::vector<RaySample> in = someSamples(rng);
+  std::vector<std::byte> wire;
+  encodeSampleRuns(in, SampleWire::Half, wire);
+  std::vector<RaySample> out(3);
+  for (const std::size_t cut : {std::size_t{1}, std::size_t{5}, std::size_t{9}}) {
+    std::vector<std::byte> part(wire.begin(), wire.end() - static_cast<std::ptrdiff_t>(cut));
+    EXPECT_FALSE(decodeSampleRuns(part, SampleWire::Half, out)) << cut;
+    EXPECT_EQ(out.size(), 3u);
+  }
+  // A run that claims no samples, or runs past k = 65535.
+  SampleRunHeader h{1, 10, 0};
+  std::vector<std::byte> bad(sizeof h);
+  std::memcpy(bad.data(), &h, sizeof h);
+  EXPECT_FALSE(decodeSampleRuns(bad, SampleWire::Float, out));
+  h = {1, 65535, 0x8000 + 2};
+  std::memcpy(bad.data(), &h, sizeof h);
+  EXPECT_FALSE(decodeSampleRuns(bad, SampleWire::Float, out));
+  EXPECT_EQ(out.size(), 3u);
+  // Empty input is no samples.
+  EXPECT_TRUE(decodeSampleRuns({}, SampleWire::Half, out));
+  EXPECT_EQ(out.size(), 3u);
+}
+
+}  // namespace
