@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <array>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -12,6 +13,8 @@
 #include <string>
 #include <sys/wait.h>
 #include <unistd.h>
+
+#include "core/volume_io.hpp"
 
 namespace {
 
@@ -76,6 +79,40 @@ TEST(Cli, BadConfigGivesOneLineWithFileKeyAndLine) {
   r = run("config " + (d / "missing.toml").string());
   EXPECT_EQ(r.status, 1);
   EXPECT_NE(r.out.find("missing.toml"), std::string::npos) << r.out;
+  std::filesystem::remove_all(d);
+}
+
+// run.source = "simulator" simulates the sweep once into the cache and
+// streams it from there; the second run reuses it, and the volume equals the
+// live simulator's (the poses read back agree to 1e-6 mm, so the values to
+// float rounding).
+TEST(Cli, SimulatedSweepIsCachedAndEqualsTheLiveSimulator) {
+  const auto d = tempDir("sweepcache");
+  const std::string cfg = std::string(PP5_SOURCE_DIR) + "/tests/configs/mpi_small.toml";
+  const std::string common = " --set run.orbit_frames=0 --set run.mpr=false --set 'run.sweep_cache=\"" +
+                             (d / "cache").string() + "\"'";
+  const auto first = run("run " + cfg + " -o " + (d / "a").string() + common);
+  ASSERT_EQ(first.status, 0) << first.out;
+  EXPECT_NE(first.out.find("simulating the sweep once"), std::string::npos) << first.out;
+  const auto second = run("run " + cfg + " -o " + (d / "b").string() + common);
+  ASSERT_EQ(second.status, 0) << second.out;
+  EXPECT_EQ(second.out.find("simulating the sweep once"), std::string::npos) << second.out;
+  std::size_t sweeps = 0;
+  for (const auto& e : std::filesystem::directory_iterator(d / "cache")) sweeps += e.is_directory() ? 1 : 0;
+  EXPECT_EQ(sweeps, 1u);
+  const auto live = run("run " + cfg + " -o " + (d / "c").string() + common + " --set run.simulate_live=true");
+  ASSERT_EQ(live.status, 0) << live.out;
+  const pp5::Volume vb = pp5::readVolume((d / "b" / "volume.mha").string());
+  const pp5::Volume vc = pp5::readVolume((d / "c" / "volume.mha").string());
+  ASSERT_EQ(vb.grid.dims, vc.grid.dims);
+  ASSERT_EQ(vb.bytes.size(), vc.bytes.size());
+  double worst = 0.0, sum = 0.0;
+  for (std::size_t i = 0; i < vb.grid.voxelCount(); ++i) {
+    worst = std::max(worst, std::abs(vb.value(i) - vc.value(i)));
+    sum += vc.value(i);
+  }
+  EXPECT_GT(sum, 0.0);
+  EXPECT_LT(worst, 0.01);
   std::filesystem::remove_all(d);
 }
 

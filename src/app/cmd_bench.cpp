@@ -39,6 +39,7 @@
 #include "app/commands.hpp"
 #include "app/recon_run.hpp"
 #include "app/settings.hpp"
+#include "app/sweep_cache.hpp"
 #include "comm/mpi.hpp"
 #include "core/error.hpp"
 #include "core/io_util.hpp"
@@ -72,85 +73,6 @@ struct BenchOptions {
 
 std::atomic<bool> gStop{false};
 extern "C" void onBenchInterrupt(int) { gStop = true; }
-
-// ---- the sweep, simulated once --------------------------------------------------
-
-struct Sequence {
-  std::string sequencePath, configPath;
-  std::string firstPath;  // the sweep's first frame alone: the baseline runs' input
-  std::size_t frames = 0;
-  double maxPoseError = 0.0;  // mm, largest |element| of the pose difference
-  double simulateS = 0.0;
-};
-
-PlusVolumeReconstruction reconstructionElement(const Grid& g) {
-  PlusVolumeReconstruction r;
-  r.outputSpacing = g.spacing;
-  r.outputOrigin = g.origin;
-  r.outputExtent = std::array<int, 6>{0, static_cast<int>(g.dims.x - 1), 0, static_cast<int>(g.dims.y - 1), 0,
-                                      static_cast<int>(g.dims.z - 1)};
-  r.interpolation = PlusInterpolation::Linear;
-  return r;
-}
-
-// What `pp5echo simulate` writes (the sequence and its device-set XML with
-// ImageToProbe), without the truth volumes; uncompressed, so that a layout's
-// host pays only for reading. Then reads it back as `run.source = "sequence"`
-// does and requires the simulator's pixels, indices, times and poses.
-Sequence simulateSequence(const Settings& s, const std::string& dir) {
-  const auto t0 = Clock::now();
-  const sim::SweepSimulator sim(s.sim);
-  const std::size_t n = sim.frameCount();
-  if (n == 0) throw InputError("sim.sweep: the sweep captured no frames; lengthen it or lower sim.sweep.capture_interval_mm");
-  makeOutputDir(dir);
-  Sequence out;
-  out.sequencePath = fs::absolute(fs::path(dir) / (std::string(enumName(s.sim.phantom)) + "_sweep.igs.mha")).string();
-  out.configPath = fs::absolute(fs::path(dir) / (std::string(enumName(s.sim.phantom)) + "_config.xml")).string();
-  out.firstPath = fs::absolute(fs::path(dir) / (std::string(enumName(s.sim.phantom)) + "_first_frame.igs.mha")).string();
-  out.frames = n;
-  struct Expected {
-    std::uint64_t index;
-    double time;
-    std::vector<std::uint8_t> pixels;
-    Mat4 pose;
-  };
-  std::vector<Expected> want;
-  SequenceWriteOptions wo;
-  wo.compress = false;
-  wo.fields = {{"UltrasoundImageType", "BRIGHTNESS"}};
-  auto writer = SequenceWriter::create(out.sequencePath, wo);
-  auto first = SequenceWriter::create(out.firstPath, wo);
-  sim.run(s.sim.threads, [&](Frame&& f) {
-    want.push_back({f.index, f.timestamp, f.pixels, sim.imageToReference(f.index)});
-    if (want.size() == 1) first->write(f);
-    writer->write(f);
-  });
-  writer->close();
-  first->close();
-  writePlusConfig(out.configPath, {{"Image", "Probe", sim.imageToProbe()}}, reconstructionElement(sweepGrid(s, sim)),
-                  fmt::format("pp5echo bench: {} phantom, {} probe, {} sweep, seed {}", enumName(s.sim.phantom),
-                              sim.probe().name, enumName(s.sim.sweep.kind), s.sim.seed));
-
-  PosedSequence seq = openPosedSequence(out.sequencePath, out.configPath);
-  if (seq.poses.size() != n)
-    throw InvariantError(fmt::format("{}: {} frames read back, {} simulated", out.sequencePath, seq.poses.size(), n));
-  Frame f;
-  for (std::size_t i = 0; i < n; ++i) {
-    if (!seq.reader->next(f)) throw InvariantError(fmt::format("{}: frame {} missing", out.sequencePath, i));
-    if (!seq.poses[i]) throw InvariantError(fmt::format("{}: frame {} cannot be placed", out.sequencePath, i));
-    if (f.pixels != want[i].pixels || f.index != want[i].index || f.timestamp != want[i].time)
-      throw InvariantError(fmt::format("{}: frame {} read back differs from the simulator's (pixels, index or time)",
-                                       out.sequencePath, i));
-    for (int c = 0; c < 4; ++c)
-      for (int r = 0; r < 4; ++r)
-        out.maxPoseError = std::max(out.maxPoseError, std::abs((*seq.poses[i])[c][r] - want[i].pose[c][r]));
-  }
-  if (!(out.maxPoseError < 1e-6))
-    throw InvariantError(fmt::format("{}: the sequence's ImageToReference differs from the simulator's by {} (mm)",
-                                     out.sequencePath, out.maxPoseError));
-  out.simulateS = std::chrono::duration<double>(Clock::now() - t0).count();
-  return out;
-}
 
 // ---- MPI bandwidth -------------------------------------------------------------
 
@@ -201,7 +123,7 @@ Bandwidth measureBandwidth(const std::string& mpirun, const std::string& exe, co
 
 // `pp5echo run --serial` on the same sequence, one thread: what one core does
 // per frame with no messages (the serial path has no scripted view change).
-SerialRef runSerialReference(const std::string& exe, const BenchOptions& o, const Sequence& seq, double timeoutS) {
+SerialRef runSerialReference(const std::string& exe, const BenchOptions& o, const SimulatedSweep& seq, double timeoutS) {
   SerialRef r;
   const std::string dir = fs::absolute(fs::path(o.outDir) / "layouts" / "serial").string();
   std::error_code ec;
@@ -284,7 +206,7 @@ int runBench(BenchOptions o) {
 
   std::printf("bench: simulating the sweep once into %s/sequence\n", o.outDir.c_str());
   std::fflush(stdout);
-  const Sequence seq = simulateSequence(s, (fs::path(o.outDir) / "sequence").string());
+  const SimulatedSweep seq = simulateSweep(s, (fs::path(o.outDir) / "sequence").string());
   std::printf("bench: %zu frames in %.1f s; read back with identical pixels, poses within %.1e mm\n", seq.frames,
               seq.simulateS, seq.maxPoseError);
   const Bandwidth bw = measureBandwidth(mpirun, exe, o.outDir);

@@ -71,7 +71,8 @@ void registerAll(ConfigSchema& schema, Settings& s) {
 
   schema.section("run", "`pp5echo run`: the source it streams and the outputs it writes.");
   enumOption(schema, "run.source", &s.run.source, SourceKind::Simulator,
-                "`simulator`: the [sim] sweep, frame by frame as it is simulated; `sequence`: a PLUS sequence file "
+                "`simulator`: the [sim] sweep (simulated once into a cache and streamed from there, unless "
+                "`run.simulate_live`); `sequence`: a PLUS sequence file "
                 "(`run.sequence`, with `run.plus_config` for the calibration); `board`: the USB interface board "
                 "([board]); `igtl`: an OpenIGTLink server (`run.igtl_url`). The live sources need "
                 "`run.plus_config` for the calibration chain and a fixed grid (`grid.auto_extent = false`).");
@@ -86,6 +87,14 @@ void registerAll(ConfigSchema& schema, Settings& s) {
   schema.option("run.sequence", &s.run.sequence, "", "PLUS sequence file for `run.source = \"sequence\"`.");
   schema.option("run.plus_config", &s.run.plusConfig, "",
                 "PLUS device-set XML giving the sequence's ImageToReference chain.");
+  schema.option("run.simulate_live", &s.run.simulateLive, false,
+                "`run.source = \"simulator\"`: simulate every frame on the host as it streams. Off (the default), "
+                "the sweep is simulated once into `run.sweep_cache`, keyed by every [sim] setting but sim.threads "
+                "and by the program, and streamed from there like a recording, so the host's core is free for the "
+                "pipeline.");
+  schema.option("run.sweep_cache", &s.run.sweepCache, "",
+                "Folder of the simulated sweeps; empty: $XDG_CACHE_HOME/pp5echo/sweeps, else "
+                "~/.cache/pp5echo/sweeps.");
   schema.option("run.buildup_every", &s.run.buildupEvery, 1, 1, 100000,
                 "Every n-th frame's image goes into the build-up animation (`buildup.gif`).");
   schema.option("run.buildup_fps", &s.run.buildupFps, 15.0, 0.5, 100.0, "Frame rate of `buildup.gif`.");

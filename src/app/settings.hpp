@@ -80,6 +80,11 @@ struct RunSettings {
   std::string record;                // write every acquired frame to this PLUS sequence
   std::string sequence;              // run.source = "sequence": the PLUS sequence ...
   std::string plusConfig;            // ... and its PLUS device-set XML (calibration)
+  // run.source = "simulator": simulate each frame as it streams (the
+  // simulator on the host's path), or the sweep once into the cache folder
+  // (app/sweep_cache.hpp), streamed from there.
+  bool simulateLive = false;
+  std::string sweepCache;  // "" = $XDG_CACHE_HOME/pp5echo/sweeps or ~/.cache/pp5echo/sweeps
   int buildupEvery = 1;              // every n-th frame goes into the build-up animation
   double buildupFps = 15.0;
   int orbitFrames = 36;              // frames of the rotating movie loop; 0 = none

@@ -5,6 +5,7 @@
 #include <fmt/format.h>
 
 #include "app/recon_run.hpp"
+#include "app/sweep_cache.hpp"
 #include "core/error.hpp"
 #include "core/plus_config.hpp"
 #include "host/sources.hpp"
@@ -55,7 +56,12 @@ host::Source makeSource(const Settings& s) {
     return host::recorded(host::sequenceSource(seq, grid), s.run.record);
   }
   auto sim = std::make_shared<sim::SweepSimulator>(s.sim);
-  return host::recorded(host::simulatorSource(sim, sweepGrid(s, *sim), s.sim.threads), s.run.record);
+  if (s.run.simulateLive)
+    return host::recorded(host::simulatorSource(sim, sweepGrid(s, *sim), s.sim.threads), s.run.record);
+  // The sweep from the cache, on the live simulator's grid.
+  const SimulatedSweep sweep = cachedSweep(s);
+  auto seq = std::make_shared<PosedSequence>(openPosedSequence(sweep.sequencePath, sweep.configPath));
+  return host::recorded(host::sequenceSource(seq, sweepGrid(s, *sim)), s.run.record);
 }
 
 board::DriverOptions driverOptions(const Settings& s) {

@@ -66,7 +66,7 @@ public:
   void sendBuffer(int dest, int tag, std::vector<std::byte>&& buf) override {
     if (dest < 0 || dest >= size())
       throw CommError(fmt::format("send to rank {}, but the job has {} ranks", dest, size()));
-    countSent(dest, buf.size());
+    countSent(dest, tag, buf.size());
     Message m;
     m.source = rank();
     m.tag = tag;

@@ -65,6 +65,24 @@ enum Tag : int {
   kTagKeepAlive = 15,
 };
 
+// What the bytes a rank sends are for (summary.json's bytes_by_kind): the
+// frames in, the ray samples, the image tiles out, the reconstructed volume,
+// and everything else (control, credits, requests, reports).
+enum Traffic : int { kTrafficFrames, kTrafficSamples, kTrafficTiles, kTrafficVolume, kTrafficControl, kTrafficKinds };
+inline constexpr const char* kTrafficNames[kTrafficKinds] = {"frames", "samples", "tiles", "volume", "control"};
+constexpr Traffic trafficOf(int tag) {
+  switch (tag) {
+    case kTagFrame:
+    case kTagPrevious: return kTrafficFrames;
+    case kTagSamples:
+    case kTagGpDone: return kTrafficSamples;
+    case kTagTile:
+    case kTagPpDone: return kTrafficTiles;
+    case kTagVolume: return kTrafficVolume;
+    default: return kTrafficControl;
+  }
+}
+
 struct Header {
   std::uint32_t tag = 0;
   std::uint32_t epoch = 0;
@@ -201,9 +219,10 @@ struct PpDoneMsg {
   std::uint32_t pp = 0;
   std::uint32_t tiles = 0;   // kTagTile messages sent for this update
   std::uint32_t request = 0;  // 1: the answer to a kTagRequest
-  std::uint32_t pad = 0;
+  std::uint32_t full = 0;     // 1: every tile was sent (new caches after a control change)
   StageTimes times;           // since the last PpDone
   std::uint64_t rays = 0, blocks = 0, samplesPut = 0;
+  std::uint64_t tileBytes = 0;  // bytes of the kTagTile messages since the last PpDone
 };
 
 // kTagRequest.
@@ -240,6 +259,7 @@ struct ReportMsg {
   std::uint64_t bytesSent = 0, bytesReceived = 0, messagesSent = 0, messagesReceived = 0;
   std::uint64_t dropped = 0;  // messages of an older epoch dropped
   std::uint64_t memoryBytes = 0;  // the main buffers (grid, shade buffer, caches)
+  std::uint64_t bytesByKind[kTrafficKinds] = {};  // bytesSent by Traffic
 };
 
 // kTagGrid (broadcast).

@@ -34,7 +34,7 @@ public:
       throw CommError(fmt::format("send to rank {}, but the job has {} ranks", dest, size()));
     if (buf.size() > static_cast<std::size_t>(INT_MAX))
       throw CommError(fmt::format("a message of {} bytes (tag {}) is larger than MPI's int count", buf.size(), tag));
-    countSent(dest, buf.size());
+    countSent(dest, tag, buf.size());
     pendingBytes_ += buf.size();
     pending_.push_back({MPI_REQUEST_NULL, std::move(buf)});
     Pending& p = pending_.back();

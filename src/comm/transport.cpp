@@ -11,7 +11,8 @@ namespace pp5::comm {
 Transport::Transport(int rank, int size, double timeoutS)
     : rank_(rank), size_(size), timeoutS_(timeoutS), peers_(static_cast<std::size_t>(size)) {}
 
-void Transport::countSent(int dest, std::size_t bytes) {
+void Transport::countSent(int dest, int tag, std::size_t bytes) {
+  byKind_[static_cast<std::size_t>(trafficOf(tag))] += bytes;
   PeerCounters& c = peers_[static_cast<std::size_t>(dest)];
   c.bytesSent += bytes;
   ++c.messagesSent;

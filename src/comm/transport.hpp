@@ -11,6 +11,7 @@
 //
 // A peer that vanishes must not hang the job: wait() gives up after the
 // configured timeout with a CommError naming what it waited for.
+#include <array>
 #include <cstddef>
 #include <cstdint>
 #include <cstring>
@@ -101,6 +102,8 @@ public:
 
   const std::vector<PeerCounters>& counters() const { return peers_; }
   PeerCounters totals() const;
+  // Bytes sent, by what they are for (comm::trafficOf the tag).
+  const std::array<std::uint64_t, kTrafficKinds>& bytesSentByKind() const { return byKind_; }
   double waitSeconds() const { return waitS_; }
   double timeoutS() const { return timeoutS_; }
 
@@ -109,13 +112,14 @@ protected:
   Transport(int rank, int size, double timeoutS);
   virtual void broadcastBytes(void* data, std::size_t bytes, int root) = 0;
   // What implementations call for each message, so counting is written once.
-  void countSent(int dest, std::size_t bytes);
+  void countSent(int dest, int tag, std::size_t bytes);
   void countReceived(int source, std::size_t bytes);
 
 private:
   int rank_ = 0, size_ = 1;
   double timeoutS_;
   std::vector<PeerCounters> peers_;
+  std::array<std::uint64_t, kTrafficKinds> byKind_{};
   double waitS_ = 0.0;
 };
 

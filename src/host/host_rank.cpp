@@ -130,6 +130,12 @@ private:
   Volume volume_;
   int volumesDone_ = 0;
   std::vector<ReportMsg> reports_;
+  // Sample bytes the GPs sent for frames' incremental updates and for full
+  // re-samples after control changes (their credits' counts).
+  std::uint64_t incrementalSampleBytes_ = 0, fullSampleBytes_ = 0;
+  // Tile bytes the PPs sent for incremental image updates (not full images
+  // after a control change, not answers to requests).
+  std::uint64_t incrementalTileBytes_ = 0;
 
   // ---- messages -------------------------------------------------------
   void handle(const Message& m) {
@@ -137,6 +143,7 @@ private:
       case kTagCredit: {
         const CreditMsg& c = m.as<CreditMsg>();
         ++credits_[c.gp];
+        (c.isControl ? fullSampleBytes_ : incrementalSampleBytes_) += c.bytesSent;
         if (!c.isControl) {
           const std::uint32_t b = std::max<std::uint32_t>(1, c.batch);
           ++frameCredits_;
@@ -150,6 +157,7 @@ private:
       case kTagTile: onTile(m); break;
       case kTagPpDone: {
         const PpDoneMsg& d = m.as<PpDoneMsg>();
+        if (d.request == 0 && d.full == 0) incrementalTileBytes_ += d.tileBytes;
         row(d.h, m.source, Role::Pp, d.times, d.samplesPut, 0, 0, -1.0, d.request != 0);
         if (d.request) {
           ++requestsDone_;
@@ -706,7 +714,12 @@ void HostRank::writeSummary(double streamS, double totalS, std::uint64_t drops, 
   all.push_back(host);
   std::sort(all.begin(), all.end(), [](const ReportMsg& a, const ReportMsg& b) { return a.rank < b.rank; });
   std::uint64_t bytes = 0;
-  for (const auto& r : all) bytes += r.bytesSent;
+  std::uint64_t byKind[kTrafficKinds] = {};
+  for (const auto& r : all) {
+    bytes += r.bytesSent;
+    for (int k = 0; k < kTrafficKinds; ++k) byKind[k] += r.bytesByKind[k];
+  }
+  const double frames = static_cast<double>(std::max<std::uint64_t>(1, sent_));
   std::string json = "{\n";
   json += fmt::format("  \"ranks\": {}, \"gps\": {}, \"pps\": {},\n", L_.worldSize(), L_.gps, L_.pps);
   json += fmt::format("  \"gp_partition\": \"{}\", \"slab_split\": \"{}\", \"tile_owner\": \"{}\", \"tile_size\": {}, "
@@ -723,6 +736,20 @@ void HostRank::writeSummary(double streamS, double totalS, std::uint64_t drops, 
                       "\"previous_messages\": {},\n",
                       static_cast<double>(bytes) / static_cast<double>(sent_), pixelMessages_, poseOnlyMessages_,
                       previousMessages_);
+  // By kind, and the samples split into the frames' incremental updates and
+  // the full re-samples after control changes (views, styles, the orbit).
+  json += "  \"bytes_per_frame_by_kind\": {";
+  for (int k = 0; k < kTrafficKinds; ++k)
+    json += fmt::format("{}\"{}\": {:.1f}", k ? ", " : "", kTrafficNames[k], static_cast<double>(byKind[k]) / frames);
+  // An incremental frame's traffic: the frame in, its samples, and its
+  // image update's tiles (no full images, no final renders).
+  const double incremental =
+      static_cast<double>(byKind[kTrafficFrames] + incrementalSampleBytes_ + incrementalTileBytes_) / frames;
+  json += fmt::format("}},\n  \"incremental_bytes_per_frame\": {{\"total\": {:.1f}, \"frames\": {:.1f}, "
+                      "\"samples\": {:.1f}, \"tiles\": {:.1f}}}, \"sample_bytes_full_renders\": {},\n",
+                      incremental, static_cast<double>(byKind[kTrafficFrames]) / frames,
+                      static_cast<double>(incrementalSampleBytes_) / frames,
+                      static_cast<double>(incrementalTileBytes_) / frames, fullSampleBytes_);
   const auto updates = static_cast<std::uint64_t>(std::llround(gpUpdates_));
   json += fmt::format("  \"gp_frame_credits\": {}, \"gp_frame_updates\": {}, \"gp_frames_batched\": {}, "
                       "\"gp_max_batch\": {},\n",
@@ -731,6 +758,15 @@ void HostRank::writeSummary(double streamS, double totalS, std::uint64_t drops, 
   std::printf("  frames/s in %.1f, images/s out %.1f, latency median %.1f ms, p95 %.1f ms, %.0f kB per frame\n",
               sent_ / streamS, streamImages_ / streamS, percentile(lat, 0.5), percentile(lat, 0.95),
               static_cast<double>(bytes) / static_cast<double>(sent_) / 1e3);
+  std::printf("  kB per frame: frames %.0f, samples %.0f, tiles %.0f, volume %.0f, control %.0f; an incremental "
+              "frame's %.0f (samples %.0f, tiles %.0f)\n",
+              static_cast<double>(byKind[kTrafficFrames]) / frames / 1e3,
+              static_cast<double>(byKind[kTrafficSamples]) / frames / 1e3,
+              static_cast<double>(byKind[kTrafficTiles]) / frames / 1e3,
+              static_cast<double>(byKind[kTrafficVolume]) / frames / 1e3,
+              static_cast<double>(byKind[kTrafficControl]) / frames / 1e3, incremental / 1e3,
+              static_cast<double>(incrementalSampleBytes_) / frames / 1e3,
+              static_cast<double>(incrementalTileBytes_) / frames / 1e3);
   std::printf("  GP updates: %llu for %llu frame messages (%llu updated in batches, up to %u frames at once)\n",
               static_cast<unsigned long long>(updates), static_cast<unsigned long long>(frameCredits_),
               static_cast<unsigned long long>(framesBatched_), maxBatch_);

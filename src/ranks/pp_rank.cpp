@@ -145,6 +145,7 @@ private:
   int fullDone_ = 0;
   std::uint64_t dropped_ = 0;
   std::uint64_t samplesPut_ = 0, rays_ = 0, blocks_ = 0;
+  std::uint64_t tileBytesReported_ = 0;  // tile bytes counted in PpDones so far
   std::vector<RaySample> scratch_;  // one batch's samples, decoded
   std::deque<ControlMsg> pending_;  // tick: control changes not applied yet, in order
 
@@ -316,7 +317,7 @@ private:
       sendTile(cache.image(), tr, r, live());
       ++sent;
     }
-    done(frame, sent, false);
+    done(frame, sent, false, all);
   }
 
   void sendTile(const TileImage& im, const TileRect& tile, const TileRect& r, CompositeMode mode, bool request = false) {
@@ -336,12 +337,16 @@ private:
     t_.sendBuffer(0, kTagTile, std::move(buf));
   }
 
-  void done(std::uint64_t frame, std::uint32_t tiles, bool request) {
+  void done(std::uint64_t frame, std::uint32_t tiles, bool request, bool full) {
     PpDoneMsg d;
     d.h = {kTagPpDone, epoch_, frame};
     d.pp = static_cast<std::uint32_t>(p_);
     d.tiles = tiles;
     d.request = request ? 1 : 0;
+    d.full = full ? 1 : 0;
+    const std::uint64_t tileBytes = t_.bytesSentByKind()[kTrafficTiles];
+    d.tileBytes = tileBytes - tileBytesReported_;
+    tileBytesReported_ = tileBytes;
     d.times = clock_.take();
     d.rays = rays_;
     d.blocks = blocks_;
@@ -398,7 +403,7 @@ private:
       const TileRect tr = (*caches_)[i].tile();
       sendTile(ims[i], tr, TileRect{0, 0, tr.width, tr.height}, mode, true);
     }
-    done(rm.h.frame, static_cast<std::uint32_t>(caches_->size()), true);
+    done(rm.h.frame, static_cast<std::uint32_t>(caches_->size()), true, true);
   }
 };
 

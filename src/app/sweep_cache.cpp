@@ -1,0 +1,187 @@
+#include "app/sweep_cache.hpp"
+
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdint>
+#include <cstdlib>
+#include <filesystem>
+#include <vector>
+
+#include <fmt/format.h>
+#include <spdlog/spdlog.h>
+
+#include "core/config.hpp"
+#include "core/error.hpp"
+#include "core/io_util.hpp"
+#include "core/plus_config.hpp"
+#include "core/posed_sequence.hpp"
+#include "core/sequence_io.hpp"
+#include "sim/simulate.hpp"
+
+namespace pp5::app {
+
+namespace fs = std::filesystem;
+using Clock = std::chrono::steady_clock;
+
+namespace {
+
+PlusVolumeReconstruction reconstructionElement(const Grid& g) {
+  PlusVolumeReconstruction r;
+  r.outputSpacing = g.spacing;
+  r.outputOrigin = g.origin;
+  r.outputExtent = std::array<int, 6>{0, static_cast<int>(g.dims.x - 1), 0, static_cast<int>(g.dims.y - 1), 0,
+                                      static_cast<int>(g.dims.z - 1)};
+  r.interpolation = PlusInterpolation::Linear;
+  return r;
+}
+
+std::string stem(const Settings& s) { return std::string(enumName(s.sim.phantom)); }
+
+SimulatedSweep pathsIn(const Settings& s, const std::string& dir) {
+  SimulatedSweep out;
+  out.sequencePath = fs::absolute(fs::path(dir) / (stem(s) + "_sweep.igs.mha")).string();
+  out.configPath = fs::absolute(fs::path(dir) / (stem(s) + "_config.xml")).string();
+  out.firstPath = fs::absolute(fs::path(dir) / (stem(s) + "_first_frame.igs.mha")).string();
+  return out;
+}
+
+// FNV-1a, 64 bits: stable across compilers and runs, unlike std::hash.
+std::uint64_t fnv1a(const std::string& text) {
+  std::uint64_t h = 0xcbf29ce484222325ull;
+  for (const unsigned char c : text) {
+    h ^= c;
+    h *= 0x100000001b3ull;
+  }
+  return h;
+}
+
+// Keeps the kKeep most recently used sweeps of a phantom: every rebuild of
+// the program makes a new key, and the old ones would pile up.
+constexpr std::size_t kKeep = 4;
+void prune(const fs::path& folder, const std::string& prefix) {
+  std::error_code ec;
+  std::vector<std::pair<fs::file_time_type, fs::path>> found;
+  for (const auto& e : fs::directory_iterator(folder, ec)) {
+    const std::string name = e.path().filename().string();
+    if (e.is_directory(ec) && name.rfind(prefix, 0) == 0) found.emplace_back(fs::last_write_time(e.path(), ec), e.path());
+  }
+  if (found.size() <= kKeep) return;
+  std::sort(found.begin(), found.end(), [](const auto& a, const auto& b) { return a.first > b.first; });
+  for (std::size_t i = kKeep; i < found.size(); ++i) fs::remove_all(found[i].second, ec);
+}
+
+}  // namespace
+
+SimulatedSweep simulateSweep(const Settings& s, const std::string& dir) {
+  const auto t0 = Clock::now();
+  const sim::SweepSimulator sim(s.sim);
+  const std::size_t n = sim.frameCount();
+  if (n == 0) throw InputError("sim.sweep: the sweep captured no frames; lengthen it or lower sim.sweep.capture_interval_mm");
+  makeOutputDir(dir);
+  SimulatedSweep out = pathsIn(s, dir);
+  out.frames = n;
+  struct Expected {
+    std::uint64_t index;
+    double time;
+    std::vector<std::uint8_t> pixels;
+    Mat4 pose;
+  };
+  std::vector<Expected> want;
+  SequenceWriteOptions wo;
+  wo.compress = false;
+  wo.fields = {{"UltrasoundImageType", "BRIGHTNESS"}};
+  auto writer = SequenceWriter::create(out.sequencePath, wo);
+  auto first = SequenceWriter::create(out.firstPath, wo);
+  sim.run(s.sim.threads, [&](Frame&& f) {
+    want.push_back({f.index, f.timestamp, f.pixels, sim.imageToReference(f.index)});
+    if (want.size() == 1) first->write(f);
+    writer->write(f);
+  });
+  writer->close();
+  first->close();
+  writePlusConfig(out.configPath, {{"Image", "Probe", sim.imageToProbe()}}, reconstructionElement(sweepGrid(s, sim)),
+                  fmt::format("pp5echo: simulated {} phantom, {} probe, {} sweep, seed {}", enumName(s.sim.phantom),
+                              sim.probe().name, enumName(s.sim.sweep.kind), s.sim.seed));
+
+  PosedSequence seq = openPosedSequence(out.sequencePath, out.configPath);
+  if (seq.poses.size() != n)
+    throw InvariantError(fmt::format("{}: {} frames read back, {} simulated", out.sequencePath, seq.poses.size(), n));
+  Frame f;
+  for (std::size_t i = 0; i < n; ++i) {
+    if (!seq.reader->next(f)) throw InvariantError(fmt::format("{}: frame {} missing", out.sequencePath, i));
+    if (!seq.poses[i]) throw InvariantError(fmt::format("{}: frame {} cannot be placed", out.sequencePath, i));
+    if (f.pixels != want[i].pixels || f.index != want[i].index || f.timestamp != want[i].time)
+      throw InvariantError(fmt::format("{}: frame {} read back differs from the simulator's (pixels, index or time)",
+                                       out.sequencePath, i));
+    for (int c = 0; c < 4; ++c)
+      for (int r = 0; r < 4; ++r)
+        out.maxPoseError = std::max(out.maxPoseError, std::abs((*seq.poses[i])[c][r] - want[i].pose[c][r]));
+  }
+  if (!(out.maxPoseError < 1e-6))
+    throw InvariantError(fmt::format("{}: the sequence's ImageToReference differs from the simulator's by {} (mm)",
+                                     out.sequencePath, out.maxPoseError));
+  out.simulateS = std::chrono::duration<double>(Clock::now() - t0).count();
+  return out;
+}
+
+std::string sweepCacheKey(const Settings& s) {
+  sim::SimSettings copy;
+  ConfigSchema schema;
+  sim::registerOptions(schema, copy);  // resets copy; the entries read it from here on
+  copy = s.sim;
+  std::string text = "pp5echo simulated sweep 1\n";
+  for (const ConfigSchema::Entry& e : schema.entries())
+    if (e.key != "sim.threads") text += e.key + "=" + e.current() + "\n";
+  std::error_code ec;
+  const fs::path exe = fs::read_symlink("/proc/self/exe", ec);
+  if (!ec) {
+    const auto size = fs::file_size(exe, ec);
+    const auto time = fs::last_write_time(exe, ec);
+    if (!ec) text += fmt::format("exe={} {} {}\n", exe.string(), size, time.time_since_epoch().count());
+  }
+  return fmt::format("{:016x}", fnv1a(text));
+}
+
+std::string sweepCacheFolder(const Settings& s) {
+  if (!s.run.sweepCache.empty()) return s.run.sweepCache;
+  if (const char* x = std::getenv("XDG_CACHE_HOME"); x && *x) return (fs::path(x) / "pp5echo" / "sweeps").string();
+  if (const char* h = std::getenv("HOME"); h && *h) return (fs::path(h) / ".cache" / "pp5echo" / "sweeps").string();
+  throw InputError("run.sweep_cache: neither XDG_CACHE_HOME nor HOME is set; give the cache folder");
+}
+
+SimulatedSweep cachedSweep(const Settings& s) {
+  const fs::path dir = fs::path(sweepCacheFolder(s)) / (stem(s) + "-" + sweepCacheKey(s));
+  SimulatedSweep hit = pathsIn(s, dir.string());
+  std::error_code ec;
+  // A folder under the final name is complete: it is only ever renamed into place.
+  if (fs::exists(hit.sequencePath, ec) && fs::exists(hit.configPath, ec)) {
+    fs::last_write_time(dir, fs::file_time_type::clock::now(), ec);  // used: kept by prune()
+    hit.fromCache = true;
+    return hit;
+  }
+  fs::create_directories(dir.parent_path(), ec);
+  if (ec)
+    throw InputError(fmt::format("run.sweep_cache: cannot create {}: {}", dir.parent_path().string(), ec.message()));
+  const fs::path tmp = dir.parent_path() / fmt::format(".{}.tmp-{}", dir.filename().string(), ::getpid());
+  fs::remove_all(tmp, ec);
+  spdlog::info("run: simulating the sweep once into {} (later runs with these [sim] settings stream it from there)",
+               dir.string());
+  SimulatedSweep made = simulateSweep(s, tmp.string());
+  fs::rename(tmp, dir, ec);
+  if (ec) {  // another run put the same sweep there first: use that one
+    fs::remove_all(tmp, ec);
+    if (!fs::exists(hit.sequencePath)) throw InputError(fmt::format("run.sweep_cache: cannot fill {}", dir.string()));
+    hit.fromCache = true;
+    return hit;
+  }
+  prune(dir.parent_path(), stem(s) + "-");
+  hit.frames = made.frames;
+  hit.maxPoseError = made.maxPoseError;
+  hit.simulateS = made.simulateS;
+  return hit;
+}
+
+}  // namespace pp5::app

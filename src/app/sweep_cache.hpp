@@ -1,0 +1,48 @@
+#pragma once
+// The simulated sweep as a PLUS sequence: what `pp5echo bench` streams to
+// every layout, and what `pp5echo run` streams by default with
+// run.source = "simulator" (run.simulate_live = false). A real scanner
+// delivers frames at its own rate whatever the computer does; simulating a
+// B-mode frame costs the host's core tens of milliseconds, so the default run
+// simulates the sweep once, keeps it in a cache folder keyed by everything
+// that shaped it, and streams it at run.pace_fps like a recording.
+#include <cstddef>
+#include <string>
+
+#include "app/settings.hpp"
+
+namespace pp5::app {
+
+struct SimulatedSweep {
+  std::string sequencePath, configPath;
+  std::string firstPath;      // the sweep's first frame alone (the bench's baseline runs)
+  std::size_t frames = 0;
+  double maxPoseError = 0.0;  // mm, largest |element| of ImageToReference read back minus simulated
+  double simulateS = 0.0;     // 0 when it came from the cache
+  bool fromCache = false;
+};
+
+// Simulates s.sim's sweep into `dir` (created): the sequence (uncompressed,
+// so a host pays only for reading it), the device-set XML with ImageToProbe
+// and the sweep grid as its VolumeReconstruction element, and the first
+// frame alone. Reads the sequence back as run.source = "sequence" does and
+// requires the simulator's pixels, indices and times, and poses within 1e-6 mm
+// (InvariantError otherwise).
+SimulatedSweep simulateSweep(const Settings& s, const std::string& dir);
+
+// What identifies a simulated sweep: every sim.* setting but sim.threads
+// (which does not change a frame), and the program that simulates it (its
+// size and modification time, so a rebuilt simulator simulates anew). A
+// 16-digit hexadecimal hash.
+std::string sweepCacheKey(const Settings& s);
+
+// The folder of cached sweeps: run.sweep_cache, else $XDG_CACHE_HOME/pp5echo/
+// sweeps, else $HOME/.cache/pp5echo/sweeps.
+std::string sweepCacheFolder(const Settings& s);
+
+// The sweep for s.sim from the cache, simulated into it first when missing.
+// Runs that race for the same key each simulate into their own temporary
+// folder; the first rename wins and the others use its copy.
+SimulatedSweep cachedSweep(const Settings& s);
+
+}  // namespace pp5::app
