@@ -26,6 +26,7 @@
 #include "core/io_util.hpp"
 #include "core/volume_io.hpp"
 #include "host/acquisition.hpp"
+#include "host/capture.hpp"
 #include "host/host_rank.hpp"
 #include "host/live_view.hpp"
 #include "host/outputs.hpp"
@@ -209,6 +210,7 @@ int runSerial(const RunOptions& o) {
   auto lastLog = start;
   std::uint64_t done = 0;
   const host::Preprocess pre = preprocessOf(s);
+  host::IntervalCapture capture(s.run.captureIntervalMm);
   Frame cropped;
   src.run([&](const Frame& in, const Mat4& inPose, double t) {
     const auto arrival = Clock::now();
@@ -219,6 +221,7 @@ int runSerial(const RunOptions& o) {
       host::preprocess(pre, cropped, pose);
       fp = &cropped;
     }
+    if (!capture.take(*fp, pose)) return;
     const serial::FrameStats st = pipe.insert(*fp, pose, t);
     stats.row({static_cast<double>(st.index), st.reconMs, st.shadeMs, st.sampleMs, st.compositeMs, st.totalMs(),
                static_cast<double>(st.fillInSlices), static_cast<double>(st.dirtyBricks),
@@ -293,6 +296,9 @@ int runSerial(const RunOptions& o) {
   std::printf("  per frame (median): %.1f ms = reconstruct %.1f + shade %.1f + sample %.1f + composite %.1f\n",
               median(totals), median(recons), median(shades), median(samplings), median(composites));
   if (orbitMs > 0.0) std::printf("  full re-render after a view change (median): %.0f ms\n", orbitMs);
+  if (capture.skipped())
+    std::printf("  constant-interval capture (every %g mm) left out %llu frames\n", capture.intervalMm(),
+                static_cast<unsigned long long>(capture.skipped()));
   std::printf("wrote to %s\n", fs::absolute(dir).string().c_str());
   for (const auto& n : wrote) std::printf("  %s\n", n.c_str());
   return 0;
@@ -417,6 +423,7 @@ int runDistributed(const RunOptions& o) {
         j.queueFrames = static_cast<std::size_t>(s.run.queueFrames);
         j.drop = s.run.drop;
         j.paceFps = s.run.paceFps;
+        j.captureIntervalMm = s.run.captureIntervalMm;
         j.script = parseScript(s);
         j.outDir = dir;
         j.buildupEvery = s.run.buildupEvery;

@@ -101,6 +101,7 @@ struct RunSettings {
   // Acquisition: pace_fps > 0 delivers frames at that rate like a live scanner,
   // dropping by `drop` when the pipeline falls behind.
   double paceFps = 0.0;
+  double captureIntervalMm = 0.0;  // constant-interval capture on the host; 0 = every frame
   int queueFrames = 8;
   host::DropPolicy drop = host::DropPolicy::Oldest;
 };

@@ -276,4 +276,10 @@ std::optional<std::pair<std::string, std::string>> splitTransformName(const std:
   return std::make_pair(name.substr(0, pos), name.substr(pos + 2));
 }
 
+double largestDisplacement(const Mat4& a, const Mat4& b, std::span<const Vec3> points) {
+  double d = 0.0;
+  for (const Vec3& p : points) d = std::max(d, glm::length(transformPoint(a, p) - transformPoint(b, p)));
+  return d;
+}
+
 }  // namespace pp5

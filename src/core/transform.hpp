@@ -8,6 +8,7 @@
 // Always go through fromRowMajor/toRowMajor at the file boundary.
 #include <array>
 #include <optional>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -30,6 +31,10 @@ std::string formatRowMajor(const Mat4& m);
 // Transforms a point (w = 1).
 inline Vec3 transformPoint(const Mat4& m, const Vec3& p) { return Vec3(m * Vec4(p, 1.0)); }
 inline Vec3 transformVector(const Mat4& m, const Vec3& v) { return Vec3(m * Vec4(v, 0.0)); }
+// The largest distance any of `points` moves between poses a and b (the
+// points in the frame both map from): how far a frame moved, as the 1990
+// system's constant-interval capture measures it.
+double largestDisplacement(const Mat4& a, const Mat4& b, std::span<const Vec3> points);
 
 bool isFinite(const Mat4& m);
 // Rotation part orthonormal (within tol) and proper (no reflection), last row (0 0 0 1).

@@ -40,24 +40,6 @@ void ChangeTracker::resync(const Volume& values) {
 
 namespace {
 
-// A voxel's value as the shading reads it, by type.
-float valueAt(const std::uint8_t* p, ScalarType t) {
-  switch (t) {
-    case ScalarType::U8: return static_cast<float>(*p);
-    case ScalarType::U16: {
-      std::uint16_t v;
-      std::memcpy(&v, p, 2);
-      return static_cast<float>(v);
-    }
-    case ScalarType::F32: {
-      float v;
-      std::memcpy(&v, p, 4);
-      return v;
-    }
-  }
-  return 0.0f;
-}
-
 // One row's ranges (lo > hi: none), x relative to the row's first voxel.
 struct RowScan {
   std::int32_t changedLo = kNone, changedHi = -1;  // values that changed

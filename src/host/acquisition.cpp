@@ -64,9 +64,10 @@ void preprocess(const Preprocess& p, Frame& f, Mat4& pose) {
 
 DropPolicy dropPolicyFromName(const std::string& name) { return enumFromName<DropPolicy>(name); }
 
-Acquisition::Acquisition(Source source, Preprocess pre, std::size_t capacity, DropPolicy policy, double paceFps)
+Acquisition::Acquisition(Source source, Preprocess pre, std::size_t capacity, DropPolicy policy, double paceFps,
+                         double captureIntervalMm)
     : source_(std::move(source)), pre_(pre), capacity_(std::max<std::size_t>(1, capacity)), policy_(policy),
-      paceFps_(paceFps), live_(source_.live || paceFps > 0.0) {
+      paceFps_(paceFps), live_(source_.live || paceFps > 0.0), capture_(captureIntervalMm) {
   thread_ = std::thread([this] {
     try {
       const auto t0 = std::chrono::steady_clock::now();
@@ -79,6 +80,10 @@ Acquisition::Acquisition(Source source, Preprocess pre, std::size_t capacity, Dr
         ++n;
         AcquiredFrame a{f, pose, t, {}};
         preprocess(pre_, a.frame, a.imageToReference);
+        if (!capture_.take(a.frame, a.imageToReference)) {
+          ++skipped_;
+          return;
+        }
         a.arrival = std::chrono::steady_clock::now();
         push(std::move(a));
       });

@@ -22,6 +22,7 @@
 #include "core/frame.hpp"
 #include "core/grid.hpp"
 #include "core/transform.hpp"
+#include "host/capture.hpp"
 #include "core/enum_names.hpp"
 
 namespace pp5::host {
@@ -66,8 +67,11 @@ struct AcquiredFrame {
 class Acquisition {
 public:
   // paceFps > 0: deliver frames at that rate, as a live scanner would (the
-  // source then counts as live).
-  Acquisition(Source source, Preprocess pre, std::size_t capacity, DropPolicy policy, double paceFps);
+  // source then counts as live). captureIntervalMm > 0: only the frames the
+  // probe moved that far for (IntervalCapture, after preprocessing); a frame
+  // left out still takes its place in the paced timeline.
+  Acquisition(Source source, Preprocess pre, std::size_t capacity, DropPolicy policy, double paceFps,
+              double captureIntervalMm = 0.0);
   ~Acquisition();  // stops and joins the thread
 
   // The next frame if one is queued.
@@ -80,6 +84,8 @@ public:
 
   std::uint64_t delivered() const { return delivered_; }
   std::uint64_t dropped() const { return dropped_; }
+  // Frames constant-interval capture left out.
+  std::uint64_t skipped() const { return skipped_; }
 
 private:
   Source source_;
@@ -94,7 +100,8 @@ private:
   bool done_ = false;
   std::exception_ptr error_;
   std::atomic<bool> stop_{false};
-  std::atomic<std::uint64_t> delivered_{0}, dropped_{0};
+  std::atomic<std::uint64_t> delivered_{0}, dropped_{0}, skipped_{0};
+  IntervalCapture capture_;
   std::thread thread_;
 
   void push(AcquiredFrame&& f);

@@ -136,6 +136,7 @@ private:
   // Tile bytes the PPs sent for incremental image updates (not full images
   // after a control change, not answers to requests).
   std::uint64_t incrementalTileBytes_ = 0;
+  std::uint64_t skippedFrames_ = 0;  // left out by constant-interval capture
 
   // ---- messages -------------------------------------------------------
   void handle(const Message& m) {
@@ -531,7 +532,7 @@ int HostRank::run() {
   // Every rank has allocated its grids and caches before the first frame is
   // acquired, so a live source does not queue behind the start-up.
   t_.barrier();
-  Acquisition acq(j_.source, j_.preprocess, j_.queueFrames, j_.drop, j_.paceFps);
+  Acquisition acq(j_.source, j_.preprocess, j_.queueFrames, j_.drop, j_.paceFps, j_.captureIntervalMm);
   dropped_ = [&acq] { return acq.dropped(); };
   const bool liveSource = j_.source.live || j_.paceFps > 0.0;
   Clock::time_point firstSent{}, lastLog = start;
@@ -699,6 +700,10 @@ int HostRank::run() {
     std::printf("  %llu frames went by while the viewer paused acquisition\n",
                 static_cast<unsigned long long>(pausedFrames_));
   if (ref_) std::printf("  verified: %llu images bitwise equal to the serial pipeline's\n", static_cast<unsigned long long>(verified_));
+  if (acq.skipped())
+    std::printf("  constant-interval capture (every %g mm) left out %llu frames\n", j_.captureIntervalMm,
+                static_cast<unsigned long long>(acq.skipped()));
+  skippedFrames_ = acq.skipped();
   writeSummary(streamS, totalS, acq.dropped(), wrote);
   std::printf("wrote to %s\n", fs::absolute(dir).string().c_str());
   for (const auto& n : wrote) std::printf("  %s\n", n.c_str());
@@ -729,6 +734,8 @@ void HostRank::writeSummary(double streamS, double totalS, std::uint64_t drops, 
   json += fmt::format("  \"frames\": {}, \"stream_s\": {:.4f}, \"total_s\": {:.4f},\n", sent_, streamS, totalS);
   json += fmt::format("  \"frames_per_s_in\": {:.3f}, \"images_per_s_out\": {:.3f}, \"dropped_frames\": {},\n",
                       sent_ / streamS, streamImages_ / streamS, drops);
+  json += fmt::format("  \"capture_interval_mm\": {:g}, \"frames_left_out_by_interval\": {},\n", j_.captureIntervalMm,
+                      skippedFrames_);
   if (j_.source.statsJson) json += fmt::format("  \"source\": {},\n", j_.source.statsJson());
   json += fmt::format("  \"latency_ms_median\": {:.3f}, \"latency_ms_p95\": {:.3f},\n", percentile(lat, 0.5),
                       percentile(lat, 0.95));

@@ -37,6 +37,7 @@ struct HostJob {
   std::size_t queueFrames = 8;
   DropPolicy drop = DropPolicy::Oldest;
   double paceFps = 0.0;
+  double captureIntervalMm = 0.0;  // run.capture_interval_mm
   std::vector<ScriptedControl> script;
 
   std::string outDir;

@@ -258,9 +258,16 @@ RayCache::RayCache(const TileRect& tile, int imageWidth, std::span<const std::ui
 void RayCache::setValueWindow(double lo, double hi) {
   if (!(hi > lo) || !(lo >= 0.0) || !std::isfinite(hi))
     throw InputError(fmt::format("render.value_window = [{}, {}]: give 0 <= black < white (grey levels)", lo, hi));
-  valueLo_ = static_cast<float>(lo);
-  valueInvWidth_ = static_cast<float>(1.0 / (hi - lo));
-  invalidate();
+  const auto newLo = static_cast<float>(lo), newInvWidth = static_cast<float>(1.0 / (hi - lo));
+  if (newLo == valueLo_ && newInvWidth == valueInvWidth_) return;
+  valueLo_ = newLo;
+  valueInvWidth_ = newInvWidth;
+  // Only the grey-value modes read the window; "over" keeps its partials (a
+  // later change to MIP or additive recomposites everything anyway), and so
+  // does a cache just reset, whose samples are all 0 and show black in any
+  // window. Recompositing a whole tile here made the first image after every
+  // control change a full composite (issue 17's bench latency).
+  if (compositesGreyValues(live_)) invalidate();
 }
 
 void RayCache::reset(std::span<const std::uint16_t> sampleCounts) {

@@ -167,7 +167,8 @@ public:
     invalidate();
   }
   // The grey levels MIP and additive show as black and white
-  // (render.value_window); recomposited by the next composite().
+  // (render.value_window); when the window changes and the live mode is MIP
+  // or additive, the next composite() recomposites every block.
   void setValueWindow(double lo, double hi);
 
   // Bytes held: the current view's samples, block partials, dirty and

@@ -138,12 +138,6 @@ Mat4 FreehandPath::probeToReference(double t) const {
 
 // ---- sweeps ----------------------------------------------------------------------------------
 
-double largestDisplacement(const Mat4& a, const Mat4& b, const std::vector<Vec3>& points) {
-  double d = 0.0;
-  for (const Vec3& p : points) d = std::max(d, glm::length(transformPoint(a, p) - transformPoint(b, p)));
-  return d;
-}
-
 namespace {
 
 struct Pass {

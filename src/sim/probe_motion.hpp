@@ -93,8 +93,6 @@ struct Sweep {
   std::uint64_t videoFrames = 0;  // video frames that went by (captured or not)
 };
 
-// Largest distance any of `points` (in the Probe frame) moves between two probe poses.
-double largestDisplacement(const Mat4& a, const Mat4& b, const std::vector<Vec3>& points);
 
 // Plans the sweep of `s.sweep.kind` over the phantom's scan set-up and
 // captures frames. `imageCorners` are the image's corners in the Probe frame

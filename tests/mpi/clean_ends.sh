@@ -17,8 +17,9 @@ check() {  # check NAME CONDITION-STATUS MESSAGE
   if [[ "$2" == 0 ]]; then echo "ok:   $1"; else echo "FAIL: $1: $3"; fail=1; fi
 }
 small=("$root/tests/configs/mpi_small.toml" --set 'parallel.composite_on="tick"' --set 'run.orbit_frames=0')
-# A longer sweep (a frame every 2 mm) so there is time to interfere.
-long=("${small[@]}" --set 'sim.sweep.capture_interval_mm=1.0' --set 'run.script=[]')
+# A longer sweep (a frame every 1 mm, 176 frames) at a scanner's 30 frames/s,
+# so there is time to interfere (the sweep streams from the cache).
+long=("${small[@]}" --set 'sim.sweep.capture_interval_mm=1.0' --set 'run.script=[]' --set 'run.pace_fps=30')
 
 # The ranks of a running mpirun, in rank order (Open MPI exports the rank).
 rank_pid() {  # rank_pid MPIRUN_PID RANK

@@ -1,0 +1,78 @@
+// Constant-interval capture (host/capture.hpp) on the host, for any source:
+// a frame is taken once some image corner has moved the interval from the
+// last frame taken, in translation and in rotation, and the Acquisition
+// thread leaves the others out and counts them.
+#include <gtest/gtest.h>
+
+#include <glm/gtc/matrix_transform.hpp>
+
+#include "host/acquisition.hpp"
+#include "host/capture.hpp"
+
+namespace {
+
+using namespace pp5;
+
+Frame blank(int w, int h, std::uint64_t index) {
+  Frame f;
+  f.allocate(w, h, PixelType::U8);
+  f.index = index;
+  return f;
+}
+
+// 0.3 mm pixels; the image slides along z by `stepMm` a frame.
+Mat4 slid(double mm) { return glm::translate(Mat4(1.0), Vec3(0.0, 0.0, mm)) * glm::scale(Mat4(1.0), Vec3(0.3, 0.3, 1.0)); }
+
+TEST(IntervalCapture, TakesAFrameEachTimeTheImageHasMovedTheInterval) {
+  host::IntervalCapture c(2.0);
+  const Frame f = blank(100, 80, 0);
+  std::vector<int> taken;
+  for (int i = 0; i < 20; ++i)
+    if (c.take(f, slid(0.7 * i))) taken.push_back(i);
+  // 0, then 0.7 * 3 = 2.1 mm on, then 2.1 mm from there, ...
+  EXPECT_EQ(taken, (std::vector<int>{0, 3, 6, 9, 12, 15, 18}));
+  EXPECT_EQ(c.taken(), 7u);
+  EXPECT_EQ(c.skipped(), 13u);
+}
+
+TEST(IntervalCapture, RotationMovesTheFarCorner) {
+  // A 100 x 80 image of 0.3 mm pixels turned about its corner (0, 0): the far
+  // corner, 38.4 mm away, moves 38.4 * angle; 2 mm takes about 3 degrees.
+  host::IntervalCapture c(2.0);
+  const Frame f = blank(100, 80, 0);
+  const Mat4 px = glm::scale(Mat4(1.0), Vec3(0.3, 0.3, 1.0));
+  auto turned = [&](double deg) { return glm::rotate(Mat4(1.0), glm::radians(deg), Vec3(0, 0, 1)) * px; };
+  EXPECT_TRUE(c.take(f, turned(0.0)));
+  EXPECT_FALSE(c.take(f, turned(2.9)));
+  EXPECT_TRUE(c.take(f, turned(3.1)));
+  EXPECT_FALSE(c.take(f, turned(3.1)));
+}
+
+TEST(IntervalCapture, ZeroTakesEveryFrameAndANegativeIntervalIsRefused) {
+  host::IntervalCapture every;
+  const Frame f = blank(10, 10, 0);
+  for (int i = 0; i < 5; ++i) EXPECT_TRUE(every.take(f, slid(0.0)));
+  EXPECT_THROW(host::IntervalCapture(-1.0), InputError);
+}
+
+TEST(Acquisition, ConstantIntervalCaptureLeavesFramesOutAndCountsThem) {
+  host::Source src;
+  src.description = "sliding test source";
+  src.frames = 30;
+  src.run = [](const host::FrameSink& sink) {
+    for (int i = 0; i < 30; ++i) sink(blank(40, 30, static_cast<std::uint64_t>(i)), slid(0.5 * i), 0.01 * i);
+  };
+  host::Acquisition acq(src, {}, 64, host::DropPolicy::Oldest, 0.0, 2.0);
+  std::vector<std::uint64_t> got;
+  while (!acq.finished()) {
+    host::AcquiredFrame a;
+    while (acq.tryPop(a)) got.push_back(a.frame.index);
+  }
+  host::AcquiredFrame a;
+  while (acq.tryPop(a)) got.push_back(a.frame.index);
+  EXPECT_EQ(got, (std::vector<std::uint64_t>{0, 4, 8, 12, 16, 20, 24, 28}));
+  EXPECT_EQ(acq.skipped(), 22u);
+  EXPECT_EQ(acq.dropped(), 0u);
+}
+
+}  // namespace
