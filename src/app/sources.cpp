@@ -1,6 +1,7 @@
 #include "app/sources.hpp"
 
 #include <memory>
+#include <mutex>
 
 #include <fmt/format.h>
 
@@ -58,10 +59,34 @@ host::Source makeSource(const Settings& s) {
   auto sim = std::make_shared<sim::SweepSimulator>(s.sim);
   if (s.run.simulateLive)
     return host::recorded(host::simulatorSource(sim, sweepGrid(s, *sim), s.sim.threads), s.run.record);
-  // The sweep from the cache, on the live simulator's grid.
-  const SimulatedSweep sweep = cachedSweep(s);
-  auto seq = std::make_shared<PosedSequence>(openPosedSequence(sweep.sequencePath, sweep.configPath));
-  return host::recorded(host::sequenceSource(seq, sweepGrid(s, *sim)), s.run.record);
+  // The sweep from the cache, on the live simulator's grid. Filling the cache
+  // takes seconds the first time, so it is the source's prepare step: the
+  // host runs it once the viewer's URL is out.
+  struct Cached {
+    Settings s;
+    Grid grid;
+    std::once_flag once;
+    host::Source inner;
+    void ready() {
+      std::call_once(once, [this] {
+        const SimulatedSweep sweep = cachedSweep(s);
+        inner = host::sequenceSource(
+            std::make_shared<PosedSequence>(openPosedSequence(sweep.sequencePath, sweep.configPath)), grid);
+      });
+    }
+  };
+  const Grid grid = sweepGrid(s, *sim);
+  auto cached = std::make_shared<Cached>();
+  cached->s = s;
+  cached->grid = grid;
+  host::Source src = host::simulatorSource(sim, grid, s.sim.threads);  // its description, frames and grid
+  src.description += " (simulated once, streamed from run.sweep_cache)";
+  src.prepare = [cached] { cached->ready(); };
+  src.run = [cached](const host::FrameSink& sink) {
+    cached->ready();
+    cached->inner.run(sink);
+  };
+  return host::recorded(src, s.run.record);
 }
 
 board::DriverOptions driverOptions(const Settings& s) {

@@ -39,6 +39,10 @@ struct Source {
   std::function<void()> interrupt;
   // Live sources: the device's counters as a JSON object, for summary.json.
   std::function<std::string()> statsJson;
+  // Work before the first frame that may take seconds (the simulated sweep's
+  // cache fill), or empty. The host runs it once the viewer's URL is out and
+  // before the ranks start; a source whose prepare was not run runs it itself.
+  std::function<void()> prepare;
 };
 
 // Crop (x, y, width, height in pixels, as run.crop_origin and run.crop_size;

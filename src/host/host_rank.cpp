@@ -529,6 +529,7 @@ int HostRank::run() {
     std::printf("viewer: open %s\n", live_->url().c_str());
     std::fflush(stdout);
   }
+  if (j_.source.prepare) j_.source.prepare();
   // Every rank has allocated its grids and caches before the first frame is
   // acquired, so a live source does not queue behind the start-up.
   t_.barrier();
