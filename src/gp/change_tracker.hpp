@@ -42,7 +42,10 @@ public:
   // The values the shade buffer is computed from (e.g. the empty grid).
   // The caller checks the memory: memoryBytes() of the grid and type.
   explicit ChangeTracker(const Volume& values);
+  // What a tracker of grid g with values of type t holds: the copy (its
+  // voxel type), the cell mask (a byte a voxel) and the row ranges.
   static std::uint64_t memoryBytes(const Grid& g, ScalarType t);
+  std::uint64_t memoryBytes() const { return memoryBytes(grid_, copy_.type); }
 
   // After a full re-shade from `values`: every value is the shaded one.
   void resync(const Volume& values);

@@ -13,8 +13,8 @@ GpUpdate::GpUpdate(const Grid& grid, const GpUpdateSettings& settings, const Cam
   if (!recon_) recon_ = makeReconstructor(grid_, s_.recon, s_.memoryLimitBytes, "reconstruction grid ([grid])");
   checkGridFits(grid_, 4, "shade buffer ([grid])", s_.memoryLimitBytes);
   shade_ = ShadeBuffer(grid_);
-  checkGridFits(grid_, ChangeTracker::memoryBytes(grid_, recon_->output().type) / std::max<std::uint64_t>(1, grid_.voxelCount()),
-                "change tracker ([grid])", s_.memoryLimitBytes);
+  checkGridFits(grid_, static_cast<std::uint64_t>(scalarBytes(recon_->output().type)) + 1, "change tracker ([grid])",
+                s_.memoryLimitBytes);
   changes_ = ChangeTracker(recon_->output());
   lattice_ = SampleLattice(camera_, grid_, s_.render.step(grid_), s_.render.maxSamples, s_.render.threads);
   reshadeAll(false);

@@ -120,6 +120,7 @@ public:
   const SampleLattice& lattice() const { return lattice_; }
   const ShadeBuffer& shadeBuffer() const { return shade_; }
   const EmptySpaceMap& emptySpace() const { return space_; }
+  const ChangeTracker& changeTracker() const { return changes_; }
   const TransferFunction& transferFunction() const { return tf_; }
   const GpUpdateSettings& settings() const { return s_; }
   const GpShare& share() const { return *share_; }

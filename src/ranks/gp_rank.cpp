@@ -103,7 +103,8 @@ public:
         case kTagQuit: {
           const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
           const std::uint64_t mem =
-              update_->reconstructor().output().bytes.size() * 2 + update_->shadeBuffer().memoryBytes();
+              update_->reconstructor().output().bytes.size() * 2 + update_->shadeBuffer().memoryBytes() +
+              update_->changeTracker().memoryBytes();
           t_.send(0, makeReport(t_, Role::Gp, clock_.total(), wall, 0, mem));
           t_.flush();
           return;
