@@ -93,8 +93,8 @@ void registerAll(ConfigSchema& schema, Settings& s) {
                 "and by the program, and streamed from there like a recording, so the host's core is free for the "
                 "pipeline.");
   schema.option("run.sweep_cache", &s.run.sweepCache, "",
-                "Folder of the simulated sweeps; empty: $XDG_CACHE_HOME/pp5echo/sweeps, else "
-                "~/.cache/pp5echo/sweeps.");
+                "Folder of the simulated sweeps (each phantom's 4 most recently used are kept, and any used in "
+                "the last hour); empty: $XDG_CACHE_HOME/pp5echo/sweeps, else ~/.cache/pp5echo/sweeps.");
   schema.option("run.buildup_every", &s.run.buildupEvery, 1, 1, 100000,
                 "Every n-th frame's image goes into the build-up animation (`buildup.gif`).");
   schema.option("run.buildup_fps", &s.run.buildupFps, 15.0, 0.5, 100.0, "Frame rate of `buildup.gif`.");

@@ -58,9 +58,11 @@ std::uint64_t fnv1a(const std::string& text) {
   return h;
 }
 
-// Keeps the kKeep most recently used sweeps of a phantom: every rebuild of
-// the program makes a new key, and the old ones would pile up.
+// Keeps the kKeep most recently used sweeps of a phantom, and any used in the
+// last kGrace (a run may still be reading it): every rebuild of the program
+// makes a new key, and the old ones would pile up.
 constexpr std::size_t kKeep = 4;
+constexpr auto kGrace = std::chrono::hours(1);
 void prune(const fs::path& folder, const std::string& prefix) {
   std::error_code ec;
   std::vector<std::pair<fs::file_time_type, fs::path>> found;
@@ -70,7 +72,9 @@ void prune(const fs::path& folder, const std::string& prefix) {
   }
   if (found.size() <= kKeep) return;
   std::sort(found.begin(), found.end(), [](const auto& a, const auto& b) { return a.first > b.first; });
-  for (std::size_t i = kKeep; i < found.size(); ++i) fs::remove_all(found[i].second, ec);
+  const auto now = fs::file_time_type::clock::now();
+  for (std::size_t i = kKeep; i < found.size(); ++i)
+    if (now - found[i].first > kGrace) fs::remove_all(found[i].second, ec);
 }
 
 }  // namespace
