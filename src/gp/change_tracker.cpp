@@ -2,9 +2,9 @@
 
 #include <algorithm>
 #include <bit>
-#include <type_traits>
 #include <climits>
 #include <cstring>
+#include <type_traits>
 
 #include "core/error.hpp"
 
