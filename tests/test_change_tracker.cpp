@@ -32,10 +32,24 @@ Camera cameraFor(const Grid& g) {
   return c;
 }
 
-class Tracker : public ::testing::TestWithParam<std::tuple<ScalarType, bool>> {};
+class Tracker : public ::testing::TestWithParam<std::tuple<ScalarType, bool, bool>> {};
+
+// `b` as disjoint boxes: cut in two along x and in up to three along z, as
+// the GP shares hand the tracker several boxes.
+std::vector<Box3> pieces(const Box3& b) {
+  std::vector<Box3> out;
+  const std::int64_t xm = (b.lo.x + b.hi.x) / 2;
+  const std::int64_t z1 = b.lo.z + (b.hi.z - b.lo.z) / 3, z2 = b.lo.z + 2 * (b.hi.z - b.lo.z) / 3;
+  for (const auto& [x0, x1] : {std::pair{b.lo.x, xm}, std::pair{xm, b.hi.x}})
+    for (const auto& [za, zb] : {std::pair{b.lo.z, z1}, std::pair{z1, z2}, std::pair{z2, b.hi.z}}) {
+      const Box3 p{Index3(x0, b.lo.y, za), Index3(x1, b.hi.y, zb)};
+      if (!p.empty()) out.push_back(p);
+    }
+  return out;
+}
 
 TEST_P(Tracker, ShadingTheRunsEqualsAFullReshade) {
-  const auto [type, grey] = GetParam();
+  const auto [type, grey, gradientOpacity] = GetParam();
   const Grid g = smallGrid();
   Volume v;
   v.allocate(g, type);
@@ -51,6 +65,7 @@ TEST_P(Tracker, ShadingTheRunsEqualsAFullReshade) {
   const TransferFunction tf;
   ShadeSettings s;
   s.greyValues = grey;
+  s.gradientOpacity = gradientOpacity;  // the opacity then reads the neighbours too
   s.threads = 2;
   const Camera cam = cameraFor(g);
   const Box3 all{Index3(0), g.dims};
@@ -73,8 +88,12 @@ TEST_P(Tracker, ShadingTheRunsEqualsAFullReshade) {
           if (std::uniform_int_distribution<int>(0, 2)(rng) == 0)
             v.setValue(static_cast<std::size_t>((k * g.dims.y + j) * g.dims.x + i), randomValue());
     const Box3 needed = dirty.grown(1).intersect(all);
+    const std::vector<Box3> within = pieces(needed);
+    std::uint64_t withinVoxels = 0;
+    for (const Box3& w : within) withinVoxels += w.voxelCount();
+    ASSERT_EQ(withinVoxels, needed.voxelCount());
     const std::vector<Box3> runs =
-        tracker.shadingRuns(v, std::span<const Box3>(&needed, 1), std::span<const Box3>(&needed, 1), grey ? nullptr : &tf);
+        tracker.shadingRuns(v, std::span<const Box3>(&needed, 1), within, grey ? nullptr : &tf);
     std::vector<std::int64_t> changed;
     shade(v, tf, s, cam, runs, buf, &changed);
 
@@ -120,6 +139,6 @@ TEST_P(Tracker, ShadingTheRunsEqualsAFullReshade) {
 
 INSTANTIATE_TEST_SUITE_P(Types, Tracker,
                          ::testing::Combine(::testing::Values(ScalarType::U8, ScalarType::U16, ScalarType::F32),
-                                            ::testing::Bool()));
+                                            ::testing::Bool(), ::testing::Bool()));
 
 }  // namespace

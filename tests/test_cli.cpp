@@ -113,6 +113,11 @@ TEST(Cli, SimulatedSweepIsCachedAndEqualsTheLiveSimulator) {
   }
   EXPECT_GT(sum, 0.0);
   EXPECT_LT(worst, 0.01);
+  // A cache folder that cannot be made: the run simulates live and says so.
+  const auto nowhere = run("run " + cfg + " -o " + (d / "e").string() +
+                           " --set run.orbit_frames=0 --set run.mpr=false --set 'run.sweep_cache=\"/proc/pp5echo/no\"'");
+  EXPECT_EQ(nowhere.status, 0) << nowhere.out;
+  EXPECT_NE(nowhere.out.find("simulating every frame live instead"), std::string::npos) << nowhere.out;
   std::filesystem::remove_all(d);
 }
 

@@ -87,6 +87,14 @@ TEST(SampleRuns, MalformedInputIsRefusedAndLeavesTheOutputAlone) {
   std::memcpy(bad.data(), &h, sizeof h);
   EXPECT_FALSE(decodeSampleRuns(bad, SampleWire::Float, out));
   EXPECT_EQ(out.size(), 3u);
+  // More samples than the message may hold: refused before anything is made
+  // (a transparent run's 8 bytes claim 32767 samples).
+  h = {1, 0, 0x8000 + 0x7fff};
+  std::memcpy(bad.data(), &h, sizeof h);
+  EXPECT_FALSE(decodeSampleRuns(bad, SampleWire::Half, out, 1000));
+  EXPECT_TRUE(decodeSampleRuns(bad, SampleWire::Half, out, 0x7fff));
+  EXPECT_EQ(out.size(), 3u + 0x7fff);
+  out.resize(3);
   // Empty input is no samples.
   EXPECT_TRUE(decodeSampleRuns({}, SampleWire::Half, out));
   EXPECT_EQ(out.size(), 3u);

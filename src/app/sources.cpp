@@ -4,6 +4,7 @@
 #include <mutex>
 
 #include <fmt/format.h>
+#include <spdlog/spdlog.h>
 
 #include "app/recon_run.hpp"
 #include "app/sweep_cache.hpp"
@@ -62,14 +63,24 @@ host::Source makeSource(const Settings& s) {
   // The sweep from the cache, on the live simulator's grid. Filling the cache
   // takes seconds the first time, so it is the source's prepare step: the
   // host runs it once the viewer's URL is out.
+  // Where no cache folder can be made (no HOME, a read-only one), the run
+  // simulates live instead and says so.
   struct Cached {
     Settings s;
     Grid grid;
+    std::shared_ptr<sim::SweepSimulator> sim;
     std::once_flag once;
     host::Source inner;
     void ready() {
       std::call_once(once, [this] {
-        const SimulatedSweep sweep = cachedSweep(s);
+        SimulatedSweep sweep;
+        try {
+          sweep = cachedSweep(s);
+        } catch (const InputError& e) {
+          spdlog::warn("run: {}; simulating every frame live instead (run.simulate_live)", e.what());
+          inner = host::simulatorSource(sim, grid, s.sim.threads);
+          return;
+        }
         inner = host::sequenceSource(
             std::make_shared<PosedSequence>(openPosedSequence(sweep.sequencePath, sweep.configPath)), grid);
       });
@@ -79,6 +90,7 @@ host::Source makeSource(const Settings& s) {
   auto cached = std::make_shared<Cached>();
   cached->s = s;
   cached->grid = grid;
+  cached->sim = sim;
   host::Source src = host::simulatorSource(sim, grid, s.sim.threads);  // its description, frames and grid
   src.description += " (simulated once, streamed from run.sweep_cache)";
   src.prepare = [cached] { cached->ready(); };

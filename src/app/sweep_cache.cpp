@@ -8,6 +8,7 @@
 #include <cstdint>
 #include <cstdlib>
 #include <filesystem>
+#include <random>
 #include <vector>
 
 #include <fmt/format.h>
@@ -66,13 +67,19 @@ constexpr auto kGrace = std::chrono::hours(1);
 void prune(const fs::path& folder, const std::string& prefix) {
   std::error_code ec;
   std::vector<std::pair<fs::file_time_type, fs::path>> found;
+  const auto now = fs::file_time_type::clock::now();
   for (const auto& e : fs::directory_iterator(folder, ec)) {
     const std::string name = e.path().filename().string();
-    if (e.is_directory(ec) && name.rfind(prefix, 0) == 0) found.emplace_back(fs::last_write_time(e.path(), ec), e.path());
+    if (!e.is_directory(ec)) continue;
+    const auto used = fs::last_write_time(e.path(), ec);
+    if (name.rfind(prefix, 0) == 0) {
+      found.emplace_back(used, e.path());
+    } else if (name.rfind("." + prefix, 0) == 0 && name.find(".tmp-") != std::string::npos && now - used > kGrace) {
+      fs::remove_all(e.path(), ec);  // left by a run stopped while it simulated
+    }
   }
   if (found.size() <= kKeep) return;
   std::sort(found.begin(), found.end(), [](const auto& a, const auto& b) { return a.first > b.first; });
-  const auto now = fs::file_time_type::clock::now();
   for (std::size_t i = kKeep; i < found.size(); ++i)
     if (now - found[i].first > kGrace) fs::remove_all(found[i].second, ec);
 }
@@ -169,17 +176,28 @@ SimulatedSweep cachedSweep(const Settings& s) {
   fs::create_directories(dir.parent_path(), ec);
   if (ec)
     throw InputError(fmt::format("run.sweep_cache: cannot create {}: {}", dir.parent_path().string(), ec.message()));
-  const fs::path tmp = dir.parent_path() / fmt::format(".{}.tmp-{}", dir.filename().string(), ::getpid());
-  fs::remove_all(tmp, ec);
+  // A temporary folder of this run's own (host, process and a random number:
+  // runs in different containers may share the cache and a PID), renamed into
+  // place once complete.
+  char host[256] = "host";
+  ::gethostname(host, sizeof host - 1);
+  const fs::path tmp = dir.parent_path() / fmt::format(".{}.tmp-{}-{}-{:08x}", dir.filename().string(), host,
+                                                       ::getpid(), std::random_device{}());
   spdlog::info("run: simulating the sweep once into {} (later runs with these [sim] settings stream it from there)",
                dir.string());
   SimulatedSweep made = simulateSweep(s, tmp.string());
   fs::rename(tmp, dir, ec);
-  if (ec) {  // another run put the same sweep there first: use that one
-    fs::remove_all(tmp, ec);
-    if (!fs::exists(hit.sequencePath)) throw InputError(fmt::format("run.sweep_cache: cannot fill {}", dir.string()));
-    hit.fromCache = true;
-    return hit;
+  if (ec) {
+    // Another run put the same sweep there first (the folder is not empty):
+    // use that one if it is whole; otherwise say why the rename failed.
+    const std::string why = ec.message();
+    std::error_code ignore;
+    fs::remove_all(tmp, ignore);
+    if (fs::exists(hit.sequencePath, ignore) && fs::exists(hit.configPath, ignore)) {
+      hit.fromCache = true;
+      return hit;
+    }
+    throw InputError(fmt::format("run.sweep_cache: cannot move the simulated sweep into {}: {}", dir.string(), why));
   }
   prune(dir.parent_path(), stem(s) + "-");
   hit.frames = made.frames;

@@ -42,7 +42,11 @@ std::string sweepCacheFolder(const Settings& s);
 
 // The sweep for s.sim from the cache, simulated into it first when missing.
 // Runs that race for the same key each simulate into their own temporary
-// folder; the first rename wins and the others use its copy.
+// folder; the first rename wins and the others use its copy. From the cache,
+// `frames`, `maxPoseError` and `simulateS` are 0 (they were checked when it
+// was written). The config's VolumeReconstruction element holds the grid of
+// the run that filled the cache; a run passes its own grid (sweepGrid), so
+// [grid] is not part of the key. InputError when the folder cannot be made.
 SimulatedSweep cachedSweep(const Settings& s);
 
 }  // namespace pp5::app

@@ -222,7 +222,7 @@ struct PpDoneMsg {
   std::uint32_t full = 0;     // 1: every tile was sent (new caches after a control change)
   StageTimes times;           // since the last PpDone
   std::uint64_t rays = 0, blocks = 0, samplesPut = 0;
-  std::uint64_t tileBytes = 0;  // bytes of the kTagTile messages since the last PpDone
+  std::uint64_t tileBytes = 0;  // bytes of the tiles kind (Tile and PpDone messages) since the last PpDone
 };
 
 // kTagRequest.

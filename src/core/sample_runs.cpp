@@ -44,6 +44,7 @@ void encodeSampleRuns(std::span<const RaySample> samples, SampleWire wire, std::
       if (s.pixel != first.pixel || s.k != first.k + n || transparent(s) != clear) break;
       ++n;
     }
+    PP5_CHECK_LE(first.k + n - 1, 0xffffu);
     const SampleRunHeader h{first.pixel, static_cast<std::uint16_t>(first.k),
                             static_cast<std::uint16_t>(clear ? kTransparent + n : n)};
     const std::size_t at = out.size();
@@ -55,7 +56,8 @@ void encodeSampleRuns(std::span<const RaySample> samples, SampleWire wire, std::
   }
 }
 
-bool decodeSampleRuns(std::span<const std::byte> in, SampleWire wire, std::vector<RaySample>& out) {
+bool decodeSampleRuns(std::span<const std::byte> in, SampleWire wire, std::vector<RaySample>& out,
+                      std::size_t maxSamples) {
   const std::size_t valueBytes = sampleWireBytes(wire);
   const std::size_t had = out.size();
   std::size_t at = 0;
@@ -70,7 +72,8 @@ bool decodeSampleRuns(std::span<const std::byte> in, SampleWire wire, std::vecto
     at += sizeof h;
     const bool clear = h.n >= kTransparent;
     const std::size_t n = clear ? h.n - kTransparent : h.n;
-    if (n == 0 || static_cast<std::size_t>(h.k) + n - 1 > 0xffffu || (!clear && (in.size() - at) / valueBytes < n)) {
+    if (n == 0 || static_cast<std::size_t>(h.k) + n - 1 > 0xffffu || (!clear && (in.size() - at) / valueBytes < n) ||
+        out.size() - had + n > maxSamples) {
       ok = false;
       break;
     }

@@ -39,7 +39,10 @@ constexpr std::size_t sampleWireBytes(SampleWire w) { return w == SampleWire::Ha
 void encodeSampleRuns(std::span<const RaySample> samples, SampleWire wire, std::vector<std::byte>& out);
 
 // Appends the samples of `in` to `out`; false (out unchanged) when `in` is
-// not a whole number of well-formed runs.
-bool decodeSampleRuns(std::span<const std::byte> in, SampleWire wire, std::vector<RaySample>& out);
+// not a whole number of well-formed runs, or holds more than maxSamples
+// samples (checked before anything is allocated: a transparent run's 8
+// bytes can claim 32767 samples).
+bool decodeSampleRuns(std::span<const std::byte> in, SampleWire wire, std::vector<RaySample>& out,
+                      std::size_t maxSamples = SIZE_MAX);
 
 }  // namespace pp5

@@ -194,13 +194,13 @@ void ChangeTracker::markCells(std::uint8_t value) {
 
 void ChangeTracker::setShadeChanges(std::span<const std::int64_t> voxels) {
   const Index3 d = grid_.dims;
+  for (const std::int64_t v : voxels) PP5_CHECK(v >= 0 && static_cast<std::uint64_t>(v) < grid_.voxelCount());
   markCells(0);
   changed_.assign(voxels.begin(), voxels.end());
   markCells(1);
   bricks_.clear();
   std::int64_t lastBrick = -1;
   for (const std::int64_t v : changed_) {
-    PP5_CHECK(v >= 0 && static_cast<std::uint64_t>(v) < grid_.voxelCount());
     const std::int64_t bi = (v % d.x) / kBrick, bj = ((v / d.x) % d.y) / kBrick, bk = v / (d.x * d.y) / kBrick;
     const std::int64_t id = (bk * bricks_.brickDims().y + bj) * bricks_.brickDims().x + bi;
     if (id == lastBrick) continue;

@@ -40,8 +40,9 @@ struct Source {
   // Live sources: the device's counters as a JSON object, for summary.json.
   std::function<std::string()> statsJson;
   // Work before the first frame that may take seconds (the simulated sweep's
-  // cache fill), or empty. The host runs it once the viewer's URL is out and
-  // before the ranks start; a source whose prepare was not run runs it itself.
+  // cache fill), or empty. The host runs it once the viewer's URL is out,
+  // before the first frame (the other ranks wait at the start barrier); a
+  // source whose prepare was not run runs it itself.
   std::function<void()> prepare;
 };
 

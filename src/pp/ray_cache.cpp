@@ -263,10 +263,11 @@ void RayCache::setValueWindow(double lo, double hi) {
   valueLo_ = newLo;
   valueInvWidth_ = newInvWidth;
   // Only the grey-value modes read the window; "over" keeps its partials (a
-  // later change to MIP or additive recomposites everything anyway), and so
-  // does a cache just reset, whose samples are all 0 and show black in any
-  // window. Recompositing a whole tile here made the first image after every
-  // control change a full composite (issue 17's bench latency).
+  // later change to MIP or additive recomposites everything anyway), and an
+  // unchanged window keeps them too. Recompositing a whole tile on every call
+  // made the first image after every control change a full composite (issue
+  // 17's bench latency). A MIP or additive cache just reset still recomposites
+  // when the window does change, which costs a pass over zeros.
   if (compositesGreyValues(live_)) invalidate();
 }
 

@@ -186,7 +186,8 @@ private:
     clock_.start(kReceive);
     // Decoded into storage kept from batch to batch.
     scratch_.clear();
-    if (!decodeSampleRuns(payload, pp::sampleWireFor(c_.cache.format), scratch_) || scratch_.size() != sm.count)
+    if (!decodeSampleRuns(payload, pp::sampleWireFor(c_.cache.format), scratch_, sm.count) ||
+        scratch_.size() != sm.count)
       throw CommError(fmt::format("a sample batch from rank {} is malformed: {} bytes do not hold {} samples' runs",
                                   m.source, payload.size(), sm.count));
     clock_.start(kComposite);
