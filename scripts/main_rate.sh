@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Whether the main job keeps up with the scanner: runs the README's main job
-# (configs/doll.toml on 4 MPI ranks, streamed at 30 frames/s, viewer off)
+# (configs/doll.toml on 4 MPI ranks, streamed at 30 frames/s, the live viewer
+# on as scripts/main.sh has it, on a free port, with no browser connected)
 # N times one after the other and prints one row per run: frames/s in, frames
 # dropped, slice-to-image latency median and p95, an incremental frame's bytes,
 # and whether the run met issue 17's bar (>= 29.5 frames/s in, no drop,
@@ -16,7 +17,7 @@ trap 'rm -rf "$out"' EXIT
 printf '%-4s %12s %8s %12s %12s %16s %s\n' run "frames/s in" dropped "median ms" "p95 ms" "kB/inc. frame" verdict
 met=0
 for i in $(seq 1 "$runs"); do
-  bash scripts/mpirun.sh 4 "$bin" run configs/doll.toml -o "$out/$i" > "$out/$i.log" 2>&1 ||
+  bash scripts/mpirun.sh 4 "$bin" run configs/doll.toml -o "$out/$i" --view 127.0.0.1:0 > "$out/$i.log" 2>&1 ||
     { echo "main_rate.sh: run $i failed:"; tail -5 "$out/$i.log"; exit 1; }
   row=$(python3 - "$out/$i/summary.json" <<'PY'
 import json, sys
