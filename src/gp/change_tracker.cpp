@@ -28,7 +28,7 @@ ChangeTracker::ChangeTracker(const Volume& values)
       bricks_(values.grid, kBrick) {}
 
 std::uint64_t ChangeTracker::memoryBytes(const Grid& g, ScalarType t) {
-  return g.voxelCount() * (static_cast<std::uint64_t>(scalarBytes(t)) + 1) +
+  return g.voxelCount() * bytesPerVoxel(t) +
          static_cast<std::uint64_t>(g.dims.y * g.dims.z) * 32;
 }
 

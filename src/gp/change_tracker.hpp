@@ -42,8 +42,9 @@ public:
   // The values the shade buffer is computed from (e.g. the empty grid).
   // The caller checks the memory: memoryBytes() of the grid and type.
   explicit ChangeTracker(const Volume& values);
-  // What a tracker of grid g with values of type t holds: the copy (its
-  // voxel type), the cell mask (a byte a voxel) and the row ranges.
+  // What a tracker of grid g with values of type t holds: per voxel the copy
+  // (its voxel type) and the cell mask (a byte), and the row ranges.
+  static std::uint64_t bytesPerVoxel(ScalarType t) { return static_cast<std::uint64_t>(scalarBytes(t)) + 1; }
   static std::uint64_t memoryBytes(const Grid& g, ScalarType t);
   std::uint64_t memoryBytes() const { return memoryBytes(grid_, copy_.type); }
 

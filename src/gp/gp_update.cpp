@@ -13,7 +13,7 @@ GpUpdate::GpUpdate(const Grid& grid, const GpUpdateSettings& settings, const Cam
   if (!recon_) recon_ = makeReconstructor(grid_, s_.recon, s_.memoryLimitBytes, "reconstruction grid ([grid])");
   checkGridFits(grid_, 4, "shade buffer ([grid])", s_.memoryLimitBytes);
   shade_ = ShadeBuffer(grid_);
-  checkGridFits(grid_, static_cast<std::uint64_t>(scalarBytes(recon_->output().type)) + 1, "change tracker ([grid])",
+  checkGridFits(grid_, ChangeTracker::bytesPerVoxel(recon_->output().type), "change tracker ([grid])",
                 s_.memoryLimitBytes);
   changes_ = ChangeTracker(recon_->output());
   lattice_ = SampleLattice(camera_, grid_, s_.render.step(grid_), s_.render.maxSamples, s_.render.threads);
@@ -21,12 +21,12 @@ GpUpdate::GpUpdate(const Grid& grid, const GpUpdateSettings& settings, const Cam
 }
 
 bool GpUpdate::shadeChanged(const DirtyRegion& dirty) {
-  // The dirty bricks and their gradient margin (what shade(dirty) shades),
-  // worked out once for shading, the empty-space map and the D-buffer.
-  // Of those, only the voxels within a face step of a changed value, and of
-  // their samples only those whose cell has a changed shade (ChangeTracker).
-  needed_ = shadingBoxes(dirty);
-  shaded_ = changes_.shadingRuns(recon_->output(), needed_, share_->shadeShare(needed_, camera_),
+  // The dirty bricks and their gradient margin (what shade(dirty) shades)
+  // bound the work; within them the tracker finds the voxels whose shade can
+  // change, and from their new shades the cells and bricks that the
+  // empty-space map, the D-buffer and the sampler then limit themselves to.
+  const std::vector<Box3> needed = shadingBoxes(dirty);
+  shaded_ = changes_.shadingRuns(recon_->output(), needed, share_->shadeShare(needed, camera_),
                                  s_.shading.greyValues ? nullptr : &tf_);
   changedVoxels_.clear();
   shade(recon_->output(), tf_, s_.shading, camera_, shaded_, shade_, &changedVoxels_);

@@ -83,14 +83,16 @@ public:
   Reconstructor& reconstructor() { return *recon_; }
   const Reconstructor& reconstructor() const { return *recon_; }
 
-  // Shades this GP's share of what `dirty` changed and updates the
-  // empty-space map; false when the share is empty (nothing to sample).
+  // Re-shades the voxels of this GP's share whose shade `dirty`'s changes
+  // can have changed (ChangeTracker) and updates the empty-space map; false
+  // when no shade changed (nothing to sample).
   bool shadeChanged(const DirtyRegion& dirty);
-  // Every lattice sample the last shadeChanged() can have changed, into
-  // `sink` (transparent ones too, but those both maps know were and stay 0).
+  // Every lattice sample whose cell holds a voxel the last shadeChanged()
+  // changed, into `sink` (transparent ones too, but those both maps know
+  // were and stay 0).
   void sampleChanged(SampleSink& sink);
-  // The boxes the last shadeChanged() shaded, and the D-buffer of the last
-  // sampleChanged() (for statistics).
+  // The row runs the last shadeChanged() shaded, and the D-buffer of the
+  // last sampleChanged() (for statistics).
   const std::vector<Box3>& lastShaded() const { return shaded_; }
   const DBuffer& dbuffer() const { return dbuf_; }
 
@@ -137,7 +139,7 @@ private:
   EmptySpaceMap space_;
   EmptySpaceMap spaceBefore_;  // space_ before the last shadeChanged()
   ChangeTracker changes_;
-  std::vector<Box3> needed_, shaded_;
+  std::vector<Box3> shaded_;  // the runs the last shadeChanged() shaded
   std::vector<std::int64_t> changedVoxels_;
   DBuffer dbuf_;
 };

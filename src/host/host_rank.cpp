@@ -136,7 +136,6 @@ private:
   // Tile bytes the PPs sent for incremental image updates (not full images
   // after a control change, not answers to requests).
   std::uint64_t incrementalTileBytes_ = 0;
-  std::uint64_t skippedFrames_ = 0;  // left out by constant-interval capture
 
   // ---- messages -------------------------------------------------------
   void handle(const Message& m) {
@@ -498,7 +497,9 @@ private:
     return requestFb_;
   }
 
-  void writeSummary(double streamS, double totalS, std::uint64_t drops, const std::vector<std::string>& wrote);
+  // skipped: frames constant-interval capture left out.
+  void writeSummary(double streamS, double totalS, std::uint64_t drops, std::uint64_t skipped,
+                    const std::vector<std::string>& wrote);
   std::uint64_t streamImages_ = 0;  // image updates while frames were streaming
 };
 
@@ -704,14 +705,14 @@ int HostRank::run() {
   if (acq.skipped())
     std::printf("  constant-interval capture (every %g mm) left out %llu frames\n", j_.captureIntervalMm,
                 static_cast<unsigned long long>(acq.skipped()));
-  skippedFrames_ = acq.skipped();
-  writeSummary(streamS, totalS, acq.dropped(), wrote);
+  writeSummary(streamS, totalS, acq.dropped(), acq.skipped(), wrote);
   std::printf("wrote to %s\n", fs::absolute(dir).string().c_str());
   for (const auto& n : wrote) std::printf("  %s\n", n.c_str());
   return 0;
 }
 
-void HostRank::writeSummary(double streamS, double totalS, std::uint64_t drops, const std::vector<std::string>&) {
+void HostRank::writeSummary(double streamS, double totalS, std::uint64_t drops, std::uint64_t skipped,
+                            const std::vector<std::string>&) {
   std::vector<double> lat;
   for (double v : latencyMs_)
     if (v >= 0.0) lat.push_back(v);
@@ -736,7 +737,7 @@ void HostRank::writeSummary(double streamS, double totalS, std::uint64_t drops, 
   json += fmt::format("  \"frames_per_s_in\": {:.3f}, \"images_per_s_out\": {:.3f}, \"dropped_frames\": {},\n",
                       sent_ / streamS, streamImages_ / streamS, drops);
   json += fmt::format("  \"capture_interval_mm\": {:g}, \"frames_left_out_by_interval\": {},\n", j_.captureIntervalMm,
-                      skippedFrames_);
+                      skipped);
   if (j_.source.statsJson) json += fmt::format("  \"source\": {},\n", j_.source.statsJson());
   json += fmt::format("  \"latency_ms_median\": {:.3f}, \"latency_ms_p95\": {:.3f},\n", percentile(lat, 0.5),
                       percentile(lat, 0.95));
