@@ -172,6 +172,18 @@ function onStats(h) {
 
 let view = null;  // {azimuth, elevation, distance, pan: [x, y]}
 
+// A choice the user just made keeps showing until the server's state agrees
+// (or 2 s pass): a state sent before the server saw the change must not flip
+// the control back.
+const pending = {};
+function userChose(key, value) { pending[key] = {value, until: performance.now() + 2000}; }
+function shown(key, serverValue) {
+  const p = pending[key];
+  if (p && p.value !== serverValue && performance.now() < p.until) return p.value;
+  delete pending[key];
+  return serverValue;
+}
+
 function onState(h) {
   pp5.state = h;
   if (!view) view = {azimuth: h.azimuth, elevation: h.elevation, distance: h.distance, pan: h.pan};
@@ -180,7 +192,7 @@ function onState(h) {
     for (const p of h.presets) sel.add(new Option(p, p));
     sel.add(new Option('custom', 'custom'));
   }
-  sel.value = h.preset || 'custom';
+  sel.value = shown('preset', h.preset || 'custom');
   setSlider('tf-level', h.tf_level);
   setSlider('tf-window', h.tf_window);
   setSlider('tf-opacity', Math.round(100 * h.tf_opacity));
@@ -188,7 +200,8 @@ function onState(h) {
   setSlider('value-level', h.value_level);
   setSlider('mpr-window', h.mpr_window);
   setSlider('mpr-level', h.mpr_level);
-  for (const r of document.querySelectorAll('input[name=composite]')) r.checked = r.value === h.composite;
+  const composite = shown('composite', h.composite);
+  for (const r of document.querySelectorAll('input[name=composite]')) r.checked = r.value === composite;
   $('shade-mode').value = h.shading;
 }
 
@@ -250,10 +263,15 @@ function sendTf() {
 }
 for (const id of ['tf-level', 'tf-window', 'tf-opacity']) $(id).addEventListener('change', sendTf);
 $('tf-preset').addEventListener('change', (e) => {
-  if (e.target.value !== 'custom') send({type: 'tf', preset: e.target.value});
+  if (e.target.value === 'custom') return;
+  userChose('preset', e.target.value);
+  send({type: 'tf', preset: e.target.value});
 });
 for (const r of document.querySelectorAll('input[name=composite]'))
-  r.addEventListener('change', () => send({type: 'composite', mode: r.value}));
+  r.addEventListener('change', () => {
+    userChose('composite', r.value);
+    send({type: 'composite', mode: r.value});
+  });
 const sendValueWindow = () => send({type: 'value_window', window: +$('value-window').value, level: +$('value-level').value});
 $('value-window').addEventListener('change', sendValueWindow);
 $('value-level').addEventListener('change', sendValueWindow);
