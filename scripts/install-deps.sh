@@ -23,6 +23,7 @@ pkgs=(
   nlohmann-json3-dev
   libboost-dev  # Boost.Beast: the live viewer's HTTP and WebSocket server (src/viewer)
   libturbojpeg0-dev  # the viewer's JPEG images (src/viewer/jpeg)
+  libeigen3-dev  # least squares: the bench's cost model (src/harness/cost_fit)
   libgtest-dev libgmock-dev
   libbenchmark-dev
   python3-matplotlib  # the plots of `pp5echo bench` (scripts/bench_plots.py)

@@ -36,6 +36,7 @@
 #include <nlohmann/json.hpp>
 #include <spdlog/spdlog.h>
 
+#include "app/bench_common.hpp"
 #include "app/commands.hpp"
 #include "app/recon_run.hpp"
 #include "app/settings.hpp"
@@ -54,11 +55,97 @@
 
 namespace pp5::app {
 
+namespace fs = std::filesystem;
+using namespace pp5::harness;
+
+std::vector<std::string> serialArgv(const std::string& exe, const std::string& file,
+                                    const std::vector<std::string>& overrides, const SimulatedSweep& seq,
+                                    const std::string& dir, const std::string& census) {
+  std::vector<std::string> argv = {exe, "run", fs::absolute(file).string(), "--serial", "-o", dir};
+  if (!census.empty()) {
+    argv.push_back("--census");
+    argv.push_back(census);
+  }
+  std::vector<std::string> sets = {"run.source=\"sequence\"", "run.sequence=" + tomlString(seq.sequencePath),
+                                   "run.plus_config=" + tomlString(seq.configPath), "render.threads=1",
+                                   "recon.threads=1"};
+  sets.insert(sets.end(), overrides.begin(), overrides.end());
+  for (const auto& s : sets) {
+    argv.push_back("--set");
+    argv.push_back(s);
+  }
+  return argv;
+}
+
+std::vector<std::string> transportArgs(bool tcp) {
+  if (!tcp) return {};
+  return {"--mca", "pml", "ob1", "--mca", "btl", "tcp,self"};
+}
+
+std::vector<std::string> layoutArgv(const std::string& mpirun, const std::string& exe, const std::string& file,
+                                    const std::vector<std::string>& overrides, const std::string& plusConfig,
+                                    const Layout& l, const std::string& dir, const std::string& sequence,
+                                    bool baseline) {
+  std::vector<std::string> argv = {mpirun};
+  for (const std::string& a : transportArgs(l.tcp)) argv.push_back(a);
+  for (const std::string& a : {std::string("-n"), std::to_string(l.ranks()), exe, std::string("run"),
+                               fs::absolute(file).string(), std::string("-o"), dir, std::string("--expect-ranks"),
+                               std::to_string(l.ranks())})
+    argv.push_back(a);
+  std::vector<std::string> sets = {
+      "run.source=\"sequence\"", "run.sequence=" + tomlString(sequence), "run.plus_config=" + tomlString(plusConfig),
+      fmt::format("parallel.gps={}", l.gps), fmt::format("parallel.pps={}", l.pps),
+      fmt::format("parallel.gp_partition=\"{}\"", l.partition), fmt::format("parallel.tile_owner=\"{}\"", l.owner),
+      fmt::format("parallel.tile_size={}", l.tileSize), fmt::format("run.pace_fps={:g}", l.paceFps)};
+  sets.insert(sets.end(), overrides.begin(), overrides.end());
+  if (baseline) sets.push_back("run.script=[]");  // one frame: no view change
+  for (const std::string& set : sets) {
+    argv.push_back("--set");
+    argv.push_back(set);
+  }
+  return argv;
+}
+
+Bandwidth measureBandwidth(const std::string& mpirun, const std::string& exe, const std::string& dir, bool tcp,
+                           const std::atomic<bool>* stop) {
+  Bandwidth b;
+  const std::string log = (fs::path(dir) / (tcp ? "pingpong_tcp.log" : "pingpong.log")).string();
+  std::vector<std::string> argv = {mpirun};
+  for (const std::string& a : transportArgs(tcp)) argv.push_back(a);
+  for (const std::string a : {"-n", "2"}) argv.push_back(a);
+  argv.push_back(exe);
+  argv.push_back("bench");
+  argv.push_back("--pingpong");
+  const ChildResult r = runChild(argv, log, 60.0, stop);
+  std::ifstream in(log);
+  for (std::string l; std::getline(in, l);) {
+    std::istringstream ls(l);
+    std::string w;
+    std::size_t bytes = 0;
+    double s = 0.0, bps = 0.0;
+    if (ls >> w >> bytes >> s >> bps && w == "pingpong") {
+      if (bytes == 8) b.latencyS = s;
+      if (bytes == (std::size_t{1} << 20)) {
+        b.bytesPerS = bps;
+        b.measured = true;
+      }
+      b.text += fmt::format("{}{} B: {:.2f} us one way, {:.2f} GB/s", b.text.empty() ? "" : "; ", bytes, s * 1e6,
+                            bps / 1e9);
+    }
+  }
+  if (r.status != 0 || !b.measured) {
+    // Not measured: ../shared/environment.md's figure for this machine class.
+    b.bytesPerS = 5e9;
+    b.measured = false;
+    b.text = fmt::format("ping-pong failed (exit {}; see {}); assumed 5 GB/s", r.status, log);
+  }
+  return b;
+}
+
+
 namespace {
 
-namespace fs = std::filesystem;
 using Clock = std::chrono::steady_clock;
-using namespace pp5::harness;
 
 struct BenchOptions {
   std::string file, outDir;
@@ -69,6 +156,8 @@ struct BenchOptions {
   double timeoutS = 150.0;
   std::string plotsScript;
   bool pingpong = false;  // hidden: the ping-pong child under mpirun
+  bool costModel = false;  // --cost-model
+  int repeats = 0;         // --repeat (cost model; 0: 3, or 1 with --quick)
 };
 
 std::atomic<bool> gStop{false};
@@ -90,35 +179,6 @@ int runPingPong() {
   return 0;
 }
 
-Bandwidth measureBandwidth(const std::string& mpirun, const std::string& exe, const std::string& dir) {
-  Bandwidth b;
-  const std::string log = (fs::path(dir) / "pingpong.log").string();
-  const ChildResult r = runChild({mpirun, "-n", "2", exe, "bench", "--pingpong"}, log, 60.0, &gStop);
-  std::ifstream in(log);
-  for (std::string l; std::getline(in, l);) {
-    std::istringstream ls(l);
-    std::string w;
-    std::size_t bytes = 0;
-    double s = 0.0, bps = 0.0;
-    if (ls >> w >> bytes >> s >> bps && w == "pingpong") {
-      if (bytes == 8) b.latencyS = s;
-      if (bytes == (std::size_t{1} << 20)) {
-        b.bytesPerS = bps;
-        b.measured = true;
-      }
-      b.text += fmt::format("{}{} B: {:.2f} us one way, {:.2f} GB/s", b.text.empty() ? "" : "; ", bytes, s * 1e6,
-                            bps / 1e9);
-    }
-  }
-  if (r.status != 0 || !b.measured) {
-    // Not measured: ../shared/environment.md's figure for this machine class.
-    b.bytesPerS = 5e9;
-    b.measured = false;
-    b.text = fmt::format("ping-pong failed (exit {}; see {}); assumed 5 GB/s shared memory", r.status, log);
-  }
-  return b;
-}
-
 // ---- the serial reference ------------------------------------------------------------
 
 // `pp5echo run --serial` on the same sequence, one thread: what one core does
@@ -130,16 +190,7 @@ SerialRef runSerialReference(const std::string& exe, const BenchOptions& o, cons
   fs::remove_all(dir, ec);
   makeOutputDir(dir);
   r.log = (fs::path(dir) / "run.log").string();
-  std::vector<std::string> argv = {exe, "run", fs::absolute(o.file).string(), "--serial", "-o", dir};
-  std::vector<std::string> sets = {"run.source=\"sequence\"", "run.sequence=" + tomlString(seq.sequencePath),
-                                   "run.plus_config=" + tomlString(seq.configPath), "render.threads=1",
-                                   "recon.threads=1"};
-  sets.insert(sets.end(), o.overrides.begin(), o.overrides.end());
-  for (const auto& s : sets) {
-    argv.push_back("--set");
-    argv.push_back(s);
-  }
-  r.child = runChild(argv, r.log, timeoutS, &gStop);
+  r.child = runChild(serialArgv(exe, o.file, o.overrides, seq, dir, ""), r.log, timeoutS, &gStop);
   if (r.child.status != 0) return r;
   r.ok = readSerialStats((fs::path(dir) / "stats.csv").string(), r);
   return r;
@@ -197,6 +248,21 @@ int runBench(BenchOptions o) {
   std::error_code ec;
   const std::string exe = fs::read_symlink("/proc/self/exe", ec).string();
   if (ec) throw InputError("bench: cannot find this program through /proc/self/exe");
+  if (o.costModel) {
+    std::signal(SIGINT, onBenchInterrupt);
+    std::signal(SIGTERM, onBenchInterrupt);
+    CostModelRun run;
+    run.mpirun = mpirun;
+    run.exe = exe;
+    run.file = o.file;
+    run.outDir = o.outDir;
+    run.overrides = o.overrides;
+    run.timeoutS = o.timeoutS;
+    run.stop = &gStop;
+    run.quick = o.quick;
+    run.repeats = o.repeats > 0 ? o.repeats : (o.quick ? 1 : 3);
+    return runCostModel(run);
+  }
 
   makeOutputDir(o.outDir);
   std::signal(SIGINT, onBenchInterrupt);
@@ -209,7 +275,7 @@ int runBench(BenchOptions o) {
   const SimulatedSweep seq = simulateSweep(s, (fs::path(o.outDir) / "sequence").string());
   std::printf("bench: %zu frames in %.1f s; read back with identical pixels, poses within %.1e mm\n", seq.frames,
               seq.simulateS, seq.maxPoseError);
-  const Bandwidth bw = measureBandwidth(mpirun, exe, o.outDir);
+  const Bandwidth bw = measureBandwidth(mpirun, exe, o.outDir, false, &gStop);
   std::printf("bench: MPI ping-pong: %s\n", bw.text.c_str());
   std::fflush(stdout);
   const SerialRef serial = runSerialReference(exe, o, seq, o.timeoutS);
@@ -233,22 +299,7 @@ int runBench(BenchOptions o) {
     makeOutputDir(r.dir);
     r.log = (fs::path(r.dir) / "run.log").string();
     auto argvFor = [&](const std::string& dir, const std::string& sequence, bool baseline) {
-      std::vector<std::string> argv = {mpirun, "-n", std::to_string(l.ranks()), exe, "run",
-                                       fs::absolute(o.file).string(), "-o", dir, "--expect-ranks",
-                                       std::to_string(l.ranks())};
-      std::vector<std::string> sets = {
-          "run.source=\"sequence\"", "run.sequence=" + tomlString(sequence),
-          "run.plus_config=" + tomlString(seq.configPath), fmt::format("parallel.gps={}", l.gps),
-          fmt::format("parallel.pps={}", l.pps), fmt::format("parallel.gp_partition=\"{}\"", l.partition),
-          fmt::format("parallel.tile_owner=\"{}\"", l.owner), fmt::format("parallel.tile_size={}", l.tileSize),
-          fmt::format("run.pace_fps={:g}", l.paceFps)};
-      sets.insert(sets.end(), o.overrides.begin(), o.overrides.end());
-      if (baseline) sets.push_back("run.script=[]");  // one frame: no view change
-      for (const std::string& set : sets) {
-        argv.push_back("--set");
-        argv.push_back(set);
-      }
-      return argv;
+      return layoutArgv(mpirun, exe, o.file, o.overrides, seq.configPath, l, dir, sequence, baseline);
     };
     const double left = ranksDone ? rankSeconds / static_cast<double>(ranksDone) *
                                         static_cast<double>(totalRanks - ranksDone)
@@ -370,6 +421,10 @@ void addBenchCommand(CLI::App& app, int& exitCode) {
   cmd->add_flag("--list", o->list, "Print the layouts and exit");
   cmd->add_option("--timeout", o->timeoutS, "Seconds a layout may run before it is stopped (default 150)");
   cmd->add_option("--plots-script", o->plotsScript, "scripts/bench_plots.py (default: found near here)");
+  cmd->add_flag("--cost-model", o->costModel,
+                "Fit the cost model on some layouts, predict others, run them and report the error (cost_model.md)");
+  cmd->add_option("--repeat", o->repeats, "Cost model: runs of each layout, whose median it reports (default 3; 1 with --quick)")
+      ->check(CLI::Range(1, 20));
   cmd->add_flag("--pingpong", o->pingpong, "Internal: the MPI ping-pong the bench runs under mpirun")->group("");
   cmd->callback([o, &exitCode] { exitCode = runBench(*o); });
 }

@@ -46,6 +46,7 @@ struct RunOptions {
   std::string file, outDir, source;
   std::vector<std::string> overrides;
   bool serial = false;
+  std::string census;  // --census FILE (serial): where each frame's work lies, for bench --cost-model
   bool verify = false;
   std::string view;  // --view [ADDR:]PORT
   bool serve = false;
@@ -197,6 +198,11 @@ int runSerial(const RunOptions& o) {
     settingsFile.commit();
   }
 
+  std::unique_ptr<serial::WorkCensus> census;
+  if (!o.census.empty()) {
+    census = std::make_unique<serial::WorkCensus>(src.grid, s.render.width, s.render.height);
+    pipe.setCensus(census.get());
+  }
   SerialViewer viewer(s, src.grid, pipe, dir);
   const int w = s.render.width, h = s.render.height;
   host::StatsCsv stats((fs::path(dir) / "stats.csv").string(),
@@ -246,6 +252,11 @@ int runSerial(const RunOptions& o) {
   });
   if (done == 0) throw InputError("run: the source gave no frame that can be placed");
 
+  if (census) {
+    pipe.setCensus(nullptr);
+    census->write(o.census);
+    spdlog::info("run: the census of {} frames is in {}", census->frames(), o.census);
+  }
   // The end of the sweep: final passes, then what is shown of the final volume.
   pipe.finish();
   viewer.ended();
@@ -475,6 +486,7 @@ int runCommand(const RunOptions& o) {
       throw InputError(fmt::format("--expect-ranks {}: this process was not started by mpirun", o.expectRanks));
     return runSerial(o);
   }
+  if (!o.census.empty()) throw InputError("--census counts the serial pipeline's work; add --serial");
   return runDistributed(o);
 }
 
@@ -488,6 +500,9 @@ void addRunOptions(CLI::App* cmd, const std::shared_ptr<RunOptions>& o) {
   cmd->add_option("--source", o->source,
                   "board | igtl://HOST:PORT | sequence | simulator (overrides run.source and run.igtl_url)");
   cmd->add_flag("--serial", o->serial, "Run the single-process pipeline (what runs without mpirun)");
+  cmd->add_option("--census", o->census,
+                  "Serial run: write where each frame's work lies (by grid layer and screen bin) to this JSON file, "
+                  "the input of `bench --cost-model`");
   cmd->add_option("--gps", o->gps, "Graphics processors (overrides parallel.gps)");
   cmd->add_option("--pps", o->pps, "Pixel processors (overrides parallel.pps)");
   cmd->add_flag("--verify", o->verify,

@@ -1,6 +1,7 @@
 #include "gp/stencil.hpp"
 
 #include <algorithm>
+#include <cmath>
 #include <map>
 #include <tuple>
 
@@ -84,6 +85,26 @@ Index3 stencilCell(const SampleLattice& lattice, std::uint32_t pixel, std::uint3
     c[a] = std::clamp<std::int64_t>(i, 0, d[a] - 2);
   }
   return c;
+}
+
+std::optional<PixelBounds> stencilFootprint(const Grid& grid, const Box3& b, const Camera& camera) {
+  // The samples that read voxels of b lie in the cells [lo - 1, hi), i.e. at
+  // voxel positions [lo - 1, hi] (clamped to the sampling box).
+  const Vec3 lo = glm::max(Vec3(b.lo) - 1.0, Vec3(0.0)) - kStencilSlackVoxels;
+  const Vec3 hi = glm::min(Vec3(b.hi), Vec3(grid.dims - Index3(1))) + kStencilSlackVoxels;
+  double x0 = 1e300, y0 = 1e300, x1 = -1e300, y1 = -1e300;
+  for (int a = 0; a < 8; ++a) {
+    const Vec3 v((a & 1) ? hi.x : lo.x, (a & 2) ? hi.y : lo.y, (a & 4) ? hi.z : lo.z);
+    const auto p = camera.project(grid.voxelToWorld(v));
+    if (!p) return std::nullopt;
+    x0 = std::min(x0, p->px);
+    x1 = std::max(x1, p->px);
+    y0 = std::min(y0, p->py);
+    y1 = std::max(y1, p->py);
+  }
+  // Pixel x's ray passes through x + 0.5; one pixel of margin for rounding.
+  return PixelBounds{std::ceil(x0 - 0.5) - 1, std::ceil(y0 - 0.5) - 1, std::floor(x1 - 0.5) + 1,
+                     std::floor(y1 - 0.5) + 1};
 }
 
 }  // namespace pp5::gp

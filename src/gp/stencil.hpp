@@ -10,6 +10,7 @@
 // shadingBoxes(dirty), which already adds the gradient's reach). The D-buffer
 // of those boxes then covers every sample that can have changed, plus the
 // few within the slack.
+#include <optional>
 #include <span>
 #include <vector>
 
@@ -35,5 +36,14 @@ std::vector<WorldBox> stencilBoxes(const DirtyRegion& changed, int extraVoxels =
 // The voxel cell (its lowest corner) whose 8 voxels sample k of `pixel` reads:
 // the cell SamplerOptions::ownedCells tests, by the sampler's arithmetic.
 Index3 stencilCell(const SampleLattice& lattice, std::uint32_t pixel, std::uint32_t k);
+
+// The pixels whose rays can take a sample that reads a voxel of `b` (the
+// grow rule above) under `camera`: an inclusive rectangle of pixel indices,
+// with one pixel of margin for rounding and not clipped to the image.
+// nullopt when the box reaches behind the eye (then any pixel may).
+struct PixelBounds {
+  double x0 = 0, y0 = 0, x1 = 0, y1 = 0;
+};
+std::optional<PixelBounds> stencilFootprint(const Grid& grid, const Box3& b, const Camera& camera);
 
 }  // namespace pp5::gp

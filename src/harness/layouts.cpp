@@ -8,6 +8,7 @@ std::string Layout::name() const {
   std::string n =
       fmt::format("g{}p{}_{}_{}_t{}", gps, pps, partition, owner == "contiguous" ? "contig" : "inter", tileSize);
   if (paceFps > 0.0) n += fmt::format("_paced{:g}", paceFps);
+  if (tcp) n += "_tcp";
   if (repeat > 1) n += fmt::format("_r{}", repeat);
   return n;
 }

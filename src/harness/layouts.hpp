@@ -14,9 +14,10 @@ struct Layout {
   double paceFps = 0.0;              // run.pace_fps
   bool target = false;               // the 1 host + 2 GP + 1 PP layout
   int repeat = 1;                    // the paced target runs at the start, middle and end
+  bool tcp = false;                  // Open MPI's TCP transport (--mca pml ob1 --mca btl tcp,self), a cluster's stand-in
 
   int ranks() const { return 1 + gps + pps; }
-  // g<G>p<P>_<partition>_<contig|inter>_t<tile>[_paced<fps>][_r<repeat>]
+  // g<G>p<P>_<partition>_<contig|inter>_t<tile>[_paced<fps>][_tcp][_r<repeat>]
   std::string name() const;
 };
 

@@ -103,6 +103,7 @@ private:
   double gpUpdates_ = 0.0;
   std::uint32_t maxBatch_ = 0;
   StageClock clock_;
+  StreamCpu streamCpu_;  // the stream of frames' CPU (cost model)
 
   std::unique_ptr<Partition> partition_;
   std::vector<std::int64_t> lastPixels_;  // per GP: the last frame whose pixels it got
@@ -284,6 +285,7 @@ private:
 
   // ---- frames and controls ---------------------------------------------
   void sendFrame(AcquiredFrame& a) {
+    streamCpu_.begin();
     waitCredits();
     clock_.start(kSend);
     const std::uint64_t k = sent_;
@@ -559,6 +561,7 @@ int HostRank::run() {
       if (sent_ == 0) firstSent = Clock::now();
       const std::uint64_t sourceIndex = a.frame.index;
       sendFrame(a);
+      streamCpu_.end();
       const std::int64_t k = static_cast<std::int64_t>(sent_) - 1;
       if (lockstep) {
         waitImage(k);
@@ -716,7 +719,7 @@ void HostRank::writeSummary(double streamS, double totalS, std::uint64_t drops, 
   std::vector<double> lat;
   for (double v : latencyMs_)
     if (v >= 0.0) lat.push_back(v);
-  ReportMsg host = makeReport(t_, Role::Host, clock_.total(), totalS, 0, 0);
+  ReportMsg host = makeReport(t_, Role::Host, clock_.total(), totalS, 0, 0, streamCpu_);
   std::vector<ReportMsg> all = reports_;
   all.push_back(host);
   std::sort(all.begin(), all.end(), [](const ReportMsg& a, const ReportMsg& b) { return a.rank < b.rank; });
@@ -809,9 +812,9 @@ void HostRank::writeSummary(double streamS, double totalS, std::uint64_t drops, 
     const ReportMsg& r = all[i];
     json += fmt::format("{}\n    {{\"rank\": {}, \"role\": \"{}\", \"cpu_s\": {:.4f}, \"wall_s\": {:.4f}, "
                         "\"bytes_sent\": {}, \"bytes_received\": {}, \"messages_sent\": {}, \"messages_received\": {}, "
-                        "\"dropped_messages\": {}, \"memory_bytes\": {}",
+                        "\"dropped_messages\": {}, \"memory_bytes\": {}, \"stream_cpu_s\": {:.4f}",
                         i ? "," : "", r.rank, roleName(static_cast<Role>(r.role)), r.cpuS, r.wallS, r.bytesSent,
-                        r.bytesReceived, r.messagesSent, r.messagesReceived, r.dropped, r.memoryBytes);
+                        r.bytesReceived, r.messagesSent, r.messagesReceived, r.dropped, r.memoryBytes, r.streamCpuS);
     json += ", \"stage_ms\": {";
     for (int s = 0; s < kStageCount; ++s) json += fmt::format("{}\"{}\": {:.3f}", s ? ", " : "", stageName(s), r.total.ms[s]);
     json += "}}";

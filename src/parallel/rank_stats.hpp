@@ -15,6 +15,24 @@ inline double processCpuSeconds() {
   return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
 }
 
+// The CPU a rank spends on the stream of frames, for the bench's cost model:
+// from the start of its work on the first frame to the end of its work on the
+// last, so that start-up and the final pass are left out. begin() marks the
+// start once; every end() moves the end.
+class StreamCpu {
+public:
+  void begin() {
+    if (start_ < 0.0) start_ = processCpuSeconds();
+  }
+  void end() {
+    if (start_ >= 0.0) end_ = processCpuSeconds();
+  }
+  double seconds() const { return end_ > start_ ? end_ - start_ : 0.0; }
+
+private:
+  double start_ = -1.0, end_ = -1.0;
+};
+
 // Times stages of one update, and adds them to the run's totals.
 class StageClock {
 public:
@@ -52,13 +70,14 @@ private:
 };
 
 inline comm::ReportMsg makeReport(const comm::Transport& t, Role role, const comm::StageTimes& total, double wallS,
-                            std::uint64_t dropped, std::uint64_t memoryBytes) {
+                                  std::uint64_t dropped, std::uint64_t memoryBytes, const StreamCpu& stream) {
   comm::ReportMsg r;
   r.h.tag = comm::kTagReport;
   r.rank = static_cast<std::uint32_t>(t.rank());
   r.role = static_cast<std::uint32_t>(role);
   r.total = total;
   r.cpuS = processCpuSeconds();
+  r.streamCpuS = stream.seconds();
   r.wallS = wallS;
   const comm::PeerCounters c = t.totals();
   r.bytesSent = c.bytesSent;

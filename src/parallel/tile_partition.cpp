@@ -61,24 +61,9 @@ private:
 
   // Whether a sample in one of this GP's tiles can read a voxel of `b`.
   bool visible(const gp::Box3& b, const Camera& camera) const {
-    const Grid& g = grid_;
-    // The samples that read voxels of b lie in the cells [lo - 1, hi), i.e.
-    // at voxel positions [lo - 1, hi] (clamped to the sampling box).
-    const Vec3 lo = glm::max(Vec3(b.lo) - 1.0, Vec3(0.0)) - gp::kStencilSlackVoxels;
-    const Vec3 hi = glm::min(Vec3(b.hi), Vec3(g.dims - Index3(1))) + gp::kStencilSlackVoxels;
-    double x0 = 1e300, y0 = 1e300, x1 = -1e300, y1 = -1e300;
-    for (int a = 0; a < 8; ++a) {
-      const Vec3 v((a & 1) ? hi.x : lo.x, (a & 2) ? hi.y : lo.y, (a & 4) ? hi.z : lo.z);
-      const auto p = camera.project(g.voxelToWorld(v));
-      if (!p) return true;  // reaches behind the eye: keep it
-      x0 = std::min(x0, p->px);
-      x1 = std::max(x1, p->px);
-      y0 = std::min(y0, p->py);
-      y1 = std::max(y1, p->py);
-    }
-    // Pixel x's ray passes through x + 0.5; one pixel of margin for rounding.
-    const double px0 = std::ceil(x0 - 0.5) - 1, px1 = std::floor(x1 - 0.5) + 1;
-    const double py0 = std::ceil(y0 - 0.5) - 1, py1 = std::floor(y1 - 0.5) + 1;
+    const std::optional<gp::PixelBounds> f = gp::stencilFootprint(grid_, b, camera);
+    if (!f) return true;  // reaches behind the eye: keep it
+    const double px0 = f->x0, px1 = f->x1, py0 = f->y0, py1 = f->y1;
     for (const TileRect& r : rects_)
       if (px1 >= r.x0 && px0 < r.x0 + r.width && py1 >= r.y0 && py0 < r.y0 + r.height) return true;
     return false;

@@ -105,7 +105,7 @@ public:
           const std::uint64_t mem =
               update_->reconstructor().output().bytes.size() * 2 + update_->shadeBuffer().memoryBytes() +
               update_->changeTracker().memoryBytes();
-          t_.send(0, makeReport(t_, Role::Gp, clock_.total(), wall, 0, mem));
+          t_.send(0, makeReport(t_, Role::Gp, clock_.total(), wall, 0, mem, streamCpu_));
           t_.flush();
           return;
         }
@@ -123,6 +123,7 @@ private:
   int g_;
   std::chrono::steady_clock::time_point start_;
   StageClock clock_;
+  StreamCpu streamCpu_;  // the stream of frames' CPU (cost model)
   std::uint32_t epoch_ = 0;
 
   ControlState state_;
@@ -176,6 +177,7 @@ private:
   // reconstruction time; the batch's shading, sampling and samples are
   // counted on its last frame.
   void onFrames(const Message& first) {
+    streamCpu_.begin();
     std::vector<Header> frames;
     std::vector<std::uint64_t> dirtyOf;
     std::vector<StageTimes> times;
@@ -231,6 +233,7 @@ private:
     StageTimes t = times.back();
     for (int st = 0; st < kStageCount; ++st) t.ms[st] += update.ms[st];
     credit(last, false, samples, bytes, dirtyOf.back(), t, n);
+    streamCpu_.end();
   }
 
   // One frame's reconstruction.

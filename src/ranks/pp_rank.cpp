@@ -88,7 +88,7 @@ public:
           case kTagQuit: {
             const double wall = std::chrono::duration<double>(Clock::now() - start_).count();
             const std::uint64_t mem = caches_->memoryBytes() + spare_->memoryBytes();
-            t_.send(0, makeReport(t_, Role::Pp, clock_.total(), wall, dropped_, mem));
+            t_.send(0, makeReport(t_, Role::Pp, clock_.total(), wall, dropped_, mem, streamCpu_));
             t_.flush();
             return;
           }
@@ -122,6 +122,8 @@ private:
   int p_;
   Clock::time_point start_;
   StageClock clock_;
+  StreamCpu streamCpu_;  // the stream of frames' CPU (cost model)
+  bool framePut_ = false;  // tick: a frame's samples were put since the last tick
   RenderSettings render_;
   ControlState state_;
   std::uint32_t epoch_ = 0;
@@ -245,6 +247,10 @@ private:
         Message m = std::move(q.front());
         q.pop_front();
         if (m.tag == kTagSamples) {
+          if (!awaitingFull_) {
+            streamCpu_.begin();
+            framePut_ = true;
+          }
           put(m);
         } else {
           lastDone_[g] = std::max(lastDone_[g], static_cast<std::int64_t>(h.frame));
@@ -294,6 +300,8 @@ private:
     if (!dirty) return;
     compositeAndSend(static_cast<std::uint64_t>(std::max<std::int64_t>(complete, 0)), false);
     lastSent_ = complete;
+    if (framePut_) streamCpu_.end();  // a tick that showed frames' samples
+    framePut_ = false;
   }
 
   void compositeAndSend(std::uint64_t frame, bool all) {

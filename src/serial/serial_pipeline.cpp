@@ -20,21 +20,21 @@ gp::Box3 wholeGrid(const Grid& g) { return {Index3(0), g.dims}; }
 
 // Puts the sampler's batches into one cache as the sampling threads produce
 // them (a full view holds tens of millions of samples, too many to gather
-// first); `onPut(n, ms)` after each batch, under the same lock.
+// first); `onPut(batch, ms)` after each batch, under the same lock.
 class CacheSink final : public gp::SampleSink {
 public:
-  explicit CacheSink(pp::RayCache& cache, std::function<void(std::size_t, double)> onPut = {})
+  explicit CacheSink(pp::RayCache& cache, std::function<void(std::span<const RaySample>, double)> onPut = {})
       : cache_(cache), onPut_(std::move(onPut)) {}
   void consume(int, std::uint32_t, std::span<const RaySample> batch) override {
     const std::lock_guard<std::mutex> lock(m_);
     const auto t = std::chrono::steady_clock::now();
     cache_.put(batch.data(), batch.size());
-    if (onPut_) onPut_(batch.size(), msSince(t));
+    if (onPut_) onPut_(batch, msSince(t));
   }
 
 private:
   pp::RayCache& cache_;
-  std::function<void(std::size_t, double)> onPut_;
+  std::function<void(std::span<const RaySample>, double)> onPut_;
   std::mutex m_;
 };
 
@@ -143,14 +143,16 @@ FrameStats SerialPipeline::insert(const Frame& f, const Mat4& pose, double timeS
   gp_->shadeChanged(r.dirty);
   for (const gp::Box3& b : gp_->lastShaded()) st.shadedVoxels += b.intersect(wholeGrid(grid_)).voxelCount();
   st.shadeMs = msSince(t);
+  if (census_) census_->addFrame(r.dirty, gp_->lastShaded(), gp_->lattice(), f.pixels.size());
 
   t = Clock::now();
   pp::RayCache& cache = (*caches_)[0];
   // Sampling and putting overlap; the time of the puts is counted as compositing.
   double putMs = 0.0;
-  CacheSink sink(cache, [&](std::size_t n, double ms) {
-    st.samples += n;
+  CacheSink sink(cache, [&](std::span<const RaySample> batch, double ms) {
+    st.samples += batch.size();
     putMs += ms;
+    if (census_) census_->addSamples(batch, gp_->lattice());
   });
   gp_->sampleChanged(sink);
   st.dbufferPixels = gp_->dbuffer().touched().size();

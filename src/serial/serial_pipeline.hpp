@@ -25,6 +25,7 @@
 #include "gp/shading.hpp"
 #include "pp/ray_cache.hpp"
 #include "pp/tile_caches.hpp"
+#include "serial/work_census.hpp"
 
 namespace pp5::serial {
 
@@ -89,6 +90,9 @@ public:
   const pp::RayCache& cache() const { return (*caches_)[0]; }
   const PipelineSettings& settings() const { return s_; }
   pp::CompositeMode liveMode() const { return live_; }
+  // Counts each later frame's work into `census` (nullptr: stop); the
+  // census must outlive its use. Its counting is not timed apart.
+  void setCensus(WorkCensus* census) { census_ = census; }
 
 private:
   PipelineSettings s_;
@@ -97,6 +101,7 @@ private:
   std::unique_ptr<gp::GpUpdate> gp_;
   std::unique_ptr<pp::TileCaches> caches_;  // one tile: the whole image
   std::uint64_t frames_ = 0;
+  WorkCensus* census_ = nullptr;
 
   void init(std::unique_ptr<gp::Reconstructor> recon, std::uint64_t memoryLimitBytes);
   // The caches reset for the current camera's lattice (every sample transparent).

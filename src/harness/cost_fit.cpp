@@ -1,0 +1,343 @@
+#include "harness/cost_fit.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <fstream>
+#include <numeric>
+
+#include <Eigen/Dense>
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+
+#include "core/error.hpp"
+#include "core/grid.hpp"
+#include "core/tiles.hpp"
+#include "parallel/schedule.hpp"
+
+namespace pp5::harness {
+
+namespace {
+
+using nlohmann::json;
+
+std::vector<double> numbers(const json& j, const std::string& what) {
+  if (!j.is_array()) throw InputError(fmt::format("census: {} is not a list", what));
+  std::vector<double> v;
+  v.reserve(j.size());
+  for (const json& x : j) v.push_back(x.get<double>());
+  return v;
+}
+
+// Layers [lo, hi) of a per-layer list, clipped.
+double sumLayers(const std::vector<double>& v, std::int64_t lo, std::int64_t hi) {
+  lo = std::clamp<std::int64_t>(lo, 0, static_cast<std::int64_t>(v.size()));
+  hi = std::clamp<std::int64_t>(hi, lo, static_cast<std::int64_t>(v.size()));
+  return std::accumulate(v.begin() + lo, v.begin() + hi, 0.0);
+}
+
+// Least squares with non-negative coefficients (an active set: the most
+// negative coefficient leaves, and the rest is fitted again).
+Eigen::VectorXd fitNonNegative(const Eigen::MatrixXd& a, const Eigen::VectorXd& b) {
+  const auto n = a.cols();
+  std::vector<bool> on(static_cast<std::size_t>(n), true);
+  Eigen::VectorXd x = Eigen::VectorXd::Zero(n);
+  for (Eigen::Index round = 0; round <= n; ++round) {
+    std::vector<Eigen::Index> cols;
+    for (Eigen::Index i = 0; i < n; ++i)
+      if (on[static_cast<std::size_t>(i)]) cols.push_back(i);
+    if (cols.empty()) break;
+    Eigen::MatrixXd sub(a.rows(), static_cast<Eigen::Index>(cols.size()));
+    for (std::size_t k = 0; k < cols.size(); ++k) sub.col(static_cast<Eigen::Index>(k)) = a.col(cols[k]);
+    // Columns scaled to unit norm, so that voxels (1e8) and frames (1e2) weigh alike.
+    Eigen::VectorXd scale(sub.cols());
+    for (Eigen::Index k = 0; k < sub.cols(); ++k) {
+      scale(k) = sub.col(k).norm();
+      if (scale(k) > 0) sub.col(k) /= scale(k);
+    }
+    Eigen::VectorXd y = sub.colPivHouseholderQr().solve(b);
+    x.setZero();
+    Eigen::Index worst = -1;
+    double worstValue = 0.0;
+    for (std::size_t k = 0; k < cols.size(); ++k) {
+      const auto kk = static_cast<Eigen::Index>(k);
+      const double v = scale(kk) > 0 ? y(kk) / scale(kk) : 0.0;
+      x(cols[k]) = v;
+      if (v < worstValue) {
+        worstValue = v;
+        worst = cols[k];
+      }
+    }
+    if (worst < 0) return x;
+    on[static_cast<std::size_t>(worst)] = false;
+  }
+  x = x.cwiseMax(0.0);
+  return x;
+}
+
+}  // namespace
+
+const char* roleName(RankRole r) { return r == RankRole::Host ? "host" : r == RankRole::Gp ? "GP" : "PP"; }
+
+Census readCensus(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) throw InputError("census: cannot read " + path);
+  json j;
+  try {
+    in >> j;
+  } catch (const std::exception& e) {
+    throw InputError(fmt::format("census: {} is not JSON: {}", path, e.what()));
+  }
+  try {
+    if (j.value("schema", "") != "pp5echo-census-1")
+      throw InputError(fmt::format("census: {} is not a pp5echo census (schema pp5echo-census-1)", path));
+    Census c;
+    for (int a = 0; a < 3; ++a) c.dims[static_cast<std::size_t>(a)] = j.at("grid_dims").at(a).get<std::int64_t>();
+    c.width = j.at("image").at(0).get<int>();
+    c.height = j.at("image").at(1).get<int>();
+    c.binPx = j.at("bin_px").get<int>();
+    c.binsX = j.at("bins").at(0).get<int>();
+    c.binsY = j.at("bins").at(1).get<int>();
+    c.frames = j.at("frames").get<double>();
+    c.framePixelBytes = j.at("frame_pixel_bytes").get<double>();
+    for (int a = 0; a < 3; ++a) {
+      const auto ua = static_cast<std::size_t>(a);
+      c.recon[ua] = numbers(j.at("recon_voxels_by_layer").at(ua), "recon_voxels_by_layer");
+      c.shaded[ua] = numbers(j.at("shaded_voxels_by_layer").at(ua), "shaded_voxels_by_layer");
+      c.samples[ua] = numbers(j.at("samples_by_bin_and_cell_layer").at(ua), "samples_by_bin_and_cell_layer");
+      const auto cells = std::max<std::int64_t>(1, c.dims[ua] - 1);
+      if (static_cast<std::int64_t>(c.recon[ua].size()) != c.dims[ua] ||
+          static_cast<std::int64_t>(c.samples[ua].size()) != cells * c.binsX * c.binsY)
+        throw InputError(fmt::format("census: {}: the lists of axis {} do not match the grid", path, a));
+    }
+    for (const json& r : j.at("frame_dirty_ranges")) {
+      std::array<std::int64_t, 6> v{};
+      for (std::size_t i = 0; i < 6; ++i) v[i] = r.at(i).get<std::int64_t>();
+      c.frameRanges.push_back(v);
+    }
+    for (const json& f : j.at("dirty_voxels_by_footprint"))
+      c.footprints.push_back({f.at(0).get<int>(), f.at(1).get<int>(), f.at(2).get<int>(), f.at(3).get<int>(),
+                              f.at(4).get<double>()});
+    if (c.frames < 1 || static_cast<double>(c.frameRanges.size()) != c.frames)
+      throw InputError(fmt::format("census: {}: no frames, or a dirty range count that is not the frame count", path));
+    return c;
+  } catch (const json::exception& e) {
+    throw InputError(fmt::format("census: {}: {}", path, e.what()));
+  }
+}
+
+std::vector<RankWork> rankWork(const Census& c, const Layout& l) {
+  if (l.tileSize % c.binPx != 0)
+    throw InputError(fmt::format("cost model: tile size {} is not a multiple of the census's {}-pixel bins",
+                                 l.tileSize, c.binPx));
+  const TileGrid tiles(c.width, c.height, l.tileSize);
+  const parallel::TileOwnership own = parallel::tileOwnershipFromName(l.owner);
+  const int binsPerTile = l.tileSize / c.binPx;
+  auto tileOfBin = [&](int bx, int by) { return (by / binsPerTile) * tiles.cols() + bx / binsPerTile; };
+  const std::size_t nBins = static_cast<std::size_t>(c.binsX * c.binsY);
+
+  std::vector<RankWork> ranks(static_cast<std::size_t>(l.ranks()));
+  RankWork& host = ranks[0];
+  host.role = RankRole::Host;
+  host.frames = c.frames;
+  const double totalRecon = sumLayers(c.recon[0], 0, c.dims[0]);
+  const bool slab = l.partition == "slab";
+  if (!slab && l.partition != "tile") throw InputError("cost model: unknown partition " + l.partition);
+
+  Grid grid;
+  grid.dims = Index3(c.dims[0], c.dims[1], c.dims[2]);
+  const parallel::SlabLayout slabs(grid, l.gps, parallel::SlabSplit::Longest);
+  // The axis the slabs cut (the first with more than one part; x for one GP).
+  int axis = 0;
+  for (int a = 0; a < 3; ++a)
+    if (slabs.parts()[a] > 1) axis = a;
+  const auto ua = static_cast<std::size_t>(axis);
+  const std::int64_t cells = std::max<std::int64_t>(1, c.dims[ua] - 1);
+  const std::int64_t cells0 = std::max<std::int64_t>(1, c.dims[0] - 1);  // the x axis, for screen sums
+
+  for (int g = 0; g < l.gps; ++g) {
+    RankWork& w = ranks[static_cast<std::size_t>(1 + g)];
+    w.role = RankRole::Gp;
+    w.frames = c.frames;
+    if (slab) {
+      const auto& owned = slabs.ownedCells(g);
+      const std::int64_t lo = owned.lo[axis], hi = owned.hi[axis];  // cells [lo, hi)
+      if (hi <= lo) continue;                                       // owns nothing
+      // Its window: the voxels of its cells and a ghost layer on each side.
+      w.reconVoxels = sumLayers(c.recon[ua], lo - 1, hi + 2);
+      w.scanVoxels = sumLayers(c.recon[ua], lo, hi + 1);
+      for (std::size_t b = 0; b < nBins; ++b)
+        w.samples += std::accumulate(c.samples[ua].begin() + static_cast<std::ptrdiff_t>(b * cells + lo),
+                                     c.samples[ua].begin() + static_cast<std::ptrdiff_t>(b * cells + hi), 0.0);
+      for (const auto& r : c.frameRanges)
+        if (r[2 * ua + 1] > r[2 * ua] && r[2 * ua] < hi + 2 && r[2 * ua + 1] > lo - 1) ++w.pixelFrames;
+    } else {
+      w.reconVoxels = totalRecon;
+      w.pixelFrames = c.frames;
+      for (const Census::Footprint& f : c.footprints) {
+        bool seen = false;
+        for (int by = f.y0; by <= f.y1 && !seen; ++by)
+          for (int bx = f.x0; bx <= f.x1 && !seen; ++bx)
+            seen = parallel::tileOwner(tileOfBin(bx, by), tiles.count(), l.gps, own) == g;
+        if (seen) w.scanVoxels += f.voxels;
+      }
+      for (int by = 0; by < c.binsY; ++by)
+        for (int bx = 0; bx < c.binsX; ++bx) {
+          if (parallel::tileOwner(tileOfBin(bx, by), tiles.count(), l.gps, own) != g) continue;
+          const std::size_t b = static_cast<std::size_t>(by * c.binsX + bx);
+          w.samples += std::accumulate(c.samples[0].begin() + static_cast<std::ptrdiff_t>(b * cells0),
+                                       c.samples[0].begin() + static_cast<std::ptrdiff_t>((b + 1) * cells0), 0.0);
+        }
+    }
+    w.pixelBytes = w.pixelFrames * c.framePixelBytes;
+    host.pixelFrames += w.pixelFrames;
+  }
+  host.pixelBytes = host.pixelFrames * c.framePixelBytes;
+  for (int p = 0; p < l.pps; ++p) {
+    RankWork& w = ranks[static_cast<std::size_t>(1 + l.gps + p)];
+    w.role = RankRole::Pp;
+    for (int by = 0; by < c.binsY; ++by)
+      for (int bx = 0; bx < c.binsX; ++bx) {
+        if (parallel::tileOwner(tileOfBin(bx, by), tiles.count(), l.pps, own) != p) continue;
+        const std::size_t b = static_cast<std::size_t>(by * c.binsX + bx);
+        w.samples += std::accumulate(c.samples[0].begin() + static_cast<std::ptrdiff_t>(b * cells0),
+                                     c.samples[0].begin() + static_cast<std::ptrdiff_t>((b + 1) * cells0), 0.0);
+        w.ownedTiles += 1.0 / static_cast<double>(nBins);
+      }
+  }
+  return ranks;
+}
+
+namespace {
+
+// A role's feature row for a rank of a layout (UnitCosts's order).
+std::vector<double> features(RankRole role, const RankWork& w, bool tcp, double bytes, double streamS) {
+  const double tcpBytes = tcp ? bytes : 0.0;
+  switch (role) {
+    case RankRole::Gp: return {w.frames, w.reconVoxels, w.scanVoxels, w.samples, tcpBytes};
+    case RankRole::Pp: return {w.samples, streamS * w.ownedTiles, streamS, tcpBytes};
+    case RankRole::Host: break;
+  }
+  return {w.frames, w.pixelBytes, tcpBytes};
+}
+
+// Bytes a rank moves (sent + received), from its work and the fitted sizes.
+double bytesOf(const RankWork& w, const UnitCosts& u, double streamS, const std::vector<RankWork>& all) {
+  switch (w.role) {
+    case RankRole::Gp: return w.pixelBytes + u.bytesPerSample * w.samples;
+    case RankRole::Pp: return u.bytesPerSample * w.samples + u.tileBytesPerS * streamS * w.ownedTiles;
+    case RankRole::Host: break;
+  }
+  double tiles = 0.0;
+  for (const RankWork& r : all)
+    if (r.role == RankRole::Pp) tiles += u.tileBytesPerS * streamS * r.ownedTiles;
+  return w.pixelBytes + tiles;
+}
+
+}  // namespace
+
+UnitCosts fitCosts(const Census& c, std::span<const Observation> obs) {
+  if (obs.empty()) throw InputError("cost model: no measured layout to fit");
+  UnitCosts u;
+  // The wire sizes first: bytes per sample from the GPs, tile bytes from the PPs.
+  double gpBytes = 0.0, gpSamples = 0.0, ppBytes = 0.0, ppScreenS = 0.0;
+  for (const Observation& o : obs) {
+    const std::vector<RankWork> w = rankWork(c, o.layout);
+    for (std::size_t r = 0; r < w.size() && r < o.bytesMoved.size(); ++r) {
+      if (w[r].role == RankRole::Gp) {
+        gpBytes += o.bytesMoved[r] - w[r].pixelBytes;
+        gpSamples += w[r].samples;
+      }
+    }
+    // A PP receives samples and sends tiles: what it moves beyond the samples is tiles.
+    for (std::size_t r = 0; r < w.size() && r < o.bytesMoved.size(); ++r)
+      if (w[r].role == RankRole::Pp) {
+        ppBytes += o.bytesMoved[r];
+        ppScreenS += o.streamS * w[r].ownedTiles;
+      }
+  }
+  u.bytesPerSample = gpSamples > 0 ? std::max(0.0, gpBytes / gpSamples) : 0.0;
+  double ppSampleBytes = 0.0;
+  for (const Observation& o : obs)
+    for (const RankWork& w : rankWork(c, o.layout))
+      if (w.role == RankRole::Pp) ppSampleBytes += u.bytesPerSample * w.samples;
+  u.tileBytesPerS = ppScreenS > 0 ? std::max(0.0, (ppBytes - ppSampleBytes) / ppScreenS) : 0.0;
+
+  for (const RankRole role : {RankRole::Host, RankRole::Gp, RankRole::Pp}) {
+    std::vector<std::vector<double>> rows;
+    std::vector<double> y;
+    for (const Observation& o : obs) {
+      const std::vector<RankWork> w = rankWork(c, o.layout);
+      if (o.cpuS.size() != w.size())
+        throw InputError(fmt::format("cost model: {} reports {} ranks, the layout has {}", o.layout.name(),
+                                     o.cpuS.size(), w.size()));
+      for (std::size_t r = 0; r < w.size(); ++r)
+        if (w[r].role == role) {
+          rows.push_back(features(role, w[r], o.layout.tcp, r < o.bytesMoved.size() ? o.bytesMoved[r] : 0.0,
+                                  o.streamS));
+          y.push_back(o.cpuS[r]);
+        }
+    }
+    const auto ri = static_cast<std::size_t>(role);
+    if (rows.empty()) continue;
+    Eigen::MatrixXd a(static_cast<Eigen::Index>(rows.size()), static_cast<Eigen::Index>(rows[0].size()));
+    Eigen::VectorXd b(static_cast<Eigen::Index>(rows.size()));
+    for (std::size_t i = 0; i < rows.size(); ++i) {
+      for (std::size_t k = 0; k < rows[i].size(); ++k)
+        a(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(k)) = rows[i][k];
+      b(static_cast<Eigen::Index>(i)) = y[i];
+    }
+    const Eigen::VectorXd x = fitNonNegative(a, b);
+    u.rmsResidualS[ri] = std::sqrt((a * x - b).squaredNorm() / static_cast<double>(rows.size()));
+    for (Eigen::Index k = 0; k < x.size(); ++k) {
+      const auto kk = static_cast<std::size_t>(k);
+      if (role == RankRole::Gp) u.gp[kk] = x(k);
+      else if (role == RankRole::Pp) u.pp[kk] = x(k);
+      else u.host[kk] = x(k);
+    }
+    u.observations += rows.size();
+  }
+  return u;
+}
+
+Prediction predict(const Census& c, const Layout& l, const UnitCosts& u, int cores) {
+  const std::vector<RankWork> w = rankWork(c, l);
+  Prediction p;
+  p.rankCpuS.assign(w.size(), 0.0);
+  p.rankBytes.assign(w.size(), 0.0);
+  // The PPs' tick work grows with the stream's length: a few rounds settle it.
+  double streamS = 1.0;
+  for (int round = 0; round < 100; ++round) {
+    for (std::size_t r = 0; r < w.size(); ++r) {
+      const double bytes = bytesOf(w[r], u, streamS, w);
+      p.rankBytes[r] = bytes;
+      const std::vector<double> f = features(w[r].role, w[r], l.tcp, bytes, streamS);
+      const double* k = w[r].role == RankRole::Gp ? u.gp.data() : w[r].role == RankRole::Pp ? u.pp.data() : u.host.data();
+      double s = 0.0;
+      for (std::size_t i = 0; i < f.size(); ++i) s += k[i] * f[i];
+      p.rankCpuS[r] = s;
+    }
+    const double sum = std::accumulate(p.rankCpuS.begin(), p.rankCpuS.end(), 0.0);
+    const auto it = std::max_element(p.rankCpuS.begin(), p.rankCpuS.end());
+    p.busiest = static_cast<int>(it - p.rankCpuS.begin());
+    const double byCores = sum / std::max(1, std::min(cores, l.ranks()));
+    p.coreBound = byCores > *it;
+    const double next = std::max(byCores, *it);
+    if (std::abs(next - streamS) <= 1e-12 * next) {
+      streamS = next;
+      break;
+    }
+    streamS = next;
+  }
+  p.streamS = streamS;
+  p.framesPerS = streamS > 0 ? c.frames / streamS : 0.0;
+  return p;
+}
+
+double clusterFramesPerS(const Census& c, const Prediction& p, double bytesPerS) {
+  double worst = 0.0;
+  for (std::size_t r = 0; r < p.rankCpuS.size(); ++r)
+    worst = std::max(worst, p.rankCpuS[r] + (bytesPerS > 0 ? p.rankBytes[r] / bytesPerS : 0.0));
+  return worst > 0 ? c.frames / worst : 0.0;
+}
+
+}  // namespace pp5::harness
