@@ -264,8 +264,8 @@ int runCostModel(const CostModelRun& run) {
     const std::string busiest =
         p.rankCpuS.empty() ? "-"
                            : fmt::format("rank {} ({})", p.busiest, p.coreBound ? fmt::format("{} cores", cores) : "rank");
-    const double cs = clusterFramesPerS(census, p, shm.bytesPerS), ct = clusterFramesPerS(census, p, tcp.bytesPerS),
-                 ce = clusterFramesPerS(census, p, k10GbE);
+    const double cs = clusterRate(census, p, shm.bytesPerS).framesPerS,
+                 ct = clusterRate(census, p, tcp.bytesPerS).framesPerS, ce = clusterRate(census, p, k10GbE).framesPerS;
     const double measured = x.framesPerS();
     const std::string meas = x.ok() ? fmt::format("{:.1f} ({})", measured, x.runsText()) : "failed";
     m << fmt::format("| {} | {} | {} | {} | {:.1f} | {} | {} | {:.0f} | {:.0f} | {:.0f} |\n", x.layout.name(),
@@ -287,18 +287,23 @@ int runCostModel(const CostModelRun& run) {
 
   // Larger layouts, never run: one rank per core on nodes of 16 cores.
   m << "What one rank per core would sustain on a cluster (predicted, never run; nodes of 16 cores, every link "
-       "taken as the network's):\n\n| layout | ranks | nodes | busiest rank CPU ms/frame | frames/s, TCP link | "
-       "frames/s, 10 GbE |\n|---|---:|---:|---:|---:|---:|\n";
+       "taken as the network's; the limit: the rank whose CPU and bytes take longest):\n\n| layout | ranks | nodes | "
+       "busiest rank CPU ms/frame | frames/s, TCP link (limit) | frames/s, 10 GbE (limit) |\n|---|---:|---:|---:|---:|---:|\n";
   std::printf("cost model: one rank per core on a cluster (predicted):\n");
   for (const auto& [g, p] : std::vector<std::pair<int, int>>{{6, 1}, {12, 3}, {24, 7}, {48, 15}, {96, 31}})
     for (const char* part : {"slab", "tile"}) {
       const Layout l = makeLayout(g, p, part);
       Prediction pr = predict(census, l, u, l.ranks());
       const double worst = *std::max_element(pr.rankCpuS.begin(), pr.rankCpuS.end());
-      const double ft = clusterFramesPerS(census, pr, tcp.bytesPerS), fe = clusterFramesPerS(census, pr, k10GbE);
-      m << fmt::format("| {} | {} | {} | {:.2f} | {:.0f} | {:.0f} |\n", l.name(), l.ranks(), (l.ranks() + 15) / 16,
-                       1e3 * worst / census.frames, ft, fe);
-      std::printf("  %-28s %3d ranks: %.0f frames/s over TCP, %.0f over 10 GbE\n", l.name().c_str(), l.ranks(), ft, fe);
+      const ClusterRate ft = clusterRate(census, pr, tcp.bytesPerS), fe = clusterRate(census, pr, k10GbE);
+      const std::vector<RankWork> w = rankWork(census, l);
+      auto limit = [&](const ClusterRate& r) {
+        return fmt::format("{:.0f} ({} {})", r.framesPerS, roleName(w[static_cast<std::size_t>(r.limit)].role), r.limit);
+      };
+      m << fmt::format("| {} | {} | {} | {:.2f} | {} | {} |\n", l.name(), l.ranks(), (l.ranks() + 15) / 16,
+                       1e3 * worst / census.frames, limit(ft), limit(fe));
+      std::printf("  %-28s %3d ranks: %s frames/s over TCP, %s over 10 GbE\n", l.name().c_str(), l.ranks(),
+                  limit(ft).c_str(), limit(fe).c_str());
     }
   m.close();
   c.close();

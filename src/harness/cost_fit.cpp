@@ -333,11 +333,18 @@ Prediction predict(const Census& c, const Layout& l, const UnitCosts& u, int cor
   return p;
 }
 
-double clusterFramesPerS(const Census& c, const Prediction& p, double bytesPerS) {
+ClusterRate clusterRate(const Census& c, const Prediction& p, double bytesPerS) {
+  ClusterRate out;
   double worst = 0.0;
-  for (std::size_t r = 0; r < p.rankCpuS.size(); ++r)
-    worst = std::max(worst, p.rankCpuS[r] + (bytesPerS > 0 ? p.rankBytes[r] / bytesPerS : 0.0));
-  return worst > 0 ? c.frames / worst : 0.0;
+  for (std::size_t r = 0; r < p.rankCpuS.size(); ++r) {
+    const double s = p.rankCpuS[r] + (bytesPerS > 0 ? p.rankBytes[r] / bytesPerS : 0.0);
+    if (s > worst) {
+      worst = s;
+      out.limit = static_cast<int>(r);
+    }
+  }
+  out.framesPerS = worst > 0 ? c.frames / worst : 0.0;
+  return out;
 }
 
 }  // namespace pp5::harness

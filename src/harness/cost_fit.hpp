@@ -96,8 +96,12 @@ struct Prediction {
 // This machine: `cores` cores shared by every rank.
 Prediction predict(const Census& c, const Layout& l, const UnitCosts& u, int cores);
 // One rank per core (any number of nodes): each rank's CPU plus its bytes over
-// a link of `bytesPerS`, not overlapped; frames/s.
-double clusterFramesPerS(const Census& c, const Prediction& p, double bytesPerS);
+// a link of `bytesPerS`, not overlapped; frames/s and the rank that sets them.
+struct ClusterRate {
+  double framesPerS = 0.0;
+  int limit = 0;
+};
+ClusterRate clusterRate(const Census& c, const Prediction& p, double bytesPerS);
 
 const char* roleName(RankRole r);
 
