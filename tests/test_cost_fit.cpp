@@ -17,6 +17,7 @@
 #include "serial/serial_pipeline.hpp"
 #include "serial/work_census.hpp"
 #include "sim/simulate.hpp"
+#include "sweep_test_util.hpp"
 
 namespace {
 
@@ -27,17 +28,8 @@ double sum(const std::vector<double>& v) { return std::accumulate(v.begin(), v.e
 
 // A small doll sweep through the serial pipeline with a census.
 TEST(WorkCensus, CountsWhatTheSerialPipelineDid) {
-  sim::SimSettings ss;
-  ss.phantom = sim::PhantomKind::Doll;
-  ss.probe.widthPx = 64;
-  ss.probe.heightPx = 100;
-  ss.sweep.captureIntervalMm = 4.0;
-  ss.sweep.lengthMm = 60.0;
-  ss.threads = 2;
-  const sim::SweepSimulator sim(ss);
-  std::vector<Mat4> poses;
-  for (std::size_t i = 0; i < sim.frameCount(); ++i) poses.push_back(sim.imageToReference(i));
-  const Grid g = sim::fitGrid(poses, sim.probe().width, sim.probe().height, Vec3(2.0), 2.0);
+  const sim::SweepSimulator sim(test::smallDollSweep());
+  const auto [poses, g] = test::sweepGrid(sim);
   serial::PipelineSettings ps;
   ps.render.width = 96;
   ps.render.height = 64;

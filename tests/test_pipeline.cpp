@@ -11,6 +11,7 @@
 
 #include "serial/serial_pipeline.hpp"
 #include "sim/simulate.hpp"
+#include "sweep_test_util.hpp"
 
 namespace {
 
@@ -31,18 +32,9 @@ class IncrementalEqualsFull : public ::testing::TestWithParam<Case> {};
 // A short doll sweep with small frames, into a 2 mm grid, shown at 96x80.
 TEST_P(IncrementalEqualsFull, AfterEveryFrame) {
   const Case c = GetParam();
-  sim::SimSettings ss;
-  ss.phantom = pp5::sim::PhantomKind::Doll;
-  ss.probe.widthPx = 64;
-  ss.probe.heightPx = 100;
-  ss.sweep.captureIntervalMm = 4.0;
-  ss.sweep.lengthMm = 60.0;
-  ss.threads = 2;
-  const sim::SweepSimulator sim(ss);
+  const sim::SweepSimulator sim(test::smallDollSweep());
   ASSERT_GE(sim.frameCount(), 8u);
-  std::vector<Mat4> poses;
-  for (std::size_t i = 0; i < sim.frameCount(); ++i) poses.push_back(sim.imageToReference(i));
-  const Grid g = sim::fitGrid(poses, sim.probe().width, sim.probe().height, Vec3(2.0), 2.0);
+  const auto [poses, g] = test::sweepGrid(sim);
 
   serial::PipelineSettings ps;
   ps.render.width = 96;

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <fstream>
 #include <numeric>
+#include <tuple>
 
 #include <Eigen/Dense>
 #include <fmt/format.h>
@@ -153,6 +154,18 @@ std::vector<RankWork> rankWork(const Census& c, const Layout& l) {
   const auto ua = static_cast<std::size_t>(axis);
   const std::int64_t cells = std::max<std::int64_t>(1, c.dims[ua] - 1);
   const std::int64_t cells0 = std::max<std::int64_t>(1, c.dims[0] - 1);  // the x axis, for screen sums
+  // The samples in the tiles `owner` of `owners` holds, and its share of the screen.
+  auto samplesOfOwner = [&](int owners, int owner) {
+    double samples = 0.0, share = 0.0;
+    for (int by = 0; by < c.binsY; ++by)
+      for (int bx = 0; bx < c.binsX; ++bx) {
+        if (parallel::tileOwner(tileOfBin(bx, by), tiles.count(), owners, own) != owner) continue;
+        const auto b = static_cast<std::ptrdiff_t>(by * c.binsX + bx);
+        samples += std::accumulate(c.samples[0].begin() + b * cells0, c.samples[0].begin() + (b + 1) * cells0, 0.0);
+        share += 1.0 / static_cast<double>(nBins);
+      }
+    return std::pair{samples, share};
+  };
 
   for (int g = 0; g < l.gps; ++g) {
     RankWork& w = ranks[static_cast<std::size_t>(1 + g)];
@@ -180,13 +193,7 @@ std::vector<RankWork> rankWork(const Census& c, const Layout& l) {
             seen = parallel::tileOwner(tileOfBin(bx, by), tiles.count(), l.gps, own) == g;
         if (seen) w.scanVoxels += f.voxels;
       }
-      for (int by = 0; by < c.binsY; ++by)
-        for (int bx = 0; bx < c.binsX; ++bx) {
-          if (parallel::tileOwner(tileOfBin(bx, by), tiles.count(), l.gps, own) != g) continue;
-          const std::size_t b = static_cast<std::size_t>(by * c.binsX + bx);
-          w.samples += std::accumulate(c.samples[0].begin() + static_cast<std::ptrdiff_t>(b * cells0),
-                                       c.samples[0].begin() + static_cast<std::ptrdiff_t>((b + 1) * cells0), 0.0);
-        }
+      w.samples = samplesOfOwner(l.gps, g).first;
     }
     w.pixelBytes = w.pixelFrames * c.framePixelBytes;
     host.pixelFrames += w.pixelFrames;
@@ -195,14 +202,7 @@ std::vector<RankWork> rankWork(const Census& c, const Layout& l) {
   for (int p = 0; p < l.pps; ++p) {
     RankWork& w = ranks[static_cast<std::size_t>(1 + l.gps + p)];
     w.role = RankRole::Pp;
-    for (int by = 0; by < c.binsY; ++by)
-      for (int bx = 0; bx < c.binsX; ++bx) {
-        if (parallel::tileOwner(tileOfBin(bx, by), tiles.count(), l.pps, own) != p) continue;
-        const std::size_t b = static_cast<std::size_t>(by * c.binsX + bx);
-        w.samples += std::accumulate(c.samples[0].begin() + static_cast<std::ptrdiff_t>(b * cells0),
-                                     c.samples[0].begin() + static_cast<std::ptrdiff_t>((b + 1) * cells0), 0.0);
-        w.ownedTiles += 1.0 / static_cast<double>(nBins);
-      }
+    std::tie(w.samples, w.ownedTiles) = samplesOfOwner(l.pps, p);
   }
   return ranks;
 }
