@@ -7,9 +7,13 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
+#include <fstream>
+#include <functional>
 #include <numeric>
 #include <string>
 #include <vector>
+
+#include <nlohmann/json.hpp>
 
 #include "core/error.hpp"
 #include "harness/cost_fit.hpp"
@@ -49,6 +53,21 @@ TEST(WorkCensus, CountsWhatTheSerialPipelineDid) {
   const std::string path = (std::filesystem::temp_directory_path() / "pp5_test_census.json").string();
   census.write(path);
   const Census c = readCensus(path);
+  // A census whose bins do not agree with its image, or with a footprint out of its bins, is refused.
+  {
+    std::ifstream in(path);
+    const nlohmann::json good = nlohmann::json::parse(in);
+    auto refused = [&](const char* what, const std::function<void(nlohmann::json&)>& spoil) {
+      nlohmann::json bad = good;
+      spoil(bad);
+      std::ofstream(path) << bad.dump();
+      EXPECT_THROW(readCensus(path), InputError) << what;
+    };
+    refused("bin_px 0", [](nlohmann::json& j) { j["bin_px"] = 0; });
+    refused("bins", [](nlohmann::json& j) { j["bins"][0] = 7; });
+    refused("footprint", [](nlohmann::json& j) { j["dirty_voxels_by_footprint"].push_back({0, 0, 9, 0, 1.0}); });
+    refused("schema", [](nlohmann::json& j) { j["schema"] = "other"; });
+  }
   std::filesystem::remove(path);
   EXPECT_EQ(c.frames, static_cast<double>(sim.frameCount()));
   EXPECT_EQ(c.binsX, 3);

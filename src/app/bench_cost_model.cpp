@@ -24,6 +24,8 @@
 #include "core/io_util.hpp"
 #include "harness/child_process.hpp"
 #include "harness/cost_fit.hpp"
+#include "parallel/parallel_settings.hpp"
+#include "gp/reconstruction.hpp"
 
 namespace pp5::app {
 
@@ -35,7 +37,7 @@ using nlohmann::json;
 
 // The workload's settings, before the user's --set.
 const std::vector<std::string> kWorkload = {"sim.sweep.capture_interval_mm=0.5", "parallel.batch_frames=1",
-                                            "run.script=[]", "run.pace_fps=0"};
+                                            "run.script=[]", "run.pace_fps=0", "parallel.composite_on=\"tick\""};
 
 // One layout's runs (run.repeats of them, taken round-robin with the other
 // layouts of its set, so that the machine's drift spreads over all).
@@ -117,7 +119,7 @@ void runLayout(const CostModelRun& run, const std::vector<std::string>& override
     o.layout = m.layout;
     for (const json& k : s.at("per_rank")) {
       o.cpuS.push_back(k.at("stream_cpu_s").get<double>());
-      o.bytesMoved.push_back(k.at("bytes_sent").get<double>() + k.at("bytes_received").get<double>());
+      o.bytesMoved.push_back(k.at("stream_bytes").get<double>());
     }
     o.framesPerS = s.at("frames_per_s_in").get<double>();
     o.streamS = o.framesPerS > 0 ? s.at("frames").get<double>() / o.framesPerS : 0.0;
@@ -164,6 +166,11 @@ int runCostModel(const CostModelRun& run) {
   registerAll(schema, s);
   loadSettings(schema, run.file, overrides);
   const int cores = std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
+  // rankWork splits work as these settings do; refuse the others rather than mispredict.
+  if (s.parallel.split() != parallel::SlabSplit::Longest || s.parallel.ghostVoxels != 1 ||
+      s.recon.method != gp::Method::Tent)
+    throw InputError("cost model: it splits work as parallel.slab_split = \"longest\", parallel.ghost_voxels = 1 and "
+                     "recon.method = \"tent\" do; this configuration sets another");
 
   std::printf("cost model: simulating the sweep once (frames every 0.5 mm) into %s/sequence\n", run.outDir.c_str());
   std::fflush(stdout);
@@ -205,6 +212,7 @@ int runCostModel(const CostModelRun& run) {
     obs.insert(obs.end(), m.runs.begin(), m.runs.end());
     fitted += m.ok() ? 1 : 0;
   }
+  if (run.stop && *run.stop) return 130;
   if (fitted < 3) throw InputError("cost model: fewer than 3 fit layouts ran; nothing to fit");
   const UnitCosts u = fitCosts(census, obs);
   std::printf("cost model: fitted on %zu ranks of %zu runs; per-unit CPU (ns): GP frame %.0f, reconstructed voxel "
@@ -255,7 +263,8 @@ int runCostModel(const CostModelRun& run) {
   m << "Frames/s: measured on this machine, and predicted from the census and the fitted costs before the layout ran "
        "(the stream lasts as long as the busiest rank's CPU or every rank's CPU over the cores, whichever is longer). "
        "Cluster: one rank per core, each rank's CPU plus its bytes over the link (not overlapped), for the measured "
-       "shared-memory and TCP ping-pong and for 10 Gb/s Ethernet.\n\n";
+       "shared-memory ping-pong, and over TCP (its per-byte CPU included) for the measured TCP ping-pong and for 10 "
+       "Gb/s Ethernet.\n\n";
   m << "| layout | set | ranks | measured: median (runs) | predicted | error | busiest (bound) | cluster, shm link | cluster, TCP link "
        "| cluster, 10 GbE |\n|---|---|---:|---:|---:|---:|---|---:|---:|---:|\n";
   int within = 0, predicted = 0;
@@ -264,13 +273,19 @@ int runCostModel(const CostModelRun& run) {
     const std::string busiest =
         p.rankCpuS.empty() ? "-"
                            : fmt::format("rank {} ({})", p.busiest, p.coreBound ? fmt::format("{} cores", cores) : "rank");
-    const double cs = clusterRate(census, p, shm.bytesPerS).framesPerS,
-                 ct = clusterRate(census, p, tcp.bytesPerS).framesPerS, ce = clusterRate(census, p, k10GbE).framesPerS;
+    // One rank per core, over shared memory or over TCP (whose bytes cost CPU too).
+    Layout viaShm = x.layout, viaTcp = x.layout;
+    viaShm.tcp = false;
+    viaTcp.tcp = true;
+    const Prediction ps = predict(census, viaShm, u, x.layout.ranks()), pt = predict(census, viaTcp, u, x.layout.ranks());
+    const double cs = clusterRate(census, ps, shm.bytesPerS).framesPerS,
+                 ct = clusterRate(census, pt, tcp.bytesPerS).framesPerS, ce = clusterRate(census, pt, k10GbE).framesPerS;
     const double measured = x.framesPerS();
     const std::string meas = x.ok() ? fmt::format("{:.1f} ({})", measured, x.runsText()) : "failed";
-    m << fmt::format("| {} | {} | {} | {} | {:.1f} | {} | {} | {:.0f} | {:.0f} | {:.0f} |\n", x.layout.name(),
+    m << fmt::format("| {} | {} | {} | {} | {:.1f}{} | {} | {} | {:.0f} | {:.0f} | {:.0f} |\n", x.layout.name(),
                      x.fit ? "fit" : "predicted", x.layout.ranks(), meas, p.framesPerS,
-                     x.ok() ? pct(p.framesPerS, measured) : "-", busiest, cs, ct, ce);
+                     p.converged ? "" : " (did not settle)", x.ok() ? pct(p.framesPerS, measured) : "-", busiest, cs,
+                     ct, ce);
     c << fmt::format("{},{},{},{},{},{:.2f},{},{},{},{:.1f},{:.1f},{:.1f}\n", x.layout.name(),
                      x.fit ? "fit" : "predicted", x.layout.ranks(), x.runs.size(),
                      x.ok() ? fmt::format("{:.2f}", measured) : "", p.framesPerS,
@@ -286,14 +301,15 @@ int runCostModel(const CostModelRun& run) {
   m << fmt::format("\n**{} of {} predicted layouts within 25% of the measured frames/s.**\n\n", within, predicted);
 
   // Larger layouts, never run: one rank per core on nodes of 16 cores.
-  m << "What one rank per core would sustain on a cluster (predicted, never run; nodes of 16 cores, every link "
-       "taken as the network's; the limit: the rank whose CPU and bytes take longest):\n\n| layout | ranks | nodes | "
+  m << "What one rank per core would sustain on a cluster (predicted, never run; over TCP, its per-byte CPU "
+       "included; nodes of 16 cores, every link taken as the network's; the limit: the rank whose CPU and bytes take "
+       "longest):\n\n| layout | ranks | nodes | "
        "busiest rank CPU ms/frame | frames/s, TCP link (limit) | frames/s, 10 GbE (limit) |\n|---|---:|---:|---:|---:|---:|\n";
   std::printf("cost model: one rank per core on a cluster (predicted):\n");
   for (const auto& [g, p] : std::vector<std::pair<int, int>>{{6, 1}, {12, 3}, {24, 7}, {48, 15}, {96, 31}})
     for (const char* part : {"slab", "tile"}) {
-      const Layout l = makeLayout(g, p, part);
-      Prediction pr = predict(census, l, u, l.ranks());
+      const Layout l = tcpOf(makeLayout(g, p, part));  // a cluster's network: TCP, whose bytes cost CPU
+      const Prediction pr = predict(census, l, u, l.ranks());
       const double worst = *std::max_element(pr.rankCpuS.begin(), pr.rankCpuS.end());
       const ClusterRate ft = clusterRate(census, pr, tcp.bytesPerS), fe = clusterRate(census, pr, k10GbE);
       const std::vector<RankWork> w = rankWork(census, l);

@@ -226,6 +226,16 @@ void makePlots(const BenchOptions& o, const std::string& csv) {
 
 // ---- the bench -----------------------------------------------------------------------
 
+// mpirun from PATH and this program, which the bench's children run.
+std::pair<std::string, std::string> mpirunAndSelf() {
+  const std::string mpirun = findInPath("mpirun");
+  if (mpirun.empty()) throw InputError("bench: mpirun is not on PATH (install openmpi-bin)");
+  std::error_code ec;
+  const std::string exe = fs::read_symlink("/proc/self/exe", ec).string();
+  if (ec) throw InputError("bench: cannot find this program through /proc/self/exe");
+  return {mpirun, exe};
+}
+
 int runBench(BenchOptions o) {
   if (o.pingpong) return runPingPong();
   if (o.file.empty()) throw InputError("bench: give the workload's configuration, e.g. configs/bench.toml");
@@ -235,20 +245,8 @@ int runBench(BenchOptions o) {
   loadSettings(schema, o.file, o.overrides);
   if (o.outDir.empty()) o.outDir = s.output.dir;
 
-  std::vector<Layout> all = layouts(o.quick);
-  if (!o.only.empty())
-    std::erase_if(all, [&](const Layout& l) { return l.name().find(o.only) == std::string::npos; });
-  if (o.list) {
-    for (const Layout& l : all) std::printf("%s  (%d ranks)\n", l.name().c_str(), l.ranks());
-    return 0;
-  }
-  if (all.empty()) throw InputError(fmt::format("bench: no layout's name contains \"{}\"", o.only));
-  const std::string mpirun = findInPath("mpirun");
-  if (mpirun.empty()) throw InputError("bench: mpirun is not on PATH (install openmpi-bin)");
-  std::error_code ec;
-  const std::string exe = fs::read_symlink("/proc/self/exe", ec).string();
-  if (ec) throw InputError("bench: cannot find this program through /proc/self/exe");
   if (o.costModel) {
+    const auto [mpirun, exe] = mpirunAndSelf();
     std::signal(SIGINT, onBenchInterrupt);
     std::signal(SIGTERM, onBenchInterrupt);
     CostModelRun run;
@@ -263,6 +261,17 @@ int runBench(BenchOptions o) {
     run.repeats = o.repeats > 0 ? o.repeats : (o.quick ? 1 : 3);
     return runCostModel(run);
   }
+
+  std::vector<Layout> all = layouts(o.quick);
+  if (!o.only.empty())
+    std::erase_if(all, [&](const Layout& l) { return l.name().find(o.only) == std::string::npos; });
+  if (o.list) {
+    for (const Layout& l : all) std::printf("%s  (%d ranks)\n", l.name().c_str(), l.ranks());
+    return 0;
+  }
+  if (all.empty()) throw InputError(fmt::format("bench: no layout's name contains \"{}\"", o.only));
+  const auto [mpirun, exe] = mpirunAndSelf();
+  std::error_code ec;
 
   makeOutputDir(o.outDir);
   std::signal(SIGINT, onBenchInterrupt);

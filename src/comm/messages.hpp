@@ -257,6 +257,7 @@ struct ReportMsg {
   double cpuS = 0.0;       // process CPU time (user + system)
   double wallS = 0.0;
   double streamCpuS = 0.0;  // of cpuS, what the stream of frames took (parallel::StreamCpu)
+  std::uint64_t streamBytes = 0;  // bytes sent and received meanwhile
   std::uint64_t bytesSent = 0, bytesReceived = 0, messagesSent = 0, messagesReceived = 0;
   std::uint64_t dropped = 0;  // messages of an older epoch dropped
   std::uint64_t memoryBytes = 0;  // the main buffers (grid, shade buffer, caches)

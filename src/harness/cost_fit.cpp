@@ -120,6 +120,12 @@ Census readCensus(const std::string& path) {
                               f.at(4).get<double>()});
     if (c.frames < 1 || static_cast<double>(c.frameRanges.size()) != c.frames)
       throw InputError(fmt::format("census: {}: no frames, or a dirty range count that is not the frame count", path));
+    if (c.binPx < 1 || c.width < 1 || c.height < 1 || c.binsX != (c.width + c.binPx - 1) / c.binPx ||
+        c.binsY != (c.height + c.binPx - 1) / c.binPx)
+      throw InputError(fmt::format("census: {}: its image, bin size and bin counts do not agree", path));
+    for (const Census::Footprint& f : c.footprints)
+      if (f.x0 < 0 || f.y0 < 0 || f.x0 > f.x1 || f.y0 > f.y1 || f.x1 >= c.binsX || f.y1 >= c.binsY)
+        throw InputError(fmt::format("census: {}: a footprint lies outside its {}x{} bins", path, c.binsX, c.binsY));
     return c;
   } catch (const json::exception& e) {
     throw InputError(fmt::format("census: {}: {}", path, e.what()));
@@ -147,7 +153,7 @@ std::vector<RankWork> rankWork(const Census& c, const Layout& l) {
   Grid grid;
   grid.dims = Index3(c.dims[0], c.dims[1], c.dims[2]);
   const parallel::SlabLayout slabs(grid, l.gps, parallel::SlabSplit::Longest);
-  // The axis the slabs cut (the first with more than one part; x for one GP).
+  // The axis the slabs cut (the one with more than one part; x for one GP).
   int axis = 0;
   for (int a = 0; a < 3; ++a)
     if (slabs.parts()[a] > 1) axis = a;
@@ -324,6 +330,7 @@ Prediction predict(const Census& c, const Layout& l, const UnitCosts& u, int cor
     const double next = std::max(byCores, *it);
     if (std::abs(next - streamS) <= 1e-12 * next) {
       streamS = next;
+      p.converged = true;
       break;
     }
     streamS = next;

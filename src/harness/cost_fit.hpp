@@ -55,14 +55,17 @@ struct RankWork {
   double ownedTiles = 0;    // PP: its share of the screen's tiles (0..1)
 };
 // Ranks in MPI order: the host, the GPs, the PPs. InputError for a layout the
-// census cannot split (a tile size that is not a multiple of its bins).
+// census cannot split (a tile size that is not a multiple of its bins). It
+// splits as parallel.slab_split = "longest", parallel.ghost_voxels = 1 and the
+// tent kernel do, and gives a slab GP the frames whose dirty range meets its
+// window (the host routes by the frame's reach, a little wider).
 std::vector<RankWork> rankWork(const Census& c, const Layout& l);
 
 // What one rank of a measured layout spent.
 struct Observation {
   Layout layout;
   std::vector<double> cpuS;        // per rank, the stream's CPU (summary.json's stream_cpu_s)
-  std::vector<double> bytesMoved;  // per rank, sent + received
+  std::vector<double> bytesMoved;  // per rank, sent + received during the stream (summary.json's stream_bytes)
   double streamS = 0.0;            // the stream's wall time (frames / frames_per_s_in)
   double framesPerS = 0.0;
 };
@@ -92,6 +95,9 @@ struct Prediction {
   double streamS = 0.0, framesPerS = 0.0;
   int busiest = 0;        // the rank with the most CPU
   bool coreBound = false;  // the cores, not one rank, set the pace
+  // false: the PPs' per-second costs grow faster than the stream (their
+  // fitted rates sum to a core or more), and no stream length settles them.
+  bool converged = false;
 };
 // This machine: `cores` cores shared by every rank.
 Prediction predict(const Census& c, const Layout& l, const UnitCosts& u, int cores);

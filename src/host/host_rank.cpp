@@ -285,7 +285,7 @@ private:
 
   // ---- frames and controls ---------------------------------------------
   void sendFrame(AcquiredFrame& a) {
-    streamCpu_.begin();
+    streamCpu_.begin(t_);
     waitCredits();
     clock_.start(kSend);
     const std::uint64_t k = sent_;
@@ -561,7 +561,7 @@ int HostRank::run() {
       if (sent_ == 0) firstSent = Clock::now();
       const std::uint64_t sourceIndex = a.frame.index;
       sendFrame(a);
-      streamCpu_.end();
+      streamCpu_.end(t_);
       const std::int64_t k = static_cast<std::int64_t>(sent_) - 1;
       if (lockstep) {
         waitImage(k);
@@ -812,9 +812,10 @@ void HostRank::writeSummary(double streamS, double totalS, std::uint64_t drops, 
     const ReportMsg& r = all[i];
     json += fmt::format("{}\n    {{\"rank\": {}, \"role\": \"{}\", \"cpu_s\": {:.4f}, \"wall_s\": {:.4f}, "
                         "\"bytes_sent\": {}, \"bytes_received\": {}, \"messages_sent\": {}, \"messages_received\": {}, "
-                        "\"dropped_messages\": {}, \"memory_bytes\": {}, \"stream_cpu_s\": {:.4f}",
+                        "\"dropped_messages\": {}, \"memory_bytes\": {}, \"stream_cpu_s\": {:.4f}, \"stream_bytes\": {}",
                         i ? "," : "", r.rank, roleName(static_cast<Role>(r.role)), r.cpuS, r.wallS, r.bytesSent,
-                        r.bytesReceived, r.messagesSent, r.messagesReceived, r.dropped, r.memoryBytes, r.streamCpuS);
+                        r.bytesReceived, r.messagesSent, r.messagesReceived, r.dropped, r.memoryBytes, r.streamCpuS,
+                        r.streamBytes);
     json += ", \"stage_ms\": {";
     for (int s = 0; s < kStageCount; ++s) json += fmt::format("{}\"{}\": {:.3f}", s ? ", " : "", stageName(s), r.total.ms[s]);
     json += "}}";

@@ -15,22 +15,33 @@ inline double processCpuSeconds() {
   return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
 }
 
-// The CPU a rank spends on the stream of frames, for the bench's cost model:
-// from the start of its work on the first frame to the end of its work on the
-// last, so that start-up and the final pass are left out. begin() marks the
-// start once; every end() moves the end.
+// The CPU a rank spends on the stream of frames, and the bytes it moves
+// meanwhile, for the bench's cost model: from the start of its work on the
+// first frame to the end of its work on the last, so that start-up and the
+// final pass are left out. begin() marks the start once; every end() moves
+// the end.
 class StreamCpu {
 public:
-  void begin() {
-    if (start_ < 0.0) start_ = processCpuSeconds();
+  void begin(const comm::Transport& t) {
+    if (start_ >= 0.0) return;
+    start_ = processCpuSeconds();
+    bytes0_ = moved(t);
   }
-  void end() {
-    if (start_ >= 0.0) end_ = processCpuSeconds();
+  void end(const comm::Transport& t) {
+    if (start_ < 0.0) return;
+    end_ = processCpuSeconds();
+    bytes1_ = moved(t);
   }
   double seconds() const { return end_ > start_ ? end_ - start_ : 0.0; }
+  std::uint64_t bytes() const { return bytes1_ > bytes0_ ? bytes1_ - bytes0_ : 0; }
 
 private:
+  static std::uint64_t moved(const comm::Transport& t) {
+    const comm::PeerCounters c = t.totals();
+    return c.bytesSent + c.bytesReceived;
+  }
   double start_ = -1.0, end_ = -1.0;
+  std::uint64_t bytes0_ = 0, bytes1_ = 0;
 };
 
 // Times stages of one update, and adds them to the run's totals.
@@ -78,6 +89,7 @@ inline comm::ReportMsg makeReport(const comm::Transport& t, Role role, const com
   r.total = total;
   r.cpuS = processCpuSeconds();
   r.streamCpuS = stream.seconds();
+  r.streamBytes = stream.bytes();
   r.wallS = wallS;
   const comm::PeerCounters c = t.totals();
   r.bytesSent = c.bytesSent;

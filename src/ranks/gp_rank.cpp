@@ -177,7 +177,7 @@ private:
   // reconstruction time; the batch's shading, sampling and samples are
   // counted on its last frame.
   void onFrames(const Message& first) {
-    streamCpu_.begin();
+    streamCpu_.begin(t_);
     std::vector<Header> frames;
     std::vector<std::uint64_t> dirtyOf;
     std::vector<StageTimes> times;
@@ -233,7 +233,7 @@ private:
     StageTimes t = times.back();
     for (int st = 0; st < kStageCount; ++st) t.ms[st] += update.ms[st];
     credit(last, false, samples, bytes, dirtyOf.back(), t, n);
-    streamCpu_.end();
+    streamCpu_.end(t_);
   }
 
   // One frame's reconstruction.

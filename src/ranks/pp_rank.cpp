@@ -123,7 +123,7 @@ private:
   Clock::time_point start_;
   StageClock clock_;
   StreamCpu streamCpu_;  // the stream of frames' CPU (cost model)
-  bool framePut_ = false;  // tick: a frame's samples were put since the last tick
+  bool framePut_ = false;  // tick: a frame's samples or update arrived since the last tick
   RenderSettings render_;
   ControlState state_;
   std::uint32_t epoch_ = 0;
@@ -248,12 +248,16 @@ private:
         q.pop_front();
         if (m.tag == kTagSamples) {
           if (!awaitingFull_) {
-            streamCpu_.begin();
+            streamCpu_.begin(t_);
             framePut_ = true;
           }
           put(m);
         } else {
           lastDone_[g] = std::max(lastDone_[g], static_cast<std::int64_t>(h.frame));
+          if (!m.as<GpDoneMsg>().full && !awaitingFull_) {
+            streamCpu_.begin(t_);  // a frame's update, even one with no samples for this PP
+            framePut_ = true;
+          }
           if (m.as<GpDoneMsg>().full && awaitingFull_ && ++fullDone_ == c_.layout.gps) {
             awaitingFull_ = false;
             fullComplete_ = true;
@@ -300,7 +304,7 @@ private:
     if (!dirty) return;
     compositeAndSend(static_cast<std::uint64_t>(std::max<std::int64_t>(complete, 0)), false);
     lastSent_ = complete;
-    if (framePut_) streamCpu_.end();  // a tick that showed frames' samples
+    if (framePut_) streamCpu_.end(t_);  // a tick that showed frames' samples
     framePut_ = false;
   }
 

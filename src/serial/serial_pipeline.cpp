@@ -137,7 +137,10 @@ FrameStats SerialPipeline::insert(const Frame& f, const Mat4& pose, double timeS
   st.fillInSlices = r.fillInSlices;
   st.dirtyBricks = r.dirty.bricks().size();
   st.dirtyVoxels = r.dirty.voxelCount();
-  if (r.dirty.empty()) return st;
+  if (r.dirty.empty()) {
+    if (census_) census_->addFrame(r.dirty, {}, gp_->lattice(), f.pixels.size());
+    return st;
+  }
 
   t = Clock::now();
   gp_->shadeChanged(r.dirty);

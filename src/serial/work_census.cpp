@@ -53,7 +53,10 @@ void WorkCensus::addFrame(const gp::DirtyRegion& dirty, const std::vector<gp::Bo
     std::array<int, 4> f{0, 0, bx_ - 1, by_ - 1};
     if (const auto p = gp::stencilFootprint(grid_, b, lattice.camera())) {
       if (p->x1 < 0 || p->y1 < 0 || p->x0 >= w_ || p->y0 >= h_) continue;  // off screen: no tile sees it
-      auto binOf = [&](double px, int n) { return std::clamp(static_cast<int>(std::max(0.0, px)) / bin_, 0, n - 1); };
+      // Clamped in double first: a corner near the eye's plane projects far out.
+      auto binOf = [&](double px, int n) {
+        return static_cast<int>(std::clamp(px, 0.0, static_cast<double>(n * bin_ - 1))) / bin_;
+      };
       f = {binOf(p->x0, bx_), binOf(p->y0, by_), binOf(p->x1, bx_), binOf(p->y1, by_)};
     }
     footprints_[f] += static_cast<double>(b.voxelCount());
