@@ -104,7 +104,7 @@ TEST(ViewerServer, ServesItsOwnFilesOnly) {
   EXPECT_EQ(get(s.port(), "/missing.html").first, 404);
   // Traversal, plain and encoded, never reaches a file outside the folder.
   const std::string secret = "pp5_secret_" + std::to_string(::getpid());
-  for (const std::string t : {"/../" + secret, "/css/../../" + secret, "/%2e%2e/" + secret, "/..%2f" + secret})
+  for (const std::string& t : {"/../" + secret, "/css/../../" + secret, "/%2e%2e/" + secret, "/..%2f" + secret})
     EXPECT_NE(get(s.port(), t).second, "secret") << t;
   EXPECT_EQ(get(s.port(), "/../" + secret).first, 400);
 }

@@ -42,6 +42,7 @@ const std::vector<std::string> kWorkload = {"sim.sweep.capture_interval_mm=0.5",
 // One layout's runs (run.repeats of them, taken round-robin with the other
 // layouts of its set, so that the machine's drift spreads over all).
 struct Measured {
+  Measured(const Layout& l, bool fitted) : layout(l), fit(fitted) {}
   Layout layout;
   bool fit = false;
   std::vector<Observation> runs;  // the runs that succeeded
@@ -201,8 +202,8 @@ int runCostModel(const CostModelRun& run) {
               reconTotal / census.frames, samplesTotal / census.frames);
 
   std::vector<Measured> fits, preds;
-  for (const Layout& l : fitLayouts(run.quick)) fits.push_back({l, true});
-  for (const Layout& l : predictLayouts(run.quick)) preds.push_back({l, false});
+  for (const Layout& l : fitLayouts(run.quick)) fits.emplace_back(l, true);
+  for (const Layout& l : predictLayouts(run.quick)) preds.emplace_back(l, false);
   const std::size_t total = (fits.size() + preds.size()) * static_cast<std::size_t>(run.repeats);
   std::size_t done = 0;
   runSet(run, overrides, seq, fits, done, total);
