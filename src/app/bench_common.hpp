@@ -12,8 +12,9 @@
 
 namespace pp5::app {
 
-// mpirun's arguments for Open MPI's TCP transport (none for the default, shared memory).
-std::vector<std::string> transportArgs(bool tcp);
+// `mpirun [--mca pml ob1 --mca btl tcp,self] -n RANKS`: Open MPI's TCP
+// transport, or the default (shared memory).
+std::vector<std::string> mpirunArgv(const std::string& mpirun, bool tcp, int ranks);
 // `mpirun [transport] -n N pp5echo run FILE -o DIR --expect-ranks N --set ...`
 // for layout l on `sequence` (baseline: no scripted view change).
 std::vector<std::string> layoutArgv(const std::string& mpirun, const std::string& exe, const std::string& file,

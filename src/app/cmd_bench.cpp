@@ -77,21 +77,20 @@ std::vector<std::string> serialArgv(const std::string& exe, const std::string& f
   return argv;
 }
 
-std::vector<std::string> transportArgs(bool tcp) {
-  if (!tcp) return {};
-  return {"--mca", "pml", "ob1", "--mca", "btl", "tcp,self"};
+std::vector<std::string> mpirunArgv(const std::string& mpirun, bool tcp, int ranks) {
+  std::vector<std::string> argv = {mpirun};
+  if (tcp) argv.insert(argv.end(), {"--mca", "pml", "ob1", "--mca", "btl", "tcp,self"});
+  argv.insert(argv.end(), {"-n", std::to_string(ranks)});
+  return argv;
 }
 
 std::vector<std::string> layoutArgv(const std::string& mpirun, const std::string& exe, const std::string& file,
                                     const std::vector<std::string>& overrides, const std::string& plusConfig,
                                     const Layout& l, const std::string& dir, const std::string& sequence,
                                     bool baseline) {
-  std::vector<std::string> argv = {mpirun};
-  for (const std::string& a : transportArgs(l.tcp)) argv.push_back(a);
-  for (const std::string& a : {std::string("-n"), std::to_string(l.ranks()), exe, std::string("run"),
-                               fs::absolute(file).string(), std::string("-o"), dir, std::string("--expect-ranks"),
-                               std::to_string(l.ranks())})
-    argv.push_back(a);
+  std::vector<std::string> argv = mpirunArgv(mpirun, l.tcp, l.ranks());
+  argv.insert(argv.end(), {exe, "run", fs::absolute(file).string(), "-o", dir, "--expect-ranks",
+                           std::to_string(l.ranks())});
   std::vector<std::string> sets = {
       "run.source=\"sequence\"", "run.sequence=" + tomlString(sequence), "run.plus_config=" + tomlString(plusConfig),
       fmt::format("parallel.gps={}", l.gps), fmt::format("parallel.pps={}", l.pps),
@@ -110,12 +109,8 @@ Bandwidth measureBandwidth(const std::string& mpirun, const std::string& exe, co
                            const std::atomic<bool>* stop) {
   Bandwidth b;
   const std::string log = (fs::path(dir) / (tcp ? "pingpong_tcp.log" : "pingpong.log")).string();
-  std::vector<std::string> argv = {mpirun};
-  for (const std::string& a : transportArgs(tcp)) argv.push_back(a);
-  for (const std::string a : {"-n", "2"}) argv.push_back(a);
-  argv.push_back(exe);
-  argv.push_back("bench");
-  argv.push_back("--pingpong");
+  std::vector<std::string> argv = mpirunArgv(mpirun, tcp, 2);
+  argv.insert(argv.end(), {exe, "bench", "--pingpong"});
   const ChildResult r = runChild(argv, log, 60.0, stop);
   std::ifstream in(log);
   for (std::string l; std::getline(in, l);) {

@@ -226,6 +226,12 @@ std::vector<double> features(RankRole role, const RankWork& w, bool tcp, double 
   return {w.frames, w.pixelBytes, tcpBytes};
 }
 
+// A role's costs, in features()'s order.
+double* costsOf(UnitCosts& u, RankRole role) {
+  return role == RankRole::Gp ? u.gp.data() : role == RankRole::Pp ? u.pp.data() : u.host.data();
+}
+const double* costsOf(const UnitCosts& u, RankRole role) { return costsOf(const_cast<UnitCosts&>(u), role); }
+
 // Bytes a rank moves (sent + received), from its work and the fitted sizes.
 double bytesOf(const RankWork& w, const UnitCosts& u, double streamS, const std::vector<RankWork>& all) {
   switch (w.role) {
@@ -243,47 +249,43 @@ double bytesOf(const RankWork& w, const UnitCosts& u, double streamS, const std:
 
 UnitCosts fitCosts(const Census& c, std::span<const Observation> obs) {
   if (obs.empty()) throw InputError("cost model: no measured layout to fit");
-  UnitCosts u;
-  // The wire sizes first: bytes per sample from the GPs, tile bytes from the PPs.
-  double gpBytes = 0.0, gpSamples = 0.0, ppBytes = 0.0, ppScreenS = 0.0;
+  // Each observation's work split, once; every rank measured.
+  std::vector<std::vector<RankWork>> work;
   for (const Observation& o : obs) {
-    const std::vector<RankWork> w = rankWork(c, o.layout);
-    for (std::size_t r = 0; r < w.size() && r < o.bytesMoved.size(); ++r) {
-      if (w[r].role == RankRole::Gp) {
-        gpBytes += o.bytesMoved[r] - w[r].pixelBytes;
-        gpSamples += w[r].samples;
+    work.push_back(rankWork(c, o.layout));
+    if (o.cpuS.size() != work.back().size() || o.bytesMoved.size() != work.back().size())
+      throw InputError(fmt::format("cost model: {} reports {} ranks, the layout has {}", o.layout.name(),
+                                   o.cpuS.size(), work.back().size()));
+  }
+  UnitCosts u;
+  // The wire sizes first: bytes per sample from the GPs (what they move beyond
+  // the frames' pixels), then tile bytes from the PPs (what they move beyond
+  // the samples).
+  double gpBytes = 0.0, gpSamples = 0.0, ppBytes = 0.0, ppSamples = 0.0, ppScreenS = 0.0;
+  for (std::size_t i = 0; i < obs.size(); ++i)
+    for (std::size_t r = 0; r < work[i].size(); ++r) {
+      const RankWork& w = work[i][r];
+      if (w.role == RankRole::Gp) {
+        gpBytes += obs[i].bytesMoved[r] - w.pixelBytes;
+        gpSamples += w.samples;
+      } else if (w.role == RankRole::Pp) {
+        ppBytes += obs[i].bytesMoved[r];
+        ppSamples += w.samples;
+        ppScreenS += obs[i].streamS * w.ownedTiles;
       }
     }
-    // A PP receives samples and sends tiles: what it moves beyond the samples is tiles.
-    for (std::size_t r = 0; r < w.size() && r < o.bytesMoved.size(); ++r)
-      if (w[r].role == RankRole::Pp) {
-        ppBytes += o.bytesMoved[r];
-        ppScreenS += o.streamS * w[r].ownedTiles;
-      }
-  }
   u.bytesPerSample = gpSamples > 0 ? std::max(0.0, gpBytes / gpSamples) : 0.0;
-  double ppSampleBytes = 0.0;
-  for (const Observation& o : obs)
-    for (const RankWork& w : rankWork(c, o.layout))
-      if (w.role == RankRole::Pp) ppSampleBytes += u.bytesPerSample * w.samples;
-  u.tileBytesPerS = ppScreenS > 0 ? std::max(0.0, (ppBytes - ppSampleBytes) / ppScreenS) : 0.0;
+  u.tileBytesPerS = ppScreenS > 0 ? std::max(0.0, (ppBytes - u.bytesPerSample * ppSamples) / ppScreenS) : 0.0;
 
   for (const RankRole role : {RankRole::Host, RankRole::Gp, RankRole::Pp}) {
     std::vector<std::vector<double>> rows;
     std::vector<double> y;
-    for (const Observation& o : obs) {
-      const std::vector<RankWork> w = rankWork(c, o.layout);
-      if (o.cpuS.size() != w.size())
-        throw InputError(fmt::format("cost model: {} reports {} ranks, the layout has {}", o.layout.name(),
-                                     o.cpuS.size(), w.size()));
-      for (std::size_t r = 0; r < w.size(); ++r)
-        if (w[r].role == role) {
-          rows.push_back(features(role, w[r], o.layout.tcp, r < o.bytesMoved.size() ? o.bytesMoved[r] : 0.0,
-                                  o.streamS));
-          y.push_back(o.cpuS[r]);
+    for (std::size_t i = 0; i < obs.size(); ++i)
+      for (std::size_t r = 0; r < work[i].size(); ++r)
+        if (work[i][r].role == role) {
+          rows.push_back(features(role, work[i][r], obs[i].layout.tcp, obs[i].bytesMoved[r], obs[i].streamS));
+          y.push_back(obs[i].cpuS[r]);
         }
-    }
-    const auto ri = static_cast<std::size_t>(role);
     if (rows.empty()) continue;
     Eigen::MatrixXd a(static_cast<Eigen::Index>(rows.size()), static_cast<Eigen::Index>(rows[0].size()));
     Eigen::VectorXd b(static_cast<Eigen::Index>(rows.size()));
@@ -293,13 +295,9 @@ UnitCosts fitCosts(const Census& c, std::span<const Observation> obs) {
       b(static_cast<Eigen::Index>(i)) = y[i];
     }
     const Eigen::VectorXd x = fitNonNegative(a, b);
-    u.rmsResidualS[ri] = std::sqrt((a * x - b).squaredNorm() / static_cast<double>(rows.size()));
-    for (Eigen::Index k = 0; k < x.size(); ++k) {
-      const auto kk = static_cast<std::size_t>(k);
-      if (role == RankRole::Gp) u.gp[kk] = x(k);
-      else if (role == RankRole::Pp) u.pp[kk] = x(k);
-      else u.host[kk] = x(k);
-    }
+    u.rmsResidualS[static_cast<std::size_t>(role)] = std::sqrt((a * x - b).squaredNorm() / static_cast<double>(rows.size()));
+    double* costs = costsOf(u, role);
+    for (Eigen::Index k = 0; k < x.size(); ++k) costs[k] = x(k);
     u.observations += rows.size();
   }
   return u;
@@ -317,7 +315,7 @@ Prediction predict(const Census& c, const Layout& l, const UnitCosts& u, int cor
       const double bytes = bytesOf(w[r], u, streamS, w);
       p.rankBytes[r] = bytes;
       const std::vector<double> f = features(w[r].role, w[r], l.tcp, bytes, streamS);
-      const double* k = w[r].role == RankRole::Gp ? u.gp.data() : w[r].role == RankRole::Pp ? u.pp.data() : u.host.data();
+      const double* k = costsOf(u, w[r].role);
       double s = 0.0;
       for (std::size_t i = 0; i < f.size(); ++i) s += k[i] * f[i];
       p.rankCpuS[r] = s;

@@ -64,21 +64,17 @@ void WorkCensus::addFrame(const gp::DirtyRegion& dirty, const std::vector<gp::Bo
 }
 
 void WorkCensus::addSamples(std::span<const RaySample> samples, const SampleLattice& lattice) {
-  // Bin locally, then add under the lock.
-  std::array<std::vector<std::pair<std::size_t, double>>, 3> adds;
+  const std::lock_guard<std::mutex> lock(m_);
   for (const RaySample& s : samples) {
     const Index3 c = gp::stencilCell(lattice, s.pixel, s.k);
     const int x = static_cast<int>(s.pixel % static_cast<std::uint32_t>(w_)) / bin_;
     const int y = static_cast<int>(s.pixel / static_cast<std::uint32_t>(w_)) / bin_;
     const auto bin = static_cast<std::size_t>(y * bx_ + x);
-    for (int a = 0; a < 3; ++a) {
-      const std::int64_t layer = std::clamp<std::int64_t>(c[a], 0, layers_[a] - 1);
-      adds[a].emplace_back(bin * static_cast<std::size_t>(layers_[a]) + static_cast<std::size_t>(layer), 1.0);
+    for (std::size_t a = 0; a < 3; ++a) {
+      const auto layer = static_cast<std::size_t>(std::clamp<std::int64_t>(c[static_cast<int>(a)], 0, layers_[a] - 1));
+      samples_[a][bin * static_cast<std::size_t>(layers_[a]) + layer] += 1.0;
     }
   }
-  const std::lock_guard<std::mutex> lock(m_);
-  for (int a = 0; a < 3; ++a)
-    for (const auto& [i, n] : adds[a]) samples_[a][i] += n;
 }
 
 void WorkCensus::write(const std::string& path) const {
