@@ -707,6 +707,19 @@ int chessboardDistance(const std::vector<Index3>& occ, const Index3& b) {
   return best;
 }
 
+// Every cell's bit against its 8 voxels, brute force.
+void expectCellBits(const pp5::gp::EmptySpaceMap& m, const ShadeBuffer& s) {
+  const Grid& g = s.grid();
+  ASSERT_TRUE(m.hasCellBits());
+  for (std::int64_t k = 0; k + 1 < g.dims.z; ++k)
+    for (std::int64_t j = 0; j + 1 < g.dims.y; ++j)
+      for (std::int64_t i = 0; i + 1 < g.dims.x; ++i) {
+        bool visible = false;
+        for (int c = 0; c < 8; ++c) visible |= s.at(g.linear(i + (c & 1), j + ((c >> 1) & 1), k + (c >> 2))).a > 0;
+        ASSERT_EQ(m.cellVisible(static_cast<std::int64_t>(g.linear(i, j, k))), visible) << i << " " << j << " " << k;
+      }
+}
+
 TEST(EmptySpaceMap, DistancesAreExactAndUpdatesEqualRebuilds) {
   const Grid g = testGrid();
   ShadeBuffer shade = blobShade(g, 3);
@@ -721,6 +734,7 @@ TEST(EmptySpaceMap, DistancesAreExactAndUpdatesEqualRebuilds) {
           ASSERT_EQ(map.distance(bi, bj, bk), chessboardDistance(occ, Index3(bi, bj, bk))) << bi << " " << bj << " " << bk;
   };
   check(m, shade);
+  expectCellBits(m, shade);
   // A single opaque voxel on a brick boundary marks the bricks of both cells
   // that read it.
   const Box3 box{{16, 24, 8}, {17, 25, 9}};
@@ -729,6 +743,7 @@ TEST(EmptySpaceMap, DistancesAreExactAndUpdatesEqualRebuilds) {
   EXPECT_EQ(m.distance(1, 2, 0), 0);
   EXPECT_EQ(m.distance(2, 3, 1), 0);
   check(m, shade);
+  expectCellBits(m, shade);
   // Clearing voxels: the update equals a rebuild.
   const Box3 clear{{0, 0, 0}, {20, 20, 20}};
   for (std::int64_t k = 0; k < 20; ++k)
@@ -738,6 +753,14 @@ TEST(EmptySpaceMap, DistancesAreExactAndUpdatesEqualRebuilds) {
   const pp5::gp::EmptySpaceMap rebuilt(shade, 2);
   EXPECT_EQ(0, std::memcmp(m.distances(), rebuilt.distances(), static_cast<std::size_t>(bd.x * bd.y * bd.z)));
   check(m, shade);
+  expectCellBits(m, shade);
+  expectCellBits(rebuilt, shade);
+  // The brick level alone, as the sampler keeps the map before a change.
+  pp5::gp::EmptySpaceMap bricks;
+  bricks.assignBricks(m);
+  EXPECT_FALSE(bricks.hasCellBits());
+  EXPECT_EQ(bricks.brickDims(), bd);
+  EXPECT_EQ(0, std::memcmp(bricks.distances(), m.distances(), static_cast<std::size_t>(bd.x * bd.y * bd.z)));
 }
 
 TEST(EmptySpaceMap, RandomUpdatesEqualRebuilds) {
@@ -769,6 +792,8 @@ TEST(EmptySpaceMap, RandomUpdatesEqualRebuilds) {
     const pp5::gp::EmptySpaceMap rebuilt(shade, 1);
     ASSERT_EQ(0, std::memcmp(m.distances(), rebuilt.distances(), static_cast<std::size_t>(bd.x * bd.y * bd.z)))
         << "round " << round;
+    SCOPED_TRACE(round);
+    expectCellBits(m, shade);
   }
 }
 
@@ -788,6 +813,7 @@ TEST(EmptySpaceMap, DistancesExactOnAScatteredMapAndVisibleBoxesCoverEveryVisibl
       s.at(g.linear(i, j, k)) = ShadeVoxel{10, 20, 30, 40};
     }
     const pp5::gp::EmptySpaceMap m(s, 1);
+    expectCellBits(m, s);
     const Index3 bd = m.brickDims();
     ASSERT_EQ(bd, Index3(13, 12, 9));
     const std::vector<Index3> occ = occupiedBricks(g, s, bd);

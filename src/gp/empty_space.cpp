@@ -6,10 +6,48 @@
 
 #include <omp.h>
 
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
+
 #include "core/error.hpp"
 #include "core/threads.hpp"
 
 namespace pp5::gp {
+
+namespace {
+
+// The alpha > 0 bits of 64 voxels.
+std::uint64_t pack64(const ShadeVoxel* v) {
+#if defined(__SSE2__)
+  // Alpha is each voxel's high byte (r, g, b, a in memory, little-endian).
+  static_assert(std::endian::native == std::endian::little);
+  std::uint64_t bits = 0;
+  const __m128i zero = _mm_setzero_si128();
+  for (int q = 0; q < 16; ++q) {
+    const __m128i x = _mm_loadu_si128(reinterpret_cast<const __m128i*>(v + 4 * q));
+    const __m128i visible = _mm_cmpgt_epi32(_mm_srli_epi32(x, 24), zero);
+    bits |= static_cast<std::uint64_t>(_mm_movemask_ps(_mm_castsi128_ps(visible))) << (4 * q);
+  }
+  return bits;
+#else
+  std::uint64_t bits = 0;
+  for (int i = 0; i < 64; ++i) bits |= static_cast<std::uint64_t>(v[i].a != 0) << i;
+  return bits;
+#endif
+}
+
+// The 64 bits of `bits` from bit b on (the words after b's are read).
+inline std::uint64_t bitsFrom(const std::uint64_t* bits, std::int64_t b) {
+  const std::int64_t q = b >> 6;
+  const int r = static_cast<int>(b & 63);
+  return r == 0 ? bits[q] : (bits[q] >> r) | (bits[q + 1] << (64 - r));
+}
+
+// Words of 64 in parallel loops: enough per chunk to amortise the scheduling.
+constexpr std::int64_t kWordChunk = 1024;
+
+}  // namespace
 
 EmptySpaceMap::EmptySpaceMap(const ShadeBuffer& shade, int threads) : grid_(shade.grid()) {
   const Index3& d = grid_.dims;
@@ -20,59 +58,104 @@ EmptySpaceMap::EmptySpaceMap(const ShadeBuffer& shade, int threads) : grid_(shad
   const std::size_t n = static_cast<std::size_t>(bdims_.x * bdims_.y * bdims_.z);
   occupied_.assign(n, 0);
   dist_.assign(n, 0);
-  const std::int64_t slices = bdims_.z * bdims_.y;
-#pragma omp parallel for num_threads(resolveThreads(threads)) schedule(dynamic, 1)
-  for (std::int64_t s = 0; s < slices; ++s)
-    for (std::int64_t bi = 0; bi < bdims_.x; ++bi) scanBrick(shade, bi, s % bdims_.y, s / bdims_.y);
+  // A cell's word reads the voxel words up to (x + 1, y + 1, z + 1) from its
+  // corner, one slice and one row on, and the word after that.
+  const auto voxels = static_cast<std::int64_t>(grid_.voxelCount());
+  const std::int64_t words = (voxels + 63) / 64;
+  const std::int64_t reach = static_cast<std::int64_t>(grid_.linear(1, 1, 1));
+  voxelBits_.assign(static_cast<std::size_t>(words + reach / 64 + 2), 0);
+  cellBits_.assign(static_cast<std::size_t>(words + 1), 0);
+  const int nt = resolveThreads(threads);
+  const std::int64_t chunks = (words + kWordChunk - 1) / kWordChunk;
+#pragma omp parallel num_threads(nt)
+  {
+    // Each chunk writes its own words only.
+#pragma omp for schedule(static)
+    for (std::int64_t c = 0; c < chunks; ++c)
+      packVoxels(shade, c * kWordChunk * 64, std::min(voxels, (c + 1) * kWordChunk * 64));
+#pragma omp for schedule(static)
+    for (std::int64_t c = 0; c < chunks; ++c) computeCellWords(c * kWordChunk, std::min(words, (c + 1) * kWordChunk));
+    const std::int64_t slices = bdims_.z * bdims_.y;
+#pragma omp for schedule(dynamic, 4)
+    for (std::int64_t sl = 0; sl < slices; ++sl)
+      for (std::int64_t bi = 0; bi < bdims_.x; ++bi) scanBrick(bi, sl % bdims_.y, sl / bdims_.y);
+  }
   computeDistances();
 }
 
-void EmptySpaceMap::scanBrick(const ShadeBuffer& shade, std::int64_t bi, std::int64_t bj, std::int64_t bk) {
-  // The brick's cells read voxels [lo, lo + kBrickCells] inclusive.
-  const Index3 lo = Index3(bi, bj, bk) * Index3(kBrickCells);
-  const Index3 hi = glm::min(lo + Index3(kBrickCells + 1), grid_.dims);
-  occupied_[static_cast<std::size_t>((bk * bdims_.y + bj) * bdims_.x + bi)] = anyVisible(shade, {lo, hi}) ? 1 : 0;
+void EmptySpaceMap::packVoxels(const ShadeBuffer& shade, std::int64_t first, std::int64_t last) {
+  const ShadeVoxel* v = shade.data();
+  for (std::int64_t i = first; i < last;) {
+    const std::int64_t w = i >> 6;
+    const std::int64_t end = std::min(last, (w + 1) << 6);
+    if (end - i == 64) {
+      voxelBits_[static_cast<std::size_t>(w)] = pack64(v + i);
+    } else {
+      std::uint64_t bits = 0;
+      for (std::int64_t j = i; j < end; ++j) bits |= static_cast<std::uint64_t>(v[j].a != 0) << (j & 63);
+      const std::uint64_t mask = ((std::uint64_t{1} << (end - i)) - 1) << (i & 63);
+      std::uint64_t& word = voxelBits_[static_cast<std::size_t>(w)];
+      word = (word & ~mask) | bits;
+    }
+    i = end;
+  }
 }
 
-bool EmptySpaceMap::anyVisible(const ShadeBuffer& shade, const Box3& b) const {
-  // OR whole voxels as 32-bit words and keep alpha, the high byte (r, g, b,
-  // a in memory, little-endian); a full brick's rows (9 voxels) with a fixed
-  // count the compiler unrolls.
-  static_assert(std::endian::native == std::endian::little);
-  const ShadeVoxel* v = shade.data();
-  const std::int64_t n = b.hi.x - b.lo.x;
-  if (n <= 0) return false;
-  auto orRow = [](const ShadeVoxel* row, std::int64_t count) {
-    std::uint32_t acc = 0;
-    for (std::int64_t x = 0; x < count; ++x) {
-      std::uint32_t w;
-      std::memcpy(&w, row + x, sizeof w);
-      acc |= w;
-    }
-    return acc;
-  };
-  std::uint32_t any = 0;
-  for (std::int64_t z = b.lo.z; z < b.hi.z && !any; ++z)
-    for (std::int64_t y = b.lo.y; y < b.hi.y; ++y) {
-      const ShadeVoxel* row = v + grid_.linear(b.lo.x, y, z);
-      any |= (n == kBrickCells + 1 ? orRow(row, kBrickCells + 1) : orRow(row, n)) >> 24;
-    }
-  return any != 0;
+void EmptySpaceMap::computeCellWords(std::int64_t w0, std::int64_t w1) {
+  const std::int64_t sy = grid_.dims.x, sz = grid_.dims.x * grid_.dims.y;
+  const std::int64_t offsets[8] = {0, 1, sy, sy + 1, sz, sz + 1, sz + sy, sz + sy + 1};
+  const std::uint64_t* a = voxelBits_.data();
+  for (std::int64_t w = w0; w < w1; ++w) {
+    std::uint64_t acc = 0;
+    for (const std::int64_t o : offsets) acc |= bitsFrom(a, (w << 6) + o);
+    cellBits_[static_cast<std::size_t>(w)] = acc;
+  }
+}
+
+void EmptySpaceMap::scanBrick(std::int64_t bi, std::int64_t bj, std::int64_t bk) {
+  const Index3 lo = Index3(bi, bj, bk) * Index3(kBrickCells);
+  const Index3 hi = glm::min(lo + Index3(kBrickCells), cellDims());
+  const std::uint64_t mask = (std::uint64_t{1} << (hi.x - lo.x)) - 1;  // at most 8 cells along x
+  bool any = false;
+  for (std::int64_t z = lo.z; z < hi.z && !any; ++z)
+    for (std::int64_t y = lo.y; y < hi.y && !any; ++y)
+      any = (bitsFrom(cellBits_.data(), static_cast<std::int64_t>(grid_.linear(lo.x, y, z))) & mask) != 0;
+  occupied_[static_cast<std::size_t>((bk * bdims_.y + bj) * bdims_.x + bi)] = any ? 1 : 0;
 }
 
 void EmptySpaceMap::update(const ShadeBuffer& shade, std::span<const Box3> changed) {
   checkSameGrid(shade.grid(), grid_);
-  std::vector<std::uint8_t> seen(occupied_.size(), 0);
+  PP5_CHECK(hasCellBits());
   std::vector<Box3> inGrid;
   for (const Box3& b0 : changed) {
     const Box3 b = b0.intersect({Index3(0), grid_.dims});
     if (!b.empty()) inGrid.push_back(b);
   }
-  bool any = false;
+  if (inGrid.empty()) return;
+  // The voxels, then the cells that read them (every voxel first: a cell's
+  // stencil may reach into another box), then their bricks.
+  for (const Box3& b : inGrid)
+    for (std::int64_t z = b.lo.z; z < b.hi.z; ++z)
+      for (std::int64_t y = b.lo.y; y < b.hi.y; ++y) {
+        const auto i = static_cast<std::int64_t>(grid_.linear(b.lo.x, y, z));
+        packVoxels(shade, i, i + (b.hi.x - b.lo.x));
+      }
+  std::vector<Box3> cellBoxes;
   for (const Box3& b : inGrid) {
     // Voxel v is read by cells v - 1 and v.
-    const Index3 clo = glm::max(b.lo - Index3(1), Index3(0)) / Index3(kBrickCells);
-    const Index3 chi = glm::min((b.hi - Index3(1)) / Index3(kBrickCells), bdims_ - Index3(1));
+    const Box3 cells{glm::max(b.lo - Index3(1), Index3(0)), glm::min(b.hi, cellDims())};
+    if (cells.empty()) continue;
+    cellBoxes.push_back(cells);
+    for (std::int64_t z = cells.lo.z; z < cells.hi.z; ++z)
+      for (std::int64_t y = cells.lo.y; y < cells.hi.y; ++y) {
+        const auto i0 = static_cast<std::int64_t>(grid_.linear(cells.lo.x, y, z));
+        computeCellWords(i0 >> 6, ((i0 + (cells.hi.x - cells.lo.x) - 1) >> 6) + 1);
+      }
+  }
+  std::vector<std::uint8_t> seen(occupied_.size(), 0);
+  bool any = false;
+  for (const Box3& c : cellBoxes) {
+    const Index3 clo = c.lo / Index3(kBrickCells), chi = (c.hi - Index3(1)) / Index3(kBrickCells);
     for (std::int64_t k = clo.z; k <= chi.z; ++k)
       for (std::int64_t j = clo.y; j <= chi.y; ++j)
         for (std::int64_t i = clo.x; i <= chi.x; ++i) {
@@ -80,23 +163,20 @@ void EmptySpaceMap::update(const ShadeBuffer& shade, std::span<const Box3> chang
           if (seen[id]) continue;
           seen[id] = 1;
           any = true;
-          if (occupied_[id]) {
-            scanBrick(shade, i, j, k);
-            continue;
-          }
-          // Empty before: every voxel it reads was transparent, and only the
-          // changed boxes were re-shaded, so only their part can be visible now.
-          const Index3 lo = Index3(i, j, k) * Index3(kBrickCells);
-          const Box3 reads{lo, glm::min(lo + Index3(kBrickCells + 1), grid_.dims)};
-          bool visible = false;
-          for (const Box3& c : inGrid) {
-            visible = anyVisible(shade, reads.intersect(c));
-            if (visible) break;
-          }
-          occupied_[id] = visible ? 1 : 0;
+          scanBrick(i, j, k);
         }
   }
   if (any) computeDistances();
+}
+
+void EmptySpaceMap::assignBricks(const EmptySpaceMap& from) {
+  grid_ = from.grid_;
+  bdims_ = from.bdims_;
+  occupiedCells_ = from.occupiedCells_;
+  occupied_ = from.occupied_;
+  dist_ = from.dist_;
+  voxelBits_.clear();
+  cellBits_.clear();
 }
 
 void EmptySpaceMap::computeDistances() {

@@ -31,7 +31,7 @@ bool GpUpdate::shadeChanged(const DirtyRegion& dirty) {
   changedVoxels_.clear();
   shade(recon_->output(), tf_, s_.shading, camera_, shaded_, shade_, &changedVoxels_);
   changes_.setShadeChanges(changedVoxels_);
-  spaceBefore_ = space_;  // a few kB (a byte per 8^3 cells); assigning keeps the storage
+  spaceBefore_.assignBricks(space_);  // a few kB (a byte per 8^3 cells); the storage is kept
   space_.update(shade_, changes_.changedBricks().boxes());
   return changes_.changedShades() > 0;
 }

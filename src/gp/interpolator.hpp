@@ -74,6 +74,23 @@ public:
     (void)c;
 #endif
   }
+  // The same for the lanes whose cell bit is set (EmptySpaceMap::cellBits).
+  void prefetchIf(const Cells4& c, const std::uint64_t* cellBits) const {
+#if defined(__SSE2__)
+    for (int l = 0; l < 4; ++l) {
+      const std::int64_t i = index(c, l);
+      if (!((cellBits[i >> 6] >> (i & 63)) & 1u)) continue;
+      const char* q = reinterpret_cast<const char*>(v_ + i);
+      _mm_prefetch(q, _MM_HINT_T0);
+      _mm_prefetch(q + 4 * sy_, _MM_HINT_T0);
+      _mm_prefetch(q + 4 * sz_, _MM_HINT_T0);
+      _mm_prefetch(q + 4 * (sz_ + sy_), _MM_HINT_T0);
+    }
+#else
+    (void)c;
+    (void)cellBits;
+#endif
+  }
 
   // The 8 voxels of a cell as floats (0..255): x, x+1 at (y, z), (y+1, z),
   // (y, z+1), (y+1, z+1). Consecutive samples often share a cell.
@@ -135,7 +152,10 @@ public:
   // Lane `lane`'s sample; the cell's voxels are loaded only when the lane
   // before read another cell (`loaded`: the index of the cell in `vox`).
   void blendLane(const Cells4& c, int lane, std::int64_t& loaded, Voxels& vox, float* rgba) const {
-    const std::int64_t idx = index(c, lane);
+    blendAt(c, lane, index(c, lane), loaded, vox, rgba);
+  }
+  // The same with the lane's cell index, index(c, lane), given.
+  void blendAt(const Cells4& c, int lane, std::int64_t idx, std::int64_t& loaded, Voxels& vox, float* rgba) const {
     if (idx != loaded) {
       load(idx, vox);
       loaded = idx;

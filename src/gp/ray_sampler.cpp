@@ -320,9 +320,12 @@ private:
 // The visible samples of a ray's samples k .. kEnd into the stage: jumps
 // over empty cubes, and samples four at a time in visible bricks. Inlined
 // into each caller, so each gets the code for its own range.
+// A sample whose cell is all transparent (`cells`, EmptySpaceMap::cellBits)
+// reads no voxels; its prefetch is left out too.
 [[gnu::always_inline]] inline void walkVisible(const Interpolator& interp, const VoxelRay& vr, const BrickJump& jump,
-                                               const std::uint8_t* dist, const Index3& bd, std::uint32_t k,
-                                               const std::uint32_t kEnd, RayStage& stage) {
+                                               const std::uint8_t* dist, const std::uint64_t* cells,
+                                               const Index3& bd, std::uint32_t k, const std::uint32_t kEnd,
+                                               RayStage& stage) {
   Cells4 c, next;
   Interpolator::Voxels vox{};
   std::int64_t loaded = -1;
@@ -341,12 +344,14 @@ private:
     for (std::uint32_t g = k;; g += 4) {
       if (g + 4 <= kEnd) {
         interp.locate4(vr, g + 4, next);
-        interp.prefetch(next);
+        interp.prefetchIf(next, cells);
       }
       const int lanes = static_cast<int>(std::min<std::uint32_t>(4, kEnd - g + 1));
       for (int l = 0; l < lanes; ++l) {
+        const std::int64_t idx = interp.index(c, l);
+        if (!EmptySpaceMap::bitSet(cells, idx)) continue;
         float* rgba = stage.slot();
-        interp.blendLane(c, l, loaded, vox, rgba);
+        interp.blendAt(c, l, idx, loaded, vox, rgba);
         if (rgba[3] > 0.0f) stage.commit(g + static_cast<std::uint32_t>(l));
       }
       if (g + 4 > kEnd) {
@@ -390,7 +395,9 @@ void sampleAll(const ShadeBuffer& shade, const SampleLattice& lattice, const Ren
   checkSameGrid(space->grid(), lattice.grid());
   const Interpolator interp(shade);
   const float e = exponentOf(lattice, settings);
+  PP5_CHECK(space->hasCellBits());
   const std::uint8_t* dist = space->distances();
+  const std::uint64_t* cells = space->cellBits();
   const Index3 bd = space->brickDims();
   const Box3 occupied = space->occupiedCells();
   if (occupied.empty()) return;
@@ -453,10 +460,10 @@ void sampleAll(const ShadeBuffer& shade, const SampleLattice& lattice, const Ren
           if (mine) {  // the clip was conservative: now the exact cells
             std::int64_t k0 = k, k1 = kEnd;
             if (mine->exact(interp, vr, k0, k1))
-              walkVisible(interp, vr, jump, dist, bd, static_cast<std::uint32_t>(k0), static_cast<std::uint32_t>(k1),
-                          stage);
+              walkVisible(interp, vr, jump, dist, cells, bd, static_cast<std::uint32_t>(k0),
+                          static_cast<std::uint32_t>(k1), stage);
           } else {
-            walkVisible(interp, vr, jump, dist, bd, k, kEnd, stage);
+            walkVisible(interp, vr, jump, dist, cells, bd, k, kEnd, stage);
           }
           stage.emit(pixel, out);
         }
@@ -481,7 +488,9 @@ void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const 
   if (space) checkSameGrid(space->grid(), lattice.grid());
   const Interpolator interp(shade);
   const float e = exponentOf(lattice, settings);
+  PP5_CHECK(!space || space->hasCellBits());
   const std::uint8_t* dist = space ? space->distances() : nullptr;
+  const std::uint64_t* cells = space ? space->cellBits() : nullptr;
   const Index3 bd = space ? space->brickDims() : Index3(0);
   const int W = lattice.width(), H = lattice.height();
   const TileGrid tiles(W, H, options.tileSize);
@@ -613,14 +622,18 @@ void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const 
               }
               if (g + 4 <= s1) {
                 interp.locate4(vr, static_cast<std::uint32_t>(g + 4), next);
-                interp.prefetch(next);
+                interp.prefetchIf(next, cells);
               }
               const int lanes = static_cast<int>(std::min<std::int64_t>(4, s1 - g + 1));
               for (int l = 0; l < lanes; ++l) {
                 if (changedCells && changedCells[interp.index(c, l)] == 0) continue;
                 const std::size_t brick = brickOf(c, l, bd);
                 if (dist[brick] == 0) {
-                  interp.blendLane(c, l, loaded, vox, stage.slot());
+                  // An all-transparent cell blends to exact zeros: no voxels read.
+                  const std::int64_t idx = interp.index(c, l);
+                  float* rgba = stage.slot();
+                  if (EmptySpaceMap::bitSet(cells, idx)) interp.blendAt(c, l, idx, loaded, vox, rgba);
+                  else rgba[0] = rgba[1] = rgba[2] = rgba[3] = 0.0f;
                   stage.commit(static_cast<std::uint32_t>(g + l));
                 } else if (distBefore[brick] == 0) {
                   float* rgba = stage.slot();
@@ -644,8 +657,9 @@ void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const 
             for (int l = 0; l < lanes; ++l) {
               if (changedCells && changedCells[interp.index(c, l)] == 0) continue;
               float* rgba = stage.slot();
-              if (!dist || dist[brickOf(c, l, bd)] == 0) {
-                interp.blendLane(c, l, loaded, vox, rgba);
+              const std::int64_t idx = interp.index(c, l);
+              if (!dist || (dist[brickOf(c, l, bd)] == 0 && EmptySpaceMap::bitSet(cells, idx))) {
+                interp.blendAt(c, l, idx, loaded, vox, rgba);
               } else {
                 rgba[0] = rgba[1] = rgba[2] = rgba[3] = 0.0f;
               }
