@@ -505,6 +505,60 @@ TEST(Reset, ReusedStorageEqualsANewCache) {
     }
 }
 
+// Threads that each put their own rays, each into its own lane, at once (as
+// the sampler's threads do on a new view): the cache composites the bits of
+// one put of all the samples, counts every sample, and after a reset the
+// lanes start empty. Neighbouring rays go to different threads, so that they
+// share touched-page flags.
+TEST(Lanes, ThreadsPuttingTheirOwnRaysEqualOnePut) {
+  const TileRect tile{0, 0, 48, 20};
+  const std::size_t n = static_cast<std::size_t>(tile.width) * tile.height;
+  std::mt19937 rng(23);
+  std::vector<std::uint16_t> counts(n);
+  for (auto& c : counts) c = static_cast<std::uint16_t>(rng() % 200);
+  std::vector<RaySample> all;
+  std::uniform_real_distribution<float> a(0.001f, 0.1f);
+  for (std::size_t i = 0; i < n; ++i)
+    for (std::uint32_t k = 0; k < counts[i]; ++k)
+      if (rng() % 4 == 0) all.push_back(sample(static_cast<std::uint32_t>(i), k, a(rng)));
+  constexpr int kThreads = 3;
+  for (auto f : kFormats)
+    for (auto m : kModes) {
+      RayCache one(tile, tile.width, counts, settingsFor(f), m), lanes(tile, tile.width, counts, settingsFor(f), m);
+      lanes.setPutLanes(kThreads);
+      for (int round = 0; round < 2; ++round) {
+        one.put(all);
+        std::vector<std::thread> threads;
+        for (int t = 0; t < kThreads; ++t)
+          threads.emplace_back([&, t] {
+            // Batches of up to 50 samples of this thread's rays (pixel % 3 == t).
+            std::vector<RaySample> batch;
+            for (const RaySample& x : all) {
+              if (static_cast<int>(x.pixel % kThreads) != t) continue;
+              batch.push_back(x);
+              if (batch.size() == 50) {
+                lanes.put(t, batch.data(), batch.size());
+                batch.clear();
+              }
+            }
+            lanes.put(t, batch.data(), batch.size());
+          });
+        for (auto& th : threads) th.join();
+        const auto st1 = one.composite(), st2 = lanes.composite();
+        EXPECT_EQ(st2.rays, st1.rays);
+        EXPECT_EQ(st2.blocks, st1.blocks);
+        EXPECT_TRUE(sameBits(lanes.image(), one.image())) << pp5::pp::sampleFormatName(f) << " round " << round;
+        EXPECT_EQ(lanes.counters().samplesPut, one.counters().samplesPut);
+        // A new view: nothing listed is carried over, and the storage is clean.
+        one.reset(counts);
+        lanes.reset(counts);
+        EXPECT_EQ(lanes.composite().rays, 0u);
+      }
+    }
+  RayCache c(tile, tile.width, counts, RayCacheSettings{});
+  EXPECT_THROW(c.put(0, all.data(), 1), pp5::InvariantError);  // no lanes set
+}
+
 // ---------------------------------------------------------------------------
 // Dirty tracking.
 

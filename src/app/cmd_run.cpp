@@ -283,13 +283,14 @@ int runSerial(const RunOptions& o) {
     wrote.push_back("volume.mha");
   }
   double orbitMs = 0.0;
+  std::vector<serial::ViewStats> orbitStats;
   if (s.run.orbitFrames > 0) {
     AnimatedGif orbit((fs::path(dir) / "orbit.gif").string(), w, h, s.run.orbitFps);
     const Camera base = pipe.camera();
     std::vector<double> ms;
     for (int i = 0; i < s.run.orbitFrames; ++i) {
       const auto t = Clock::now();
-      pipe.setCamera(base.orbited(Vec3(0, 0, 1), 360.0 * i / s.run.orbitFrames));
+      orbitStats.push_back(pipe.setCamera(base.orbited(Vec3(0, 0, 1), 360.0 * i / s.run.orbitFrames)));
       ms.push_back(std::chrono::duration<double, std::milli>(Clock::now() - t).count());
       orbit.add(pp::toRgb8(pipe.image()).data());
     }
@@ -306,7 +307,18 @@ int runSerial(const RunOptions& o) {
               seconds);
   std::printf("  per frame (median): %.1f ms = reconstruct %.1f + shade %.1f + sample %.1f + composite %.1f\n",
               median(totals), median(recons), median(shades), median(samplings), median(composites));
-  if (orbitMs > 0.0) std::printf("  full re-render after a view change (median): %.0f ms\n", orbitMs);
+  if (orbitMs > 0.0) {
+    auto med = [&](double serial::ViewStats::*f) {
+      std::vector<double> v;
+      for (const auto& o : orbitStats) v.push_back(o.*f);
+      return median(v);
+    };
+    std::printf("  full re-render after a view change (median of %zu): %.0f ms = lattice %.1f + cache reset %.1f + "
+                "re-light %.1f + sample and put %.1f + composite %.1f\n",
+                orbitStats.size(), orbitMs, med(&serial::ViewStats::latticeMs), med(&serial::ViewStats::cacheMs),
+                med(&serial::ViewStats::shadeMs), med(&serial::ViewStats::sampleMs),
+                med(&serial::ViewStats::compositeMs));
+  }
   if (capture.skipped())
     std::printf("  constant-interval capture (every %g mm) left out %llu frames\n", capture.intervalMm(),
                 static_cast<unsigned long long>(capture.skipped()));

@@ -21,6 +21,12 @@ namespace pp5::pp::composite {
 
 using Partial = RayCache::Partial;
 
+// A block's state (RayCache::dirty_): its stored partial is valid; its
+// samples changed since; or it has had no sample since the cache was reset
+// or cleared, so it composites to the identity and its partial is not stored
+// (a new view then writes a byte per block, not a partial).
+constexpr std::uint8_t kBlockClean = 0, kBlockDirty = 1, kBlockTransparent = 2;
+
 template <CompositeMode M>
 constexpr Partial identityPartial() {
   if constexpr (M == CompositeMode::Over) return {0.f, 0.f, 0.f, 1.f};
@@ -179,14 +185,17 @@ template <SampleFormat F, CompositeMode M>
       if (acc.w <= limit) break;
     }
     Partial p;
-    if (!partials || dirty[ray.block + b]) {
+    const std::uint8_t state = partials ? dirty[ray.block + b] : kBlockDirty;
+    if (state == kBlockTransparent) {
+      p = identityPartial<M>();
+    } else if (state == kBlockDirty) {
       const std::uint32_t first = b << blockShift;
       const int n = static_cast<int>(std::min<std::uint32_t>(static_cast<std::uint32_t>(blockSize), ray.count - first));
       p = blockPartial<F, M>(samples + 4 * (ray.sample + first), n, scratch);
       ++computed;
       if (partials) {
         partials[ray.block + b] = p;
-        dirty[ray.block + b] = 0;
+        dirty[ray.block + b] = kBlockClean;
       }
     } else {
       p = partials[ray.block + b];

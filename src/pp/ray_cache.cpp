@@ -4,6 +4,7 @@
 #include <omp.h>
 
 #include <algorithm>
+#include <atomic>
 #include <bit>
 #include <climits>
 #include <cmath>
@@ -75,8 +76,9 @@ namespace {
 using namespace composite;
 
 
-// Below this many rays a parallel region costs more than it saves.
+// Below this many rays (pages of samples) a parallel region costs more than it saves.
 constexpr std::size_t kMinParallelRays = 512;
+constexpr std::size_t kMinParallelPages = 16384;
 
 inline std::uint8_t toU8(float v) {
   // NaN lands on 0 too.
@@ -140,8 +142,12 @@ struct EncodeRgba8 {
 }  // namespace
 
 struct RayCacheAccess {
-  template <class Enc, class T>
-  static inline void putLoop(RayCache& c, T* store, const RaySample* samples, std::size_t n) {
+  // `list`: where a ray newly dirty is listed. Concurrent: other threads put
+  // other rays at the same time, so the touched-page flags, which rays share,
+  // are written atomically.
+  template <class Enc, bool Concurrent, class T>
+  static inline void putLoop(RayCache& c, T* store, const RaySample* samples, std::size_t n,
+                             std::vector<std::uint32_t>& list) {
     // A ray's samples usually arrive together: map a pixel to its ray once.
     std::uint32_t lastPixel = 0;
     RayCache::Ray* ray = nullptr;
@@ -189,25 +195,33 @@ struct RayCacheAccess {
       if (s.k >= ray->count) beyondRay(s, ray->count);
       const std::uint64_t at = ray->sample + s.k;
       Enc::encode(s, store + 4 * at);
-      touched[at >> RayCache::kPageShift] |= static_cast<std::uint8_t>(storedNonzero(store + 4 * at));
+      if constexpr (Concurrent) {
+        if (storedNonzero(store + 4 * at)) {
+          const std::atomic_ref<std::uint8_t> page(touched[at >> RayCache::kPageShift]);
+          if (!page.load(std::memory_order_relaxed)) page.store(1, std::memory_order_relaxed);
+        }
+      } else {
+        touched[at >> RayCache::kPageShift] |= static_cast<std::uint8_t>(storedNonzero(store + 4 * at));
+      }
       const std::uint32_t b = s.k >> shift;
       // A block behind the termination point cannot change the pixel: it is
       // marked but not listed, and waits until a change in front makes the
       // walk reach it.
-      dirty[ray->block + b] = 1;
+      dirty[ray->block + b] = kBlockDirty;
       if (b < ray->end) {
         const auto b16 = static_cast<std::uint16_t>(b);
         if (!ray->listed) {
           ray->listed = 1;
           ray->firstDirty = ray->lastDirty = b16;
-          c.dirtyRays_.push_back(local);
+          list.push_back(local);
         } else {
           ray->firstDirty = std::min(ray->firstDirty, b16);
           ray->lastDirty = std::max(ray->lastDirty, b16);
         }
       }
     }
-    c.counters_.samplesPut += n;
+    if constexpr (Concurrent) std::atomic_ref<std::uint64_t>(c.counters_.samplesPut).fetch_add(n, std::memory_order_relaxed);
+    else c.counters_.samplesPut += n;
   }
 
   [[noreturn]] static void outsideTile(const RayCache& c, const RaySample& s) {
@@ -222,17 +236,20 @@ struct RayCacheAccess {
   }
 
   // flatten: the loop and its encoder are compiled here, for this target.
-  __attribute__((target("avx,f16c"), flatten)) static void putHalfF16c(RayCache& c, const RaySample* s, std::size_t n) {
-    putLoop<EncodeHalfF16c>(c, c.samples16_.data(), s, n);
+  template <bool Concurrent>
+  __attribute__((target("avx,f16c"), flatten)) static void putHalfF16c(RayCache& c, const RaySample* s, std::size_t n,
+                                                                      std::vector<std::uint32_t>& list) {
+    putLoop<EncodeHalfF16c, Concurrent>(c, c.samples16_.data(), s, n, list);
   }
-  static void put(RayCache& c, const RaySample* s, std::size_t n) {
+  template <bool Concurrent>
+  static void put(RayCache& c, const RaySample* s, std::size_t n, std::vector<std::uint32_t>& list) {
     switch (c.format_) {
-      case SampleFormat::Rgba8: putLoop<EncodeRgba8>(c, c.samples8_.data(), s, n); break;
+      case SampleFormat::Rgba8: putLoop<EncodeRgba8, Concurrent>(c, c.samples8_.data(), s, n, list); break;
       case SampleFormat::Half:
-        if (halfConversionUsesF16c()) putHalfF16c(c, s, n);
-        else putLoop<EncodeHalf>(c, c.samples16_.data(), s, n);
+        if (halfConversionUsesF16c()) putHalfF16c<Concurrent>(c, s, n, list);
+        else putLoop<EncodeHalf, Concurrent>(c, c.samples16_.data(), s, n, list);
         break;
-      case SampleFormat::Float: putLoop<EncodeFloat>(c, c.samples32_.data(), s, n); break;
+      case SampleFormat::Float: putLoop<EncodeFloat, Concurrent>(c, c.samples32_.data(), s, n, list); break;
     }
   }
 };
@@ -302,16 +319,36 @@ void RayCache::reset(std::span<const std::uint16_t> sampleCounts) {
   }
   touched_.assign((sampleTotal_ >> kPageShift) + 1, 0);
   // A block of transparent samples composites to the identity exactly, so
-  // blocks start clean and nothing is dirty until samples arrive.
-  partials_.assign(blockTotal_, identityPartial(live_));
-  dirty_.assign(blockTotal_, 0);
+  // blocks start transparent (no partial stored: the storage only grows, and
+  // what it holds is written before it is read) and nothing is dirty until
+  // samples arrive.
+  if (partials_.size() < blockTotal_) partials_.resize(blockTotal_);
+  dirty_.assign(blockTotal_, kBlockTransparent);
   dirtyRays_.clear();
+  for (auto& l : laneRays_) l.clear();
   image_.width = tile_.width;
   image_.height = tile_.height;
   image_.rgba.assign(4 * n, 0.0f);
 }
 
-void RayCache::put(const RaySample* samples, std::size_t n) { RayCacheAccess::put(*this, samples, n); }
+void RayCache::put(const RaySample* samples, std::size_t n) { RayCacheAccess::put<false>(*this, samples, n, dirtyRays_); }
+
+void RayCache::setPutLanes(int lanes) {
+  PP5_CHECK_GE(lanes, 1);
+  laneRays_.resize(static_cast<std::size_t>(lanes));
+}
+
+void RayCache::put(int lane, const RaySample* samples, std::size_t n) {
+  PP5_CHECK(lane >= 0 && static_cast<std::size_t>(lane) < laneRays_.size());
+  RayCacheAccess::put<true>(*this, samples, n, laneRays_[static_cast<std::size_t>(lane)]);
+}
+
+void RayCache::mergeLanes() {
+  for (std::vector<std::uint32_t>& l : laneRays_) {
+    dirtyRays_.insert(dirtyRays_.end(), l.begin(), l.end());
+    l.clear();
+  }
+}
 
 template <SampleFormat F, CompositeMode M>
 CompositeStats RayCache::compositeDirty() {
@@ -322,6 +359,7 @@ CompositeStats RayCache::compositeDirty() {
   else store = samples32_.data();
 
   CompositeStats st;
+  mergeLanes();
   const std::size_t nd = dirtyRays_.size();
   ++counters_.composites;
   if (nd == 0) return st;
@@ -463,8 +501,11 @@ TileImage RayCache::compositeFull(CompositeMode mode) const {
 
 void RayCache::zeroTouched() {
   const std::size_t pages = touched_.size();
+  const int nt = resolveThreads(threads_);
   auto zero = [&](auto& store) {
     const std::size_t perPage = 4 * (std::size_t{1} << kPageShift);
+    // A new view after a full one rewrites tens of MB; the pages are disjoint.
+#pragma omp parallel for num_threads(nt) if (nt > 1 && pages >= kMinParallelPages) schedule(static, 4096)
     for (std::size_t p = 0; p < pages; ++p) {
       if (!touched_[p]) continue;
       const std::size_t begin = p * perPage;
@@ -482,18 +523,19 @@ void RayCache::zeroTouched() {
 
 void RayCache::clear() {
   zeroTouched();
-  std::fill(partials_.begin(), partials_.end(), identityPartial(live_));
-  std::fill(dirty_.begin(), dirty_.end(), std::uint8_t{0});
+  std::fill(dirty_.begin(), dirty_.end(), kBlockTransparent);
   for (Ray& r : rays_) {
     r.listed = 0;
     r.end = blocksOf(r.count);
   }
   dirtyRays_.clear();
+  for (auto& l : laneRays_) l.clear();
   std::fill(image_.rgba.begin(), image_.rgba.end(), 0.0f);
 }
 
 void RayCache::invalidate() {
-  std::fill(dirty_.begin(), dirty_.end(), std::uint8_t{1});
+  for (auto& l : laneRays_) l.clear();
+  std::fill(dirty_.begin(), dirty_.end(), kBlockDirty);
   dirtyRays_.resize(rays_.size());
   for (std::size_t i = 0; i < rays_.size(); ++i) {
     Ray& r = rays_[i];

@@ -135,6 +135,13 @@ public:
   // the batch are stored.
   void put(const RaySample* samples, std::size_t n);
   void put(std::span<const RaySample> samples) { put(samples.data(), samples.size()); }
+  // Puts from several threads at once, each with its own lane (0 .. lanes -
+  // 1, set before they start), for threads that put samples of different
+  // rays (the sampler's work tiles): a full view's millions of samples are
+  // stored in parallel. Otherwise as put(); the next composite() takes the
+  // lanes' dirty rays.
+  void setPutLanes(int lanes);
+  void put(int lane, const RaySample* samples, std::size_t n);
 
   // Brings the live image up to date: recomputes the dirty blocks that the
   // walks reach, recombines the dirty rays and rewrites only their pixels.
@@ -226,6 +233,7 @@ private:
   static constexpr int kPageShift = 6;
   std::vector<std::uint8_t> touched_;
   std::vector<std::uint32_t> dirtyRays_;
+  std::vector<std::vector<std::uint32_t>> laneRays_;  // dirty rays listed by put(lane, ...)
   TileImage image_;
   RayCacheCounters counters_;
 
@@ -235,6 +243,8 @@ private:
   }
   // Zeroes the touched pages and clears their flags.
   void zeroTouched();
+  // The lanes' dirty rays onto dirtyRays_.
+  void mergeLanes();
   template <SampleFormat F, CompositeMode M>
   CompositeStats compositeDirty();
   template <SampleFormat F, CompositeMode M>

@@ -6,6 +6,7 @@
 #include <span>
 
 #include "core/error.hpp"
+#include "core/threads.hpp"
 #include "gp/stored_volume.hpp"
 
 namespace pp5::serial {
@@ -20,12 +21,19 @@ gp::Box3 wholeGrid(const Grid& g) { return {Index3(0), g.dims}; }
 
 // Puts the sampler's batches into one cache as the sampling threads produce
 // them (a full view holds tens of millions of samples, too many to gather
-// first); `onPut(batch, ms)` after each batch, under the same lock.
+// first). Each thread puts its own batches into the cache at once (the
+// sampler's threads sample different rays: RayCache::put(lane, ...)); with
+// `onPut`, the batches go in one at a time under a lock, and `onPut(batch,
+// ms)` follows each.
 class CacheSink final : public gp::SampleSink {
 public:
-  explicit CacheSink(pp::RayCache& cache, std::function<void(std::span<const RaySample>, double)> onPut = {})
-      : cache_(cache), onPut_(std::move(onPut)) {}
-  void consume(int, std::uint32_t, std::span<const RaySample> batch) override {
+  CacheSink(pp::RayCache& cache, int threads) : cache_(cache), concurrent_(true) {
+    cache.setPutLanes(resolveThreads(threads));
+  }
+  CacheSink(pp::RayCache& cache, std::function<void(std::span<const RaySample>, double)> onPut)
+      : cache_(cache), onPut_(std::move(onPut)), concurrent_(false) {}
+  void consume(int thread, std::uint32_t, std::span<const RaySample> batch) override {
+    if (concurrent_) return cache_.put(thread, batch.data(), batch.size());
     const std::lock_guard<std::mutex> lock(m_);
     const auto t = std::chrono::steady_clock::now();
     cache_.put(batch.data(), batch.size());
@@ -35,6 +43,7 @@ public:
 private:
   pp::RayCache& cache_;
   std::function<void(std::span<const RaySample>, double)> onPut_;
+  bool concurrent_;
   std::mutex m_;
 };
 
@@ -68,12 +77,21 @@ void SerialPipeline::init(std::unique_ptr<gp::Reconstructor> recon, std::uint64_
   resample(true);
 }
 
-void SerialPipeline::setCamera(const Camera& camera, double stepScale) {
+ViewStats SerialPipeline::setCamera(const Camera& camera, double stepScale) {
+  using Clock = std::chrono::steady_clock;
+  ViewStats st;
+  auto t = Clock::now();
   s_.render.stepScale = stepScale;
   gp_->setCamera(camera, stepScale);
+  st.latticeMs = msSince(t);
+  t = Clock::now();
   resetCaches();
+  st.cacheMs = msSince(t);
+  t = Clock::now();
   gp_->reshadeAll(true);
-  resample(true);
+  st.shadeMs = msSince(t);
+  resample(true, &st);
+  return st;
 }
 
 void SerialPipeline::resetCaches() {
@@ -118,12 +136,21 @@ void SerialPipeline::setValueWindow(double lo, double hi) {
   (*caches_)[0].composite();
 }
 
-void SerialPipeline::resample(bool cleared) {
+void SerialPipeline::resample(bool cleared, ViewStats* st) {
+  using Clock = std::chrono::steady_clock;
   pp::RayCache& cache = (*caches_)[0];
   if (!cleared) cache.clear();
-  CacheSink sink(cache);
+  auto t = Clock::now();
+  const std::uint64_t before = cache.counters().samplesPut;
+  CacheSink sink(cache, s_.render.threads);
   gp_->sampleAll(sink);
+  if (st) {
+    st->samples = cache.counters().samplesPut - before;
+    st->sampleMs = msSince(t);
+  }
+  t = Clock::now();
   cache.composite();
+  if (st) st->compositeMs = msSince(t);
 }
 
 FrameStats SerialPipeline::insert(const Frame& f, const Mat4& pose, double timeS) {
@@ -188,7 +215,7 @@ pp::TileImage SerialPipeline::renderFromScratch(pp::CompositeMode mode) const {
   pp::RayCache cache(TileRect{0, 0, camera.width, camera.height}, camera.width, gp_->lattice().counts(), s_.cache, mode,
                      s_.render.threads);
   cache.setValueWindow(s_.render.valueWindow.x, s_.render.valueWindow.y);
-  CacheSink sink(cache);
+  CacheSink sink(cache, s_.render.threads);
   gp::sampleAll(shade, gp_->lattice(), render, sink, &space);
   cache.composite();
   return cache.image();

@@ -50,6 +50,13 @@ struct FrameStats {
   double totalMs() const { return reconMs + shadeMs + sampleMs + compositeMs; }
 };
 
+// Where a full re-render after a view change went (setCamera).
+struct ViewStats {
+  double latticeMs = 0, cacheMs = 0, shadeMs = 0, sampleMs = 0, compositeMs = 0;
+  std::uint64_t samples = 0;  // visible samples put into the cache
+  double totalMs() const { return latticeMs + cacheMs + shadeMs + sampleMs + compositeMs; }
+};
+
 class SerialPipeline {
 public:
   // Refuses (InputError) a grid whose reconstruction and shade buffer do not fit in memory.
@@ -64,7 +71,10 @@ public:
 
   // A new view: the lattice is rebuilt, everything re-shaded (a light at the
   // viewer moves with it) and re-sampled, and the live image recomposited.
-  void setCamera(const Camera& camera, double stepScale = 1.0);
+  // The times: the lattice, the cache made empty for the new rays, the
+  // re-lighting, sampling with the cache's puts (the sampling threads put
+  // their own samples), compositing.
+  ViewStats setCamera(const Camera& camera, double stepScale = 1.0);
   const Camera& camera() const { return gp_->camera(); }
   // New shading or transfer function: everything re-shaded and re-sampled.
   // With `live`, also a new live composition mode (one re-shade for both).
@@ -106,8 +116,9 @@ private:
   void init(std::unique_ptr<gp::Reconstructor> recon, std::uint64_t memoryLimitBytes);
   // The caches reset for the current camera's lattice (every sample transparent).
   void resetCaches();
-  // Samples the whole shade buffer into the cache and composites.
-  void resample(bool cleared);
+  // Samples everything anew into the cache (cleared first unless `cleared`)
+  // and composites; `st` gets the times of the two.
+  void resample(bool cleared, ViewStats* st = nullptr);
 };
 
 }  // namespace pp5::serial
