@@ -60,6 +60,9 @@ public:
     const float x = value <= 0.0f ? 0.0f : value >= 255.0f ? 255.0f : value;
     return x * static_cast<float>(kStepsPerLevel) < transparentBelow_;
   }
+  // The bound transparentUpTo compares with, for code that tests many values
+  // at once by the same operations.
+  float transparentBelow() const { return transparentBelow_; }
 
 private:
   TransferFunctionSettings settings_;
