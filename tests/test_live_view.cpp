@@ -79,10 +79,12 @@ TEST(LiveControls, GoodMessagesChangeWhatThePipelineIsAsked) {
   EXPECT_EQ(s.distance, 2.5);
   EXPECT_EQ(s.panMm[0], 3.0);
   EXPECT_EQ(s.stepScale, host::ViewSettings{}.dragStepScale);  // a drag: the coarser lattice
+  EXPECT_EQ(s.pixelStride, host::ViewSettings{}.dragPixelStride);  // ... and fewer rays
   EXPECT_EQ(v.live->control(R"({"type": "view", "seq": 5, "azimuth": 10, "elevation": 5, "distance": 2.5,
                                 "pan": [3, -2], "interactive": false})"),
             "");
   EXPECT_EQ(v.live->wanted().state.stepScale, 1.0);  // the mouse stopped: full resolution
+  EXPECT_EQ(v.live->wanted().state.pixelStride, 1);
 
   EXPECT_EQ(v.live->control(R"({"type": "composite", "mode": "mip"})"), "");
   EXPECT_EQ(parallel::liveMode(v.live->wanted().state), CompositeMode::Mip);

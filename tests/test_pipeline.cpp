@@ -87,6 +87,30 @@ TEST_P(IncrementalEqualsFull, AfterEveryFrame) {
     expectFull("after turning by " + std::to_string(degrees) + " degrees");
     EXPECT_GT(nonBlank, 200u);
   }
+  // A drag's coarse views: the pixels with rays are the full view's, bit
+  // for bit, and every other pixel shows the one its block starts at; a
+  // frame keeps the coarse image equal to a coarse render from scratch.
+  const Camera cam = pipe.camera();
+  for (const int stride : {2, 4}) {
+    pipe.setCamera(cam);
+    const pp::TileImage fine = pipe.image();
+    const std::uint64_t fineSamples = pipe.cache().sampleCount();
+    pipe.setCamera(cam, 1.0, stride);
+    expectFull("a coarse view, stride " + std::to_string(stride));
+    const pp::TileImage& coarse = pipe.image();
+    for (int y = 0; y < coarse.height; ++y)
+      for (int x = 0; x < coarse.width; ++x)
+        ASSERT_EQ(std::memcmp(coarse.pixel(x, y), fine.pixel(x - x % stride, y - y % stride), 4 * sizeof(float)), 0)
+            << "stride " << stride << " pixel " << x << " " << y;
+    // Rays for one pixel in stride x stride: about that fraction of the samples.
+    const double fraction = static_cast<double>(pipe.cache().sampleCount()) / static_cast<double>(fineSamples);
+    EXPECT_GT(fraction * stride * stride, 0.7) << stride;
+    EXPECT_LT(fraction * stride * stride, 1.4) << stride;
+    const Frame f = sim.frame(1);
+    pipe.insert(f, poses[1], f.timestamp + 50.0 + stride);
+    expectFull("a frame in a coarse view, stride " + std::to_string(stride));
+  }
+  pipe.setCamera(cam);
   const Frame f = sim.frame(0);
   pipe.insert(f, poses[0], f.timestamp + 100.0);
   expectFull("a frame after the view changes");

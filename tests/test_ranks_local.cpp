@@ -159,6 +159,13 @@ void runJob(parallel::GpPartition partition, const std::string& name) {
   RenderSettings turned = j.pipeline.render;
   turned.azimuthDeg = -60.0;
   j.script.push_back({3, parallel::makeControlState(turned, j.pipeline.shading, j.pipeline.tf), "azimuth -60"});
+  // A drag's coarse view (every fourth pixel's ray), then the full one again.
+  RenderSettings dragged = turned;
+  dragged.azimuthDeg = -45.0;
+  dragged.stepScale = 2.0;
+  dragged.pixelStride = 4;
+  j.script.push_back({5, parallel::makeControlState(dragged, j.pipeline.shading, j.pipeline.tf), "drag"});
+  j.script.push_back({7, parallel::makeControlState(turned, j.pipeline.shading, j.pipeline.tf), "drag ends"});
   const fs::path dir = fs::temp_directory_path() / ("pp5_ranks_local_" + name + "_" + std::to_string(::getpid()));
   fs::remove_all(dir);
   fs::create_directories(dir);

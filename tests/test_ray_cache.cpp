@@ -559,6 +559,55 @@ TEST(Lanes, ThreadsPuttingTheirOwnRaysEqualOnePut) {
   EXPECT_THROW(c.put(0, all.data(), 1), pp5::InvariantError);  // no lanes set
 }
 
+// A coarse view's pixel stride: the strided pixels (image x and y multiples
+// of it) take samples, and every pixel shows its block's strided pixel, the
+// ones before a tile's first strided column or row its first; composite()
+// reports the blocks it rewrote, and compositeFull() fills the same way.
+TEST(Stride, EachPixelShowsItsBlocksStridedPixel) {
+  const TileRect tile{5, 3, 13, 10};  // starts between strided pixels of stride 4
+  const int imageWidth = 40, stride = 4;
+  std::vector<std::uint16_t> counts(static_cast<std::size_t>(tile.width) * tile.height, 0);
+  std::vector<RaySample> all;
+  for (int y = 0; y < tile.height; ++y)
+    for (int x = 0; x < tile.width; ++x) {
+      const int gx = tile.x0 + x, gy = tile.y0 + y;
+      if (gx % stride != 0 || gy % stride != 0) continue;
+      counts[static_cast<std::size_t>(y) * tile.width + x] = 8;
+      const auto pixel = static_cast<std::uint32_t>(gy * imageWidth + gx);
+      for (std::uint32_t k = 0; k < 8; ++k) all.push_back(sample(pixel, k, 0.01f * static_cast<float>(1 + gx + gy)));
+    }
+  RayCache c(tile, imageWidth, counts, settingsFor(SampleFormat::Float));
+  c.setPixelStride(stride);
+  c.put(all);
+  const auto st = c.composite();
+  EXPECT_EQ(st.changed.x0, 0);
+  EXPECT_EQ(st.changed.y0, 0);
+  EXPECT_EQ(st.changed.width, tile.width);
+  EXPECT_EQ(st.changed.height, tile.height);
+  // The tile-local pixel a local column or row shows.
+  auto source = [&](int origin, int local) {
+    const int g = origin + local, own = g - g % stride;
+    return own >= origin ? own - origin : (stride - origin % stride) % stride;
+  };
+  const TileImage full = c.compositeFull(CompositeMode::Over);
+  for (int y = 0; y < tile.height; ++y)
+    for (int x = 0; x < tile.width; ++x) {
+      const int sx = source(tile.x0, x), sy = source(tile.y0, y);
+      ASSERT_EQ((tile.x0 + sx) % stride, 0);
+      ASSERT_GT(c.image().pixel(sx, sy)[3], 0.0f);
+      EXPECT_EQ(std::memcmp(c.image().pixel(x, y), c.image().pixel(sx, sy), 16), 0) << x << " " << y;
+      EXPECT_EQ(std::memcmp(full.pixel(x, y), c.image().pixel(x, y), 16), 0) << x << " " << y;
+    }
+  // One strided ray changes: its block only.
+  const RaySample one = sample(static_cast<std::uint32_t>(8 * imageWidth + 12), 2, 0.3f);
+  c.put(&one, 1);
+  const auto st2 = c.composite();
+  EXPECT_EQ(st2.changed.x0, 12 - tile.x0);
+  EXPECT_EQ(st2.changed.y0, 8 - tile.y0);
+  EXPECT_EQ(st2.changed.width, stride);
+  EXPECT_EQ(st2.changed.height, stride);
+}
+
 // ---------------------------------------------------------------------------
 // Dirty tracking.
 

@@ -131,7 +131,8 @@ struct ControlState {
   std::uint8_t light = 0;       // gp::LightKind
   std::uint8_t gradientOpacity = 0;
   std::uint8_t orbitValid = 0;  // 1: eye given by orbit below instead of the settings' azimuth/elevation
-  std::uint8_t pad[2] = {};
+  std::uint8_t pixelStride = 1;  // the viewer's drag: rays for every n-th pixel along x and y (render.pixel_stride)
+  std::uint8_t pad[1] = {};
   double fovDeg = 30.0, azimuthDeg = 0.0, elevationDeg = 0.0, distance = 3.0;
   // An orbit of the settings' camera (the rotating loop): axis and degrees.
   double orbitAxis[3] = {0, 0, 1};

@@ -42,9 +42,11 @@ struct RenderSettings {
   std::vector<CompositeMode> compositing = {CompositeMode::Over, CompositeMode::Mip};
   int threads = 0;  // 0 = every core
   // Set while the user drags the view (not options): the step times this
-  // (a coarser, faster lattice), and the look-at point moved by this many mm
+  // (a coarser, faster lattice), rays for every pixelStride-th pixel along x
+  // and y only (SampleLattice), and the look-at point moved by this many mm
   // along the camera's right and up.
   double stepScale = 1.0;
+  int pixelStride = 1;
   double panMm[2] = {0.0, 0.0};
   // MIP and additive: the grey levels shown as black and white.
   glm::dvec2 valueWindow{0.0, 255.0};

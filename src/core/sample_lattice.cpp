@@ -128,9 +128,12 @@ bool intersectBox(const Ray& ray, const Vec3& lo, const Vec3& hi, double& tEnter
   return t0 <= t1;
 }
 
-SampleLattice::SampleLattice(const Camera& camera, const Grid& grid, double step, int maxSamples, int threads)
-    : rays_(camera), grid_(grid), step_(step), maxSamples_(maxSamples) {
+SampleLattice::SampleLattice(const Camera& camera, const Grid& grid, double step, int maxSamples, int threads,
+                             int pixelStride)
+    : rays_(camera), grid_(grid), step_(step), maxSamples_(maxSamples), stride_(pixelStride) {
   PP5_CHECK_GT(step, 0.0);
+  PP5_CHECK_GE(pixelStride, 1);
+  PP5_CHECK_LE(pixelStride, 64);
   PP5_CHECK_GE(maxSamples, 1);
   PP5_CHECK_LE(maxSamples, 65535);
   PP5_CHECK_GE(grid.dims.x, 1);
@@ -147,11 +150,12 @@ SampleLattice::SampleLattice(const Camera& camera, const Grid& grid, double step
     std::vector<std::uint8_t> rowHit(W);
 #pragma omp for schedule(static)
   for (std::int64_t y = 0; y < static_cast<std::int64_t>(H); ++y) {
+    if (y % pixelStride != 0) continue;
     rays_.rowThroughBox(static_cast<int>(y), 0, static_cast<int>(W), lo, hi, rowIn.data(), rowOut.data(),
                         rowHit.data());
     for (std::uint32_t x = 0; x < W; ++x) {
       const std::size_t p = static_cast<std::size_t>(y) * W + x;
-      if (!rowHit[x]) continue;
+      if (!rowHit[x] || x % static_cast<std::uint32_t>(pixelStride) != 0) continue;
       const double tIn = rowIn[x], tOut = rowOut[x];
       const double start = std::max(tIn, 0.0);
       if (tOut < start) continue;
@@ -168,7 +172,7 @@ SampleLattice::SampleLattice(const Camera& camera, const Grid& grid, double step
 }
 
 SampleLattice::SampleLattice(const RenderSettings& s, const Grid& grid)
-    : SampleLattice(makeCamera(s, grid), grid, s.step(grid), s.maxSamples, s.threads) {}
+    : SampleLattice(makeCamera(s, grid), grid, s.step(grid), s.maxSamples, s.threads, s.pixelStride) {}
 
 std::uint64_t SampleLattice::totalSamples() const {
   std::uint64_t n = 0;

@@ -13,9 +13,12 @@
 // (perspective) or on the eye's plane (orthographic), and an eye inside the
 // box starts its rays where it is.
 //
-// The lattice is a pure function of (camera, grid, step, maxSamples), with the
-// same double arithmetic on every rank; it stores t0 as a float (rounded up,
-// so that sample 0 is never in front of the box) and count as a uint16.
+// The lattice is a pure function of (camera, grid, step, maxSamples, pixel
+// stride), with the same double arithmetic on every rank; it stores t0 as a
+// float (rounded up, so that sample 0 is never in front of the box) and count
+// as a uint16. With a pixel stride s > 1 (the viewer's fast image while the
+// user drags), only pixels whose x and y are multiples of s have rays: every
+// other pixel's count is 0, and the image is s times coarser (fillStride).
 #include <cstdint>
 #include <span>
 #include <vector>
@@ -87,8 +90,10 @@ class SampleLattice {
 public:
   SampleLattice() = default;
   // threads: 0 = every core; the lattice does not depend on it.
-  SampleLattice(const Camera& camera, const Grid& grid, double step, int maxSamples, int threads = 0);
-  // makeCamera(s, grid), s.step(grid), s.maxSamples, s.threads.
+  // pixelStride: 1 .. 64.
+  SampleLattice(const Camera& camera, const Grid& grid, double step, int maxSamples, int threads = 0,
+                int pixelStride = 1);
+  // makeCamera(s, grid), s.step(grid), s.maxSamples, s.threads, s.pixelStride.
   SampleLattice(const RenderSettings& s, const Grid& grid);
 
   const Camera& camera() const { return rays_.camera(); }
@@ -96,6 +101,7 @@ public:
   const Grid& grid() const { return grid_; }
   double step() const { return step_; }
   int maxSamples() const { return maxSamples_; }
+  int pixelStride() const { return stride_; }
   int width() const { return rays_.width(); }
   int height() const { return rays_.height(); }
   std::uint32_t pixelCount() const { return static_cast<std::uint32_t>(t0_.size()); }
@@ -124,6 +130,7 @@ private:
   Grid grid_;
   double step_ = 1.0;
   int maxSamples_ = 0;
+  int stride_ = 1;
   std::vector<float> t0_;
   std::vector<std::uint16_t> count_;
 };

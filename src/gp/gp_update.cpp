@@ -16,7 +16,8 @@ GpUpdate::GpUpdate(const Grid& grid, const GpUpdateSettings& settings, const Cam
   checkGridFits(grid_, ChangeTracker::bytesPerVoxel(recon_->output().type), "change tracker ([grid])",
                 s_.memoryLimitBytes);
   changes_ = ChangeTracker(recon_->output());
-  lattice_ = SampleLattice(camera_, grid_, s_.render.step(grid_), s_.render.maxSamples, s_.render.threads);
+  lattice_ = SampleLattice(camera_, grid_, s_.render.step(grid_), s_.render.maxSamples, s_.render.threads,
+                           s_.render.pixelStride);
   reshadeAll(false);
 }
 
@@ -42,10 +43,11 @@ void GpUpdate::sampleChanged(SampleSink& sink) {
                changes_.changedCells());
 }
 
-void GpUpdate::setCamera(const Camera& camera, double stepScale) {
+void GpUpdate::setCamera(const Camera& camera, double stepScale, int pixelStride) {
   camera_ = camera;
   s_.render.stepScale = stepScale;
-  lattice_ = SampleLattice(camera_, grid_, s_.render.step(grid_), s_.render.maxSamples, s_.render.threads);
+  s_.render.pixelStride = pixelStride;
+  lattice_ = SampleLattice(camera_, grid_, s_.render.step(grid_), s_.render.maxSamples, s_.render.threads, pixelStride);
 }
 
 void GpUpdate::setStyle(const ShadeSettings& shading, const TransferFunctionSettings& tf) {

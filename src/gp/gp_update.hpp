@@ -98,7 +98,7 @@ public:
 
   // A new camera: the lattice is rebuilt. Call resampleAll() after it.
   // stepScale: the lattice's step times this (render.step_scale: a coarser view while the user drags).
-  void setCamera(const Camera& camera, double stepScale = 1.0);
+  void setCamera(const Camera& camera, double stepScale = 1.0, int pixelStride = 1);
   // New shading or transfer function. Call resampleAll() after it.
   void setStyle(const ShadeSettings& shading, const TransferFunctionSettings& tf);
   // A new live composition mode: what reshadeAll and the sampler make next

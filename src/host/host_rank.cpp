@@ -840,7 +840,7 @@ void applyControl(serial::SerialPipeline& pipe, std::uint32_t changes, const com
   if (changes & ControlMsg::kMode) pipe.setValueWindow(next.valueWindow[0], next.valueWindow[1]);
   if (changes & (ControlMsg::kShading | ControlMsg::kTransfer)) pipe.setStyle(shading, tf, liveMode(next));
   else if (changes & ControlMsg::kMode) pipe.setLiveMode(liveMode(next));
-  if (changes & ControlMsg::kView) pipe.setCamera(controlCamera(next, base, grid), next.stepScale);
+  if (changes & ControlMsg::kView) pipe.setCamera(controlCamera(next, base, grid), next.stepScale, next.pixelStride);
 }
 
 int runHostRank(comm::Transport& t, const HostJob& job) {

@@ -54,6 +54,10 @@ void registerOptions(ConfigSchema& c, ViewSettings& s) {
   c.option("view.drag_step_scale", &s.dragStepScale, 2.0, 1.0, 8.0,
            "While the user drags the view, the ray step is this many times longer (a faster, coarser image); "
            "the full one follows when the mouse stops.");
+  c.option("view.drag_pixel_stride", &s.dragPixelStride, 2, 1, 8,
+           "While the user drags the view, a ray for every n-th pixel (1, 2, 4 or 8) along x and y only: an image n times "
+           "coarser, sent n x n times smaller and scaled up by the page (as ParaViewWeb does while one "
+           "interacts); the full one follows when the mouse stops.");
   c.option("view.web_root", &s.webRoot, "", "The page's folder; \"\" = the one in the source tree (src/viewer/web).");
 }
 
@@ -174,6 +178,7 @@ struct LiveView::Impl {
     Camera camera;
     std::uint64_t seq;
     bool interactive;
+    int stride;                     // the lattice's pixel stride
     std::string composite, preset;  // what the page may wait for
   };
   std::deque<EpochView> epochs;
@@ -250,6 +255,7 @@ struct LiveView::Impl {
         }
         const bool interactive = boolean(msg, "interactive");
         c.stepScale = interactive ? s.dragStepScale : 1.0;
+        c.pixelStride = static_cast<std::uint8_t>(interactive ? s.dragPixelStride : 1);
         c.orbitValid = 0;
         wantSeq = std::max(wantSeq, seq);
         wantInteractive = interactive;
@@ -397,18 +403,25 @@ struct LiveView::Impl {
     std::size_t clients = 0;
     Clock::time_point lastStats{}, lastEncoded{};
     const auto period = std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(1.0 / s.imageHz));
+    std::uint32_t lastEpoch = UINT32_MAX;  // of the last image encoded
     std::unique_lock lock(m);
     while (!quit) {
-      // Wake for work, but encode images no faster than view.image_hz.
+      // Wake for work, but encode images no faster than view.image_hz; the
+      // first image of a new view (a drag's answer) goes out at once.
+      const bool newView = imagePending && imageEpoch != lastEpoch;
       const auto untilImage = lastEncoded + period - Clock::now();
-      cv.wait_for(lock, imagePending && untilImage > Clock::duration::zero()
-                            ? std::min<Clock::duration>(untilImage, std::chrono::milliseconds(100))
-                            : std::chrono::milliseconds(100));
+      if (!newView)
+        cv.wait_for(lock, imagePending && untilImage > Clock::duration::zero()
+                              ? std::min<Clock::duration>(untilImage, std::chrono::milliseconds(100))
+                              : std::chrono::milliseconds(100));
       if (quit) break;
       const std::size_t nowClients = server->clients();
       const bool newClient = nowClients > clients;
       clients = nowClients;
-      if (!clients) continue;
+      if (!clients) {
+        imagePending = false;  // nobody to send it to (a new client asks anew: needImage)
+        continue;
+      }
       if (newClient) {  // what it missed: the newest of each
         needImage = true;
         for (auto* msg : {&lastImage, &lastBmodeMsg, &lastSlices[0], &lastSlices[1], &lastSlices[2]})
@@ -417,13 +430,16 @@ struct LiveView::Impl {
                                              *msg);
         statsDirty = true;
       }
-      if (imagePending && Clock::now() - lastEncoded >= period) {
+      if (imagePending && (imageEpoch != lastEpoch || Clock::now() - lastEncoded >= period)) {
         imagePending = false;
         lastEncoded = Clock::now();
+        lastEpoch = imageEpoch;
         pp::TileImage im{imageW, imageH, std::move(pendingImage)};
         json h = {{"type", "image"}, {"epoch", imageEpoch}, {"frame", imageFrame}, {"width", imageW}, {"height", imageH}};
+        int stride = 1;
         for (const EpochView& e : epochs)
           if (e.epoch == imageEpoch) {
+            stride = e.stride;
             h["view_seq"] = e.seq;
             h["interactive"] = e.interactive;
             h["composite"] = e.composite;
@@ -439,8 +455,20 @@ struct LiveView::Impl {
           if (f <= imageFrame) arr.push_back({f, t});
         h["arrivals"] = arr;
         lock.unlock();
-        const std::vector<std::uint8_t> rgb = pp::toRgb8(im);
-        std::string msg = pack(h, jpeg.encode(rgb.data(), im.width, im.height, s.jpegQuality));
+        std::vector<std::uint8_t> rgb = pp::toRgb8(im);
+        int jw = im.width, jh = im.height;
+        if (stride > 1) {
+          // A coarse image (each strided pixel stands for a block): only its
+          // strided pixels, which the page scales up to width x height.
+          jw = (im.width + stride - 1) / stride;
+          jh = (im.height + stride - 1) / stride;
+          for (int y = 0; y < jh; ++y)
+            for (int x = 0; x < jw; ++x)
+              std::memmove(&rgb[(static_cast<std::size_t>(y) * jw + x) * 3],
+                          &rgb[(static_cast<std::size_t>(y) * stride * im.width + static_cast<std::size_t>(x) * stride) * 3], 3);
+          h["stride"] = stride;
+        }
+        std::string msg = pack(h, jpeg.encode(rgb.data(), jw, jh, s.jpegQuality));
         lock.lock();
         if (!imagePending) pendingImage = std::move(im.rgba);  // reuse the storage
         lastImage = msg;
@@ -505,6 +533,10 @@ LiveView::LiveView(const ViewSettings& settings, const Grid& grid, const RenderS
                    const gp::ReconSettings& recon, const TransferFunctionSettings& tf, const comm::ControlState& initial,
                    const std::string& recordDir)
     : impl_(std::make_unique<Impl>(settings, grid, base, recon, tf)) {
+  // Tiles are multiples of 8 pixels: a stride that divides 8 starts every tile
+  // on a strided pixel, so each PP fills its blocks as the whole image would.
+  if (8 % settings.dragPixelStride != 0)
+    throw InputError(fmt::format("view.drag_pixel_stride = {}: give 1, 2, 4 or 8", settings.dragPixelStride));
   impl_->recordDir = recordDir;
   viewer::ServerOptions o;
   parseListen(settings.listen, o.address, o.port, "view.listen");
@@ -520,7 +552,7 @@ LiveView::LiveView(const ViewSettings& settings, const Grid& grid, const RenderS
     I.tfWindow = std::max(1.0, t.opacity.back().x - t.opacity.front().x);
     I.tfOpacity = t.opacity.back().y;
   }
-  I.epochs.push_back({0, parallel::controlCamera(initial, base, grid), 0, false,
+  I.epochs.push_back({0, parallel::controlCamera(initial, base, grid), 0, false, 1,
                       std::string(enumName(parallel::liveMode(initial))), I.preset});
   I.server->onMessage([&I](const std::string& m) { return I.control(m); });
   I.encoder = std::thread([&I] { I.run(); });
@@ -594,7 +626,8 @@ void LiveView::epochStarted(std::uint32_t epoch, const comm::ControlState& state
     ++I.version;
   }
   I.epochs.push_back({epoch, parallel::controlCamera(state, I.base, I.grid), seq, interactive,
-                      std::string(enumName(parallel::liveMode(state))), I.preset});
+                      std::max(1, static_cast<int>(state.pixelStride)), std::string(enumName(parallel::liveMode(state))),
+                      I.preset});
   while (I.epochs.size() > 8) I.epochs.pop_front();
 }
 

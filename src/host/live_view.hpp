@@ -42,6 +42,7 @@ struct ViewSettings {
   double sliceHz = 2.0;      // the volume fetched for the slices at most this often
   int sliceSize = 384;       // the slices' longer side, pixels
   double dragStepScale = 2.0;  // the ray step times this while the user drags
+  int dragPixelStride = 2;     // and a ray for every n-th pixel along x and y
   std::string webRoot;       // the page's folder; "" = the one built in
 };
 void registerOptions(ConfigSchema& schema, ViewSettings& s);

@@ -54,6 +54,7 @@ comm::ControlState makeControlState(const RenderSettings& r, const gp::ShadeSett
   c.elevationDeg = r.elevationDeg;
   c.distance = r.distance;
   c.stepScale = r.stepScale;
+  c.pixelStride = static_cast<std::uint8_t>(r.pixelStride);
   c.panMm[0] = r.panMm[0];
   c.panMm[1] = r.panMm[1];
   c.valueWindow[0] = r.valueWindow[0];
@@ -87,6 +88,7 @@ void applyControlState(const comm::ControlState& c, RenderSettings& r, gp::Shade
   r.elevationDeg = c.elevationDeg;
   r.distance = c.distance;
   r.stepScale = c.stepScale;
+  r.pixelStride = c.pixelStride;
   r.panMm[0] = c.panMm[0];
   r.panMm[1] = c.panMm[1];
   r.valueWindow = glm::dvec2(c.valueWindow[0], c.valueWindow[1]);
@@ -129,7 +131,7 @@ std::uint32_t controlChanges(const comm::ControlState& a, const comm::ControlSta
   if (a.projection != b.projection || differs(a.fovDeg, b.fovDeg) || differs(a.azimuthDeg, b.azimuthDeg) ||
       differs(a.elevationDeg, b.elevationDeg) || differs(a.distance, b.distance) || a.orbitValid != b.orbitValid ||
       differs(a.orbitAxis, b.orbitAxis) || differs(a.orbitDeg, b.orbitDeg) ||
-      differs(a.stepScale, b.stepScale) || differs(a.panMm, b.panMm))
+      differs(a.stepScale, b.stepScale) || a.pixelStride != b.pixelStride || differs(a.panMm, b.panMm))
     ch |= comm::ControlMsg::kView;
   if (a.shadeMode != b.shadeMode || a.light != b.light || a.gradientOpacity != b.gradientOpacity ||
       differs(a.ambient, b.ambient) || differs(a.diffuse, b.diffuse) || differs(a.specular, b.specular) ||

@@ -428,13 +428,14 @@ CompositeStats RayCache::compositeDirty() {
 }
 
 CompositeStats RayCache::composite() {
+  CompositeStats st;
   // Dispatch once per call: the kernels are specialised per format and mode.
-#define PP5_CACHE_MODE(F)                                                            \
-  switch (live_) {                                                                   \
-    case CompositeMode::Over: return compositeDirty<F, CompositeMode::Over>();       \
-    case CompositeMode::Additive: return compositeDirty<F, CompositeMode::Additive>(); \
-    case CompositeMode::Mip: return compositeDirty<F, CompositeMode::Mip>();         \
-  }                                                                                  \
+#define PP5_CACHE_MODE(F)                                                                 \
+  switch (live_) {                                                                        \
+    case CompositeMode::Over: st = compositeDirty<F, CompositeMode::Over>(); break;       \
+    case CompositeMode::Additive: st = compositeDirty<F, CompositeMode::Additive>(); break; \
+    case CompositeMode::Mip: st = compositeDirty<F, CompositeMode::Mip>(); break;         \
+  }                                                                                       \
   break;
   switch (format_) {
     case SampleFormat::Rgba8: PP5_CACHE_MODE(SampleFormat::Rgba8)
@@ -442,7 +443,57 @@ CompositeStats RayCache::composite() {
     case SampleFormat::Float: PP5_CACHE_MODE(SampleFormat::Float)
   }
 #undef PP5_CACHE_MODE
-  return {};
+  if (stride_ > 1 && !st.changed.empty()) st.changed = fillBlocks(image_, st.changed);
+  return st;
+}
+
+void RayCache::setPixelStride(int stride) {
+  PP5_CHECK_GE(stride, 1);
+  stride_ = stride;
+  // Per axis, the tile-local column (row) whose pixel each one shows: its
+  // strided pixel to the left (above), or the tile's first strided one for
+  // those before it; -1 when the tile has none.
+  auto sources = [stride](int origin, int size) {
+    std::vector<int> src(static_cast<std::size_t>(size));
+    const int first = (stride - origin % stride) % stride;  // the first strided one, tile-local
+    for (int i = 0; i < size; ++i) {
+      const int g = origin + i;
+      const int own = g - g % stride - origin;
+      src[static_cast<std::size_t>(i)] = own >= 0 ? own : (first < size ? first : -1);
+    }
+    return src;
+  };
+  srcX_ = sources(tile_.x0, tile_.width);
+  srcY_ = sources(tile_.y0, tile_.height);
+}
+
+TileRect RayCache::fillBlocks(TileImage& im, const TileRect& changed) const {
+  // The pixels that show a strided pixel of `changed` are one run per axis.
+  auto span = [](const std::vector<int>& src, int lo, int hi, int& a, int& b) {
+    a = INT_MAX;
+    b = -1;
+    for (int i = 0; i < static_cast<int>(src.size()); ++i)
+      if (src[static_cast<std::size_t>(i)] >= lo && src[static_cast<std::size_t>(i)] <= hi) {
+        a = std::min(a, i);
+        b = i;
+      }
+  };
+  int x0, x1, y0, y1;
+  span(srcX_, changed.x0, changed.x0 + changed.width - 1, x0, x1);
+  span(srcY_, changed.y0, changed.y0 + changed.height - 1, y0, y1);
+  if (x1 < x0 || y1 < y0) return changed;
+  float* px = im.rgba.data();
+  const auto w = static_cast<std::size_t>(im.width);
+  for (int y = y0; y <= y1; ++y) {
+    const int sy = srcY_[static_cast<std::size_t>(y)];
+    for (int x = x0; x <= x1; ++x) {
+      const int sx = srcX_[static_cast<std::size_t>(x)];
+      if (sx == x && sy == y) continue;  // a strided pixel: a source
+      std::memcpy(px + 4 * (static_cast<std::size_t>(y) * w + x), px + 4 * (static_cast<std::size_t>(sy) * w + sx),
+                  4 * sizeof(float));
+    }
+  }
+  return TileRect{x0, y0, x1 - x0 + 1, y1 - y0 + 1};
 }
 
 template <SampleFormat F, CompositeMode M>
@@ -496,6 +547,7 @@ TileImage RayCache::compositeFull(CompositeMode mode) const {
     case SampleFormat::Float: PP5_CACHE_MODE(SampleFormat::Float)
   }
 #undef PP5_CACHE_MODE
+  if (stride_ > 1 && !rays_.empty()) fillBlocks(out, TileRect{0, 0, tile_.width, tile_.height});
   return out;
 }
 

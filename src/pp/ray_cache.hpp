@@ -164,6 +164,14 @@ public:
     live_ = live;
     reset(sampleCounts);
   }
+  // The view's pixel stride (SampleLattice): only the pixels whose image x
+  // and y are multiples of it have samples, and composite() and
+  // compositeFull() show each of those over the block of pixels it stands
+  // for: the next stride - 1 columns and rows within the tile (a tile that
+  // starts between strided columns or rows gives the ones before its first
+  // strided pixel to that pixel). 1 (every pixel) until set; a reset keeps it.
+  void setPixelStride(int stride);
+  int pixelStride() const { return stride_; }
   // Marks every block and ray dirty, so that the next composite() recomputes
   // the whole tile from its samples (what a full render costs).
   void invalidate();
@@ -236,6 +244,8 @@ private:
   std::vector<std::vector<std::uint32_t>> laneRays_;  // dirty rays listed by put(lane, ...)
   TileImage image_;
   RayCacheCounters counters_;
+  int stride_ = 1;
+  std::vector<int> srcX_, srcY_;  // setPixelStride's source column and row of each
 
   friend struct RayCacheAccess;
   std::uint16_t blocksOf(std::uint16_t count) const {
@@ -245,6 +255,9 @@ private:
   void zeroTouched();
   // The lanes' dirty rays onto dirtyRays_.
   void mergeLanes();
+  // Copies the strided pixels of `changed` over the pixels they stand for;
+  // the rectangle those make up.
+  TileRect fillBlocks(TileImage& im, const TileRect& changed) const;
   template <SampleFormat F, CompositeMode M>
   CompositeStats compositeDirty();
   template <SampleFormat F, CompositeMode M>

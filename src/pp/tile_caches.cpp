@@ -9,7 +9,7 @@ namespace pp5::pp {
 TileCaches::TileCaches(std::vector<TileRect> rects, int imageWidth, const RayCacheSettings& settings, int threads)
     : rects_(std::move(rects)), imageWidth_(imageWidth), settings_(settings), threads_(threads) {}
 
-void TileCaches::reset(std::span<const std::uint16_t> imageCounts, CompositeMode live) {
+void TileCaches::reset(std::span<const std::uint16_t> imageCounts, CompositeMode live, int pixelStride) {
   for (std::size_t i = 0; i < rects_.size(); ++i) {
     const TileRect& r = rects_[i];
     PP5_CHECK_LE(static_cast<std::size_t>(r.y0 + r.height) * static_cast<std::size_t>(imageWidth_),
@@ -33,6 +33,7 @@ void TileCaches::reset(std::span<const std::uint16_t> imageCounts, CompositeMode
       caches_.push_back(std::make_unique<RayCache>(r, imageWidth_, counts, settings_, live, threads_));
       caches_.back()->setValueWindow(window_[0], window_[1]);
     }
+    caches_[i]->setPixelStride(pixelStride);
   }
 }
 

@@ -26,7 +26,8 @@ public:
   // of the whole image (SampleLattice::counts(), row-major), every sample
   // transparent, the live mode `live`. The storage of the view before is
   // reused (RayCache::reset clears only what that view wrote).
-  void reset(std::span<const std::uint16_t> imageCounts, CompositeMode live);
+  // pixelStride: the lattice's (RayCache::setPixelStride).
+  void reset(std::span<const std::uint16_t> imageCounts, CompositeMode live, int pixelStride = 1);
 
   std::size_t size() const { return caches_.size(); }
   RayCache& operator[](std::size_t i) { return *caches_[i]; }

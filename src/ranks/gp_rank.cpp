@@ -279,7 +279,7 @@ private:
     applyControlState(state_, r, shading, tfs);
     if (ch & ControlMsg::kMode) update_->setLiveMode(liveMode(state_));
     if (ch & (ControlMsg::kShading | ControlMsg::kTransfer)) update_->setStyle(shading, tfs);
-    if (ch & ControlMsg::kView) update_->setCamera(controlCamera(state_, c_.render, c_.grid), state_.stepScale);
+    if (ch & ControlMsg::kView) update_->setCamera(controlCamera(state_, c_.render, c_.grid), state_.stepScale, state_.pixelStride);
     if (ch & ControlMsg::kFinish) {
       clock_.start(kReconstruct);
       update_->reconstructor().finish();

@@ -168,8 +168,8 @@ private:
     const Camera cam = controlCamera(state, c_.render, c_.grid);
     RenderSettings r = render_;
     r.stepScale = state.stepScale;
-    const SampleLattice lattice(cam, c_.grid, r.step(c_.grid), r.maxSamples, r.threads);
-    spare_->reset(lattice.counts(), liveMode(state));
+    const SampleLattice lattice(cam, c_.grid, r.step(c_.grid), r.maxSamples, r.threads, state.pixelStride);
+    spare_->reset(lattice.counts(), liveMode(state), state.pixelStride);
     spare_->setValueWindow(state.valueWindow[0], state.valueWindow[1]);
     prepared_ = true;
   }

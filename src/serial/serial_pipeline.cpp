@@ -77,12 +77,13 @@ void SerialPipeline::init(std::unique_ptr<gp::Reconstructor> recon, std::uint64_
   resample(true);
 }
 
-ViewStats SerialPipeline::setCamera(const Camera& camera, double stepScale) {
+ViewStats SerialPipeline::setCamera(const Camera& camera, double stepScale, int pixelStride) {
   using Clock = std::chrono::steady_clock;
   ViewStats st;
   auto t = Clock::now();
   s_.render.stepScale = stepScale;
-  gp_->setCamera(camera, stepScale);
+  s_.render.pixelStride = pixelStride;
+  gp_->setCamera(camera, stepScale, pixelStride);
   st.latticeMs = msSince(t);
   t = Clock::now();
   resetCaches();
@@ -99,7 +100,7 @@ void SerialPipeline::resetCaches() {
   if (!caches_ || caches_->rects()[0].width != c.width || caches_->rects()[0].height != c.height)
     caches_ = std::make_unique<pp::TileCaches>(std::vector<TileRect>{TileRect{0, 0, c.width, c.height}}, c.width,
                                                s_.cache, s_.render.threads);
-  caches_->reset(gp_->lattice().counts(), live_);
+  caches_->reset(gp_->lattice().counts(), live_, gp_->lattice().pixelStride());
 }
 
 void SerialPipeline::setStyle(const gp::ShadeSettings& shading, const TransferFunctionSettings& tf,
@@ -214,6 +215,7 @@ pp::TileImage SerialPipeline::renderFromScratch(pp::CompositeMode mode) const {
   const gp::EmptySpaceMap space(shade, s_.render.threads);
   pp::RayCache cache(TileRect{0, 0, camera.width, camera.height}, camera.width, gp_->lattice().counts(), s_.cache, mode,
                      s_.render.threads);
+  cache.setPixelStride(gp_->lattice().pixelStride());
   cache.setValueWindow(s_.render.valueWindow.x, s_.render.valueWindow.y);
   CacheSink sink(cache, s_.render.threads);
   gp::sampleAll(shade, gp_->lattice(), render, sink, &space);

@@ -74,7 +74,7 @@ public:
   // The times: the lattice, the cache made empty for the new rays, the
   // re-lighting, sampling with the cache's puts (the sampling threads put
   // their own samples), compositing.
-  ViewStats setCamera(const Camera& camera, double stepScale = 1.0);
+  ViewStats setCamera(const Camera& camera, double stepScale = 1.0, int pixelStride = 1);
   const Camera& camera() const { return gp_->camera(); }
   // New shading or transfer function: everything re-shaded and re-sampled.
   // With `live`, also a new live composition mode (one re-shade for both).

@@ -129,9 +129,11 @@ try {
   await page.mouse.move(cx, cy);
   await page.mouse.down();
   const dragImages0 = (await snap()).images;
-  for (let i = 1; i <= 40; ++i) {
-    await page.mouse.move(cx + 3 * i, cy + i);
-    await sleep(50);
+  // A mouse reports its moves at 60 Hz or more: a move every 16 ms (the page
+  // sends one view message per animation frame), 120 pixels in all.
+  for (let i = 1; i <= 120; ++i) {
+    await page.mouse.move(cx + i, cy + i / 3);
+    await sleep(16);
   }
   const dragSeconds = (Date.now() - dragStart) / 1000;
   const dragImages = (await snap()).images - dragImages0;

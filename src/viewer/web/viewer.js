@@ -73,13 +73,18 @@ function hash(bytes) {  // FNV-1a over a sample of the bytes: which images diffe
   return (h >>> 0).toString(16) + ':' + bytes.length;
 }
 
-async function drawJpeg(canvas, payload) {
+// A JPEG onto the canvas, at width x height (a coarse image of a drag is
+// scaled up, smoothly) or at its own size.
+async function drawJpeg(canvas, payload, width, height) {
   const bmp = await createImageBitmap(new Blob([payload], {type: 'image/jpeg'}));
-  if (canvas.width !== bmp.width || canvas.height !== bmp.height) {
-    canvas.width = bmp.width;
-    canvas.height = bmp.height;
+  const w = width || bmp.width, h = height || bmp.height;
+  if (canvas.width !== w || canvas.height !== h) {
+    canvas.width = w;
+    canvas.height = h;
   }
-  canvas.getContext('2d').drawImage(bmp, 0, 0);
+  const g = canvas.getContext('2d');
+  g.imageSmoothingEnabled = true;
+  g.drawImage(bmp, 0, 0, w, h);
   bmp.close();
 }
 
@@ -103,7 +108,7 @@ async function onMessage(h, payload) {
 
 async function onImage(h, payload) {
   const canvas = $('render');
-  await drawJpeg(canvas, payload);
+  await drawJpeg(canvas, payload, h.width, h.height);
   const now = Date.now();
   pp5.images++;
   pp5.distinct.add(hash(payload));
