@@ -61,25 +61,13 @@ public:
                  c.i[0][lane]);
   }
 
-  void prefetch(const Cells4& c) const {
-#if defined(__SSE2__)
-    for (int l = 0; l < 4; ++l) {
-      const char* q = reinterpret_cast<const char*>(cell(c, l));
-      _mm_prefetch(q, _MM_HINT_T0);
-      _mm_prefetch(q + 4 * sy_, _MM_HINT_T0);
-      _mm_prefetch(q + 4 * sz_, _MM_HINT_T0);
-      _mm_prefetch(q + 4 * (sz_ + sy_), _MM_HINT_T0);
-    }
-#else
-    (void)c;
-#endif
-  }
-  // The same for the lanes whose cell bit is set (EmptySpaceMap::cellBits).
-  void prefetchIf(const Cells4& c, const std::uint64_t* cellBits) const {
+  // The 8 voxels of the four lanes' cells; with `cellBits`
+  // (EmptySpaceMap::cellBits), only of the cells whose bit is set.
+  void prefetch(const Cells4& c, const std::uint64_t* cellBits = nullptr) const {
 #if defined(__SSE2__)
     for (int l = 0; l < 4; ++l) {
       const std::int64_t i = index(c, l);
-      if (!((cellBits[i >> 6] >> (i & 63)) & 1u)) continue;
+      if (cellBits && !((cellBits[i >> 6] >> (i & 63)) & 1u)) continue;
       const char* q = reinterpret_cast<const char*>(v_ + i);
       _mm_prefetch(q, _MM_HINT_T0);
       _mm_prefetch(q + 4 * sy_, _MM_HINT_T0);

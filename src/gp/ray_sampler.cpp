@@ -344,7 +344,7 @@ private:
     for (std::uint32_t g = k;; g += 4) {
       if (g + 4 <= kEnd) {
         interp.locate4(vr, g + 4, next);
-        interp.prefetchIf(next, cells);
+        interp.prefetch(next, cells);
       }
       const int lanes = static_cast<int>(std::min<std::uint32_t>(4, kEnd - g + 1));
       for (int l = 0; l < lanes; ++l) {
@@ -622,7 +622,7 @@ void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const 
               }
               if (g + 4 <= s1) {
                 interp.locate4(vr, static_cast<std::uint32_t>(g + 4), next);
-                interp.prefetchIf(next, cells);
+                interp.prefetch(next, cells);
               }
               const int lanes = static_cast<int>(std::min<std::int64_t>(4, s1 - g + 1));
               for (int l = 0; l < lanes; ++l) {
