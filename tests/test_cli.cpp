@@ -14,7 +14,9 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include "core/error.hpp"
 #include "core/volume_io.hpp"
+#include "gp/reconstruction.hpp"
 
 namespace {
 
@@ -80,6 +82,29 @@ TEST(Cli, BadConfigGivesOneLineWithFileKeyAndLine) {
   EXPECT_EQ(r.status, 1);
   EXPECT_NE(r.out.find("missing.toml"), std::string::npos) << r.out;
   std::filesystem::remove_all(d);
+}
+
+// Settings no stage can honour are refused before anything runs, with the
+// key and what to do instead: hole filling with the tent method (it was
+// ignored without a word), a drag stride that would not start every tile on
+// a strided pixel.
+TEST(Cli, SettingsThatCannotWorkAreRefusedUpFront) {
+  const std::string doll = (std::filesystem::path(PP5_SOURCE_DIR) / "configs" / "doll.toml").string();
+  auto r = run("run " + doll + " --serial -o /tmp/pp5cli-never --set recon.fill_holes=true");
+  EXPECT_EQ(r.status, 1) << r.out;
+  EXPECT_NE(r.out.find("recon.fill_holes"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("recon.method = trilinear"), std::string::npos) << r.out;
+  EXPECT_FALSE(std::filesystem::exists("/tmp/pp5cli-never/volume.mha"));
+  r = run("run " + doll + " --serial -o /tmp/pp5cli-never --view 0 --set view.drag_pixel_stride=3");
+  EXPECT_EQ(r.status, 1) << r.out;
+  EXPECT_NE(r.out.find("view.drag_pixel_stride = 3"), std::string::npos) << r.out;
+  // With a pixel method, hole filling is taken.
+  pp5::gp::ReconSettings s;
+  s.method = pp5::gp::Method::Trilinear;
+  s.fillHoles = true;
+  EXPECT_NO_THROW(pp5::gp::checkReconSettings(s));
+  s.method = pp5::gp::Method::Tent;
+  EXPECT_THROW(pp5::gp::checkReconSettings(s), pp5::InputError);
 }
 
 // run.source = "simulator" simulates the sweep once into the cache and

@@ -69,9 +69,11 @@ host::Preprocess preprocessOf(const Settings& s) {
 std::atomic<bool> gInterrupted{false};
 extern "C" void onInterrupt(int) { gInterrupted = true; }
 
-void checkView(const Settings& s) {
-  if (s.view.serve && s.view.listen.empty())
-    throw InputError("view.serve (--serve) keeps the viewer's final volume live: give --view [ADDR:]PORT too");
+// Every rank reads the settings: what no stage could honour fails on all of
+// them alike, before any rank starts.
+void checkSettings(const Settings& s) {
+  host::checkViewSettings(s.view);
+  gp::checkReconSettings(s.recon);
 }
 
 // The serial run's side of the live viewer: what the host rank does for the
@@ -176,7 +178,7 @@ int runSerial(const RunOptions& o) {
   ConfigSchema schema;
   registerAll(schema, s);
   loadSettings(schema, o.file, o.overrides);
-  checkView(s);
+  checkSettings(s);
   const std::string dir = o.outDir.empty() ? s.output.dir : o.outDir;
   makeOutputDir(dir);
   std::signal(SIGINT, onInterrupt);
@@ -396,7 +398,7 @@ int runDistributed(const RunOptions& o) {
     if (o.gps >= 0) overrides.push_back(fmt::format("parallel.gps={}", o.gps));
     if (o.pps >= 0) overrides.push_back(fmt::format("parallel.pps={}", o.pps));
     loadSettings(schema, o.file, overrides);
-    checkView(s);
+    checkSettings(s);
     if (o.expectRanks > 0 && size != o.expectRanks)
       throw InputError(fmt::format("--expect-ranks {}: the job has {} ranks (was it started by another MPI's "
                                    "launcher?)",

@@ -62,8 +62,9 @@ void registerOptions(ConfigSchema& schema, ReconSettings& s) {
   schema.option("recon.pixel_rejection_threshold", &s.pixelRejectionThreshold, -1.0, -1.0, 65535.0,
                 "Pixels darker than this are not inserted; -1 = off.");
   schema.option("recon.fill_holes", &s.fillHoles, false,
-                "Fill holes (voxels no pixel reached) with a STICK kernel of length 9 (nearest/trilinear); "
-                "PLUS configs may name other kernels.");
+                "Fill holes (voxels no pixel reached) with a STICK kernel of length 9; recon.method nearest or "
+                "trilinear only (the tent method refuses it and fills between slices with recon.fill_in). PLUS "
+                "configs may name other kernels.");
   schema.option("recon.fill_holes_incremental", &s.fillHolesIncremental, false,
                 "Keep holes filled inside each frame's dirty region as frames arrive, instead of one final pass.");
 }
@@ -126,6 +127,19 @@ Box3 reconstructionReach(const Grid& g, const ReconSettings& s, const Box3& wind
   return w.intersect(all);
 }
 
+void checkReconSettings(const ReconSettings& s) {
+  // PLUS's hole filling weighs the neighbours by the per-voxel weights of
+  // nearest and trilinear splatting; the tent kernel keeps no such weights
+  // and fills between slices itself (recon.fill_in). Silently ignoring the
+  // option would leave a user believing the holes were filled.
+  if (s.method == Method::Tent && (s.fillHoles || s.fillHolesIncremental || !s.holeFilling.empty()))
+    throw InputError(
+        "recon.fill_holes (and fill_holes_incremental, or a PLUS HoleFilling element) works with recon.method = "
+        "nearest or trilinear, whose per-voxel weights it needs; the tent method fills between slices itself "
+        "(recon.fill_in, recon.fill_in_max_gap_mm): set recon.method = trilinear for PLUS's hole filling, or "
+        "recon.fill_holes = false");
+}
+
 std::unique_ptr<Reconstructor> makeReconstructor(const Grid& g, const ReconSettings& s,
                                                  std::uint64_t memoryLimitBytes, const std::string& what) {
   // Settings built in code are held to the names a file could give.
@@ -133,6 +147,7 @@ std::unique_ptr<Reconstructor> makeReconstructor(const Grid& g, const ReconSetti
   checkedEnum(s.compounding);
   checkedEnum(s.replacement);
   checkedEnum(s.arithmetic);
+  checkReconSettings(s);
   const std::uint64_t bpv = m == Method::Tent ? tentBytesPerVoxel(s) : pixelBytesPerVoxel(s);
   checkGridFits(g, bpv, what, memoryLimitBytes);
   return m == Method::Tent ? makeTentReconstructor(g, s) : makePixelReconstructor(g, s);

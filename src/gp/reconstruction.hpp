@@ -172,7 +172,13 @@ private:
 // voxels around it. A host deciding which GPs need a frame's pixels tests the frame's support against this box.
 Box3 reconstructionReach(const Grid& g, const ReconSettings& s, const Box3& window);
 
-// Refuses grids that do not fit in memory (InputError naming `what`) before allocating.
+// InputError for settings no reconstructor can honour: hole filling
+// (recon.fill_holes, fill_holes_incremental, PLUS HoleFilling elements) with
+// the tent method, which keeps no per-voxel weights to fill from.
+void checkReconSettings(const ReconSettings& s);
+
+// Refuses grids that do not fit in memory (InputError naming `what`) before
+// allocating, and what checkReconSettings refuses.
 std::unique_ptr<Reconstructor> makeReconstructor(const Grid& g, const ReconSettings& s,
                                                  std::uint64_t memoryLimitBytes = 0,
                                                  const std::string& what = "reconstruction grid");

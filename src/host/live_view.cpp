@@ -61,6 +61,15 @@ void registerOptions(ConfigSchema& c, ViewSettings& s) {
   c.option("view.web_root", &s.webRoot, "", "The page's folder; \"\" = the one in the source tree (src/viewer/web).");
 }
 
+void checkViewSettings(const ViewSettings& s) {
+  if (s.serve && s.listen.empty())
+    throw InputError("view.serve (--serve) keeps the viewer's final volume live: give --view [ADDR:]PORT too");
+  // Tiles are multiples of 8 pixels: a stride that divides 8 starts every tile
+  // on a strided pixel, so each PP fills its blocks as the whole image would.
+  if (8 % s.dragPixelStride != 0)
+    throw InputError(fmt::format("view.drag_pixel_stride = {}: give 1, 2, 4 or 8", s.dragPixelStride));
+}
+
 void parseListen(const std::string& listen, std::string& address, int& port, const std::string& what) {
   const auto colon = listen.rfind(':');
   address = colon == std::string::npos ? "127.0.0.1" : listen.substr(0, colon);
@@ -533,10 +542,7 @@ LiveView::LiveView(const ViewSettings& settings, const Grid& grid, const RenderS
                    const gp::ReconSettings& recon, const TransferFunctionSettings& tf, const comm::ControlState& initial,
                    const std::string& recordDir)
     : impl_(std::make_unique<Impl>(settings, grid, base, recon, tf)) {
-  // Tiles are multiples of 8 pixels: a stride that divides 8 starts every tile
-  // on a strided pixel, so each PP fills its blocks as the whole image would.
-  if (8 % settings.dragPixelStride != 0)
-    throw InputError(fmt::format("view.drag_pixel_stride = {}: give 1, 2, 4 or 8", settings.dragPixelStride));
+  checkViewSettings(settings);
   impl_->recordDir = recordDir;
   viewer::ServerOptions o;
   parseListen(settings.listen, o.address, o.port, "view.listen");

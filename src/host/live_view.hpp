@@ -46,6 +46,9 @@ struct ViewSettings {
   std::string webRoot;       // the page's folder; "" = the one built in
 };
 void registerOptions(ConfigSchema& schema, ViewSettings& s);
+// InputError for settings that cannot work together: view.serve without
+// view.listen, a view.drag_pixel_stride that does not divide 8.
+void checkViewSettings(const ViewSettings& s);
 
 // "[ADDR:]PORT" into its parts; InputError naming `what` when malformed.
 void parseListen(const std::string& listen, std::string& address, int& port, const std::string& what);
