@@ -12,6 +12,8 @@
 #include <sstream>
 #include <string>
 #include <sys/wait.h>
+
+#include <fmt/format.h>
 #include <unistd.h>
 
 #include <nlohmann/json.hpp>
@@ -147,6 +149,16 @@ TEST_F(ReconCli, EvaluateTruthAndLeaveOutWriteTheirFigures) {
   EXPECT_GT(k["pixels_compared"].get<double>(), 0.0);
   EXPECT_GT(k["rmse"].get<double>(), 0.0);
   EXPECT_GE(k["rmse"].get<double>(), k["mae"].get<double>());
+  // The compared fraction beside every error (issue 18): in the JSON and on both error lines.
+  const double compared = k["pixels_compared"].get<double>(), skipped = k["pixels_skipped"].get<double>();
+  EXPECT_DOUBLE_EQ(k["compared_fraction"].get<double>(), compared / (compared + skipped));
+  const std::string pct = fmt::format("({:.1f}% of pixels compared)", 100.0 * compared / (compared + skipped));
+  EXPECT_NE(l.out.find("MAE               " + fmt::format("{:.3f}", k["mae"].get<double>()) + " grey levels " + pct),
+            std::string::npos)
+      << l.out;
+  EXPECT_NE(l.out.find("RMSE              " + fmt::format("{:.3f}", k["rmse"].get<double>()) + " grey levels " + pct),
+            std::string::npos)
+      << l.out;
 }
 
 // The accuracy target of docs/quality.md on a 40 mm section of the default

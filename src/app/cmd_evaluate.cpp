@@ -205,10 +205,13 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     std::printf("  frames            %llu kept, %llu held out, %llu skipped\n",
                 static_cast<unsigned long long>(st.inserted), static_cast<unsigned long long>(m.framesHeldOut),
                 static_cast<unsigned long long>(st.skipped));
-    std::printf("  MAE               %.3f grey levels\n", m.mae);
+    const double compared = static_cast<double>(m.pixelsCompared) /
+                            static_cast<double>(std::max<std::uint64_t>(1, m.pixelsCompared + m.pixelsSkipped));
+    std::printf("  MAE               %.3f grey levels (%.1f%% of pixels compared)\n", m.mae, 100.0 * compared);
     std::printf("  bias              %+.3f grey levels (mean of volume - held-out pixel)\n", m.bias);
-    std::printf("  RMSE              %.3f grey levels\n", m.rmse);
-    std::printf("  pixels compared   %llu\n", static_cast<unsigned long long>(m.pixelsCompared));
+    std::printf("  RMSE              %.3f grey levels (%.1f%% of pixels compared)\n", m.rmse, 100.0 * compared);
+    std::printf("  pixels compared   %llu (%.1f%%)\n", static_cast<unsigned long long>(m.pixelsCompared),
+                100.0 * compared);
     std::printf("  pixels skipped    %llu (no value in the volume there)\n",
                 static_cast<unsigned long long>(m.pixelsSkipped));
     std::printf("  (pixels inside the clip rectangle and fan only)\n");
@@ -224,6 +227,7 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     j["rmse"] = m.rmse;
     j["pixels_compared"] = m.pixelsCompared;
     j["pixels_skipped"] = m.pixelsSkipped;
+    j["compared_fraction"] = compared;
     emitJson(l->json, j);
     exitCode = 0;
   });
