@@ -161,6 +161,37 @@ TEST_F(ReconCli, EvaluateTruthAndLeaveOutWriteTheirFigures) {
       << l.out;
 }
 
+// An error over nothing is refused, never reported as a perfect score
+// (issue 20): a truth volume elsewhere in space, one with a NaN voxel, a
+// leave-out whose held-out pixels have no value all around them.
+TEST_F(ReconCli, EvaluateRefusesToScoreNothing) {
+  const pp5::Volume truth = pp5::readVolume((dir() / "doll_truth.mha").string());
+  pp5::Volume far = truth;
+  far.grid.origin += pp5::Vec3(10000.0, 0.0, 0.0);
+  const fs::path farPath = dir() / "far_truth.mha";
+  pp5::writeVolume(farPath.string(), far);
+  Result r = run("evaluate truth " + seq() + " --plus-config " + xml() + " -c " + toml() + " --truth " +
+                 farPath.string());
+  EXPECT_EQ(r.status, 1) << r.out;
+  EXPECT_NE(r.out.find("nothing to compare"), std::string::npos) << r.out;
+  EXPECT_EQ(r.out.find("PSNR"), std::string::npos) << r.out;
+
+  pp5::Volume nan = truth.as(pp5::ScalarType::F32);
+  nan.setValue(nan.grid.voxelCount() / 2, std::nan(""));
+  const fs::path nanPath = dir() / "nan_truth.mha";
+  pp5::writeVolume(nanPath.string(), nan);
+  r = run("evaluate truth " + seq() + " --plus-config " + xml() + " -c " + toml() + " --truth " + nanPath.string());
+  EXPECT_EQ(r.status, 1) << r.out;
+  EXPECT_NE(r.out.find("1 voxels that are not finite"), std::string::npos) << r.out;
+
+  // One frame kept of eight, nearest neighbour: no held-out pixel has all 8 voxels around it.
+  r = run("evaluate leave-out " + seq() + " --plus-config " + xml() + " -c " + toml() +
+          " --keep-every 8 --set recon.method=nearest --set recon.fill_holes=false");
+  EXPECT_EQ(r.status, 1) << r.out;
+  EXPECT_NE(r.out.find("nothing to compare"), std::string::npos) << r.out;
+  EXPECT_EQ(r.out.find("RMSE"), std::string::npos) << r.out;
+}
+
 // The accuracy target of docs/quality.md on a 40 mm section of the default
 // doll sweep (ideal medium, full-size frames, 1 mm grid): the paper's method
 // (tent + fill-in, the doll's kernel) against nearest neighbour with hole

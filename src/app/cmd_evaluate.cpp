@@ -1,4 +1,5 @@
 // `pp5echo evaluate truth|leave-out ...`: reconstruction accuracy.
+#include <cmath>
 #include <cstdio>
 #include <fstream>
 #include <memory>
@@ -97,6 +98,11 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     double margin = 0;
     const gp::ReconSettings rs = reconSettings(*t, seq, s, &spacing, &margin);
     const Volume truthVol = readVolume(t->truth);
+    std::uint64_t notFinite = 0;
+    for (std::size_t i = 0; i < truthVol.grid.voxelCount(); ++i) notFinite += std::isfinite(truthVol.value(i)) ? 0 : 1;
+    if (notFinite > 0)
+      inputError(t->truth, "holds {} voxels that are not finite numbers (NaN or infinity): no error can be measured "
+                 "against it", notFinite);
     auto recon = gp::makeReconstructor(truthVol.grid, rs, 0, t->truth);
     const ReconRunStats st = runReconstruction(seq, *recon);
     std::vector<Mat4> poses;
@@ -105,6 +111,10 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     const auto swept = gp::sweptRegion(truthVol.grid, poses, seq.reader->info().width, seq.reader->info().height);
     const auto cov = [&](std::size_t i) { return recon->hasValue(i); };
     const gp::TruthMetrics m = gp::compareWithTruth(recon->output(), cov, truthVol, swept);
+    // An error over nothing is no score, least of all a perfect one.
+    if (m.compared == 0)
+      inputError(t->truth, "no voxel of its grid is both swept and reconstructed ({} hold a value, {} are swept): "
+                 "nothing to compare; is the truth volume where the sweep is?", m.covered, m.swept);
     std::printf("ground truth: %s\n", t->truth.c_str());
     std::printf("  method            %s\n", describe(rs).c_str());
     std::printf("  frames            %llu inserted, %llu skipped\n", static_cast<unsigned long long>(st.inserted),
@@ -198,6 +208,10 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     }
     m.finish();
     if (m.framesHeldOut == 0) inputError(l->sequence, "has no placeable frame to hold out with --keep-every {}", k);
+    if (m.pixelsCompared == 0)
+      inputError(l->sequence, "no pixel of the {} held-out frames has a value all around it in the volume ({} skipped): "
+                 "nothing to compare; keep more frames (--keep-every) or use a method that fills between them",
+                 m.framesHeldOut, m.pixelsSkipped);
 
     std::printf("leave-out: %s, keep every %llu%s frame (%.0f%% removed)\n", l->sequence.c_str(),
                 static_cast<unsigned long long>(k), k == 2 ? "nd" : "th", 100.0 * (1.0 - 1.0 / static_cast<double>(k)));

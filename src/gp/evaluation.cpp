@@ -154,7 +154,10 @@ TruthMetrics compareWithTruth(const Volume& recon, const CoveredFn& covered, con
     m.biasEdge = eSum / static_cast<double>(m.edgeCompared);
   }
   if (m.farCompared > 0) m.rmseFar = std::sqrt(fSq / static_cast<double>(m.farCompared));
-  m.psnrDb = m.rmse > 0.0 ? 20.0 * std::log10(255.0 / m.rmse) : INFINITY;
+  // No comparison or a non-finite error has no PSNR (never a perfect one).
+  m.psnrDb = m.compared == 0 || !std::isfinite(m.rmse) ? NAN
+             : m.rmse > 0.0                            ? 20.0 * std::log10(255.0 / m.rmse)
+                                                       : INFINITY;
   return m;
 }
 
