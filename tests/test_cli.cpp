@@ -98,6 +98,13 @@ TEST(Cli, SettingsThatCannotWorkAreRefusedUpFront) {
   r = run("run " + doll + " --serial -o /tmp/pp5cli-never --view 0 --set view.drag_pixel_stride=3");
   EXPECT_EQ(r.status, 1) << r.out;
   EXPECT_NE(r.out.find("view.drag_pixel_stride = 3"), std::string::npos) << r.out;
+  // Negative counts were taken as "not given" (issue 20).
+  r = run("run " + doll + " --serial -o /tmp/pp5cli-never --gps -1");
+  EXPECT_NE(r.status, 0) << r.out;
+  EXPECT_NE(r.out.find("--gps"), std::string::npos) << r.out;
+  r = run("reconstruct none.mha --plus-config none.xml --threads -5");
+  EXPECT_NE(r.status, 0) << r.out;
+  EXPECT_NE(r.out.find("--threads"), std::string::npos) << r.out;
   // With a pixel method, hole filling is taken.
   pp5::gp::ReconSettings s;
   s.method = pp5::gp::Method::Trilinear;
@@ -105,6 +112,35 @@ TEST(Cli, SettingsThatCannotWorkAreRefusedUpFront) {
   EXPECT_NO_THROW(pp5::gp::checkReconSettings(s));
   s.method = pp5::gp::Method::Tent;
   EXPECT_THROW(pp5::gp::checkReconSettings(s), pp5::InputError);
+}
+
+// run.script in a serial run (it was ignored there without a word, issue
+// 20): a view change after frame 5 leaves the final image a run at that view
+// from the start gives, bit for bit (the final passes re-render everything),
+// and differs from the run without it.
+TEST(Cli, SerialRunAppliesItsScript) {
+  const auto d = tempDir("script");
+  const std::string doll = (std::filesystem::path(PP5_SOURCE_DIR) / "configs" / "doll.toml").string();
+  const std::string common = " --serial --set run.orbit_frames=0 --set run.mpr=false --set run.volume=false"
+                             " --set sim.sweep.max_frames=12 --set run.sweep_cache=" + (d / "cache").string();
+  auto r = run("run " + doll + common + " -o " + (d / "scripted").string() +
+               " --set 'run.script=[\"5 render.azimuth_deg = -60\"]'");
+  ASSERT_EQ(r.status, 0) << r.out;
+  EXPECT_NE(r.out.find("after frame 5: 5 render.azimuth_deg = -60"), std::string::npos) << r.out;
+  r = run("run " + doll + common + " -o " + (d / "turned").string() + " --set render.azimuth_deg=-60");
+  ASSERT_EQ(r.status, 0) << r.out;
+  r = run("run " + doll + common + " -o " + (d / "plain").string());
+  ASSERT_EQ(r.status, 0) << r.out;
+  const std::string scripted = readFile(d / "scripted" / "final_over.png");
+  ASSERT_FALSE(scripted.empty());
+  EXPECT_EQ(scripted, readFile(d / "turned" / "final_over.png"));
+  EXPECT_NE(scripted, readFile(d / "plain" / "final_over.png"));
+  // An entry after the last frame is named, not dropped without a word.
+  r = run("run " + doll + common + " -o " + (d / "late").string() +
+          " --set 'run.script=[\"500 render.azimuth_deg = -60\"]'");
+  ASSERT_EQ(r.status, 0) << r.out;
+  EXPECT_NE(r.out.find("was not applied"), std::string::npos) << r.out;
+  std::filesystem::remove_all(d);
 }
 
 // run.source = "simulator" simulates the sweep once into the cache and

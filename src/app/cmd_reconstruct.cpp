@@ -33,7 +33,8 @@ void addReconstructCommand(CLI::App& app, int& exitCode) {
   cmd->add_option("-o,--output", o->output, "Output volume (.mha, .mhd, .nrrd)")->required();
   cmd->add_option("--weights", o->weights, "Also write the accumulated weight per voxel (float32)");
   cmd->add_option("--type", o->type, "Voxel type of the output volume")->check(CLI::IsMember({"uint8", "float32"}));
-  cmd->add_option("--threads", o->threads, "Threads (0 = every core); overrides recon.threads");
+  cmd->add_option("--threads", o->threads, "Threads (0 = every core); overrides recon.threads")
+      ->check(CLI::Range(0, 1024));
   cmd->callback([o, &exitCode] {
     PosedSequence seq = openPosedSequence(o->sequence, o->plusConfig);
     gp::ReconSettings rs;

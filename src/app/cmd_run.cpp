@@ -90,6 +90,17 @@ public:
   explicit operator bool() const { return live_ != nullptr; }
   host::LiveView& live() { return *live_; }
 
+  // A run.script change: the pipeline takes it, and the page's next changes
+  // start from it (as the host rank does under mpirun).
+  void scripted(const comm::ControlState& next) {
+    if (const std::uint32_t ch = parallel::controlChanges(cur_, next)) host::applyControl(pipe_, ch, next, s_.render, grid_);
+    cur_ = next;
+    if (!live_) return;
+    live_->epochStarted(++epoch_, cur_);
+    live_->image(pipe_.image().rgba, pipe_.image().width, pipe_.image().height, epoch_,
+                 static_cast<std::int64_t>(frames_) - 1);
+  }
+
   void frame(const Frame& f, const Mat4& pose, double t, std::chrono::steady_clock::time_point arrival, double ms) {
     if (!live_) return;
     live_->frame(f, pose, frames_, t, arrival);
@@ -173,6 +184,8 @@ double median(std::vector<double> v) {
   return v[v.size() / 2];
 }
 
+std::vector<host::ScriptedControl> parseScript(const Settings& base);
+
 int runSerial(const RunOptions& o) {
   Settings s;
   ConfigSchema schema;
@@ -206,6 +219,11 @@ int runSerial(const RunOptions& o) {
     pipe.setCensus(census.get());
   }
   SerialViewer viewer(s, src.grid, pipe, dir);
+  // run.script: by the source's frame index, as under mpirun.
+  std::vector<host::ScriptedControl> script = parseScript(s);
+  std::stable_sort(script.begin(), script.end(),
+                   [](const host::ScriptedControl& a, const host::ScriptedControl& b) { return a.afterFrame < b.afterFrame; });
+  std::size_t nextScript = 0;
   const int w = s.render.width, h = s.render.height;
   host::StatsCsv stats((fs::path(dir) / "stats.csv").string(),
                        {"frame", "recon_ms", "shade_ms", "sample_ms", "composite_ms", "total_ms", "fill_in_slices",
@@ -243,6 +261,11 @@ int runSerial(const RunOptions& o) {
     composites.push_back(st.compositeMs);
     viewer.frame(*fp, pose, t, arrival, std::chrono::duration<double, std::milli>(Clock::now() - arrival).count());
     if (done % static_cast<std::uint64_t>(s.run.buildupEvery) == 0) buildup.add(pp::toRgb8(pipe.image()).data());
+    while (nextScript < script.size() && script[nextScript].afterFrame <= fp->index) {
+      const host::ScriptedControl& sc = script[nextScript++];
+      spdlog::info("run: after frame {}: {}", done, sc.text);
+      viewer.scripted(sc.state);
+    }
     ++done;
     const auto now = Clock::now();
     if (now - lastLog > std::chrono::seconds(2)) {
@@ -253,6 +276,9 @@ int runSerial(const RunOptions& o) {
     }
   });
   if (done == 0) throw InputError("run: the source gave no frame that can be placed");
+  for (; nextScript < script.size(); ++nextScript)
+    spdlog::warn("run: the source ended before frame {}; run.script entry \"{}\" was not applied",
+                 script[nextScript].afterFrame, script[nextScript].text);
 
   if (census) {
     pipe.setCensus(nullptr);
@@ -517,8 +543,8 @@ void addRunOptions(CLI::App* cmd, const std::shared_ptr<RunOptions>& o) {
   cmd->add_option("--census", o->census,
                   "Serial run: write where each frame's work lies (by grid layer and screen bin) to this JSON file, "
                   "the input of `bench --cost-model`");
-  cmd->add_option("--gps", o->gps, "Graphics processors (overrides parallel.gps)");
-  cmd->add_option("--pps", o->pps, "Pixel processors (overrides parallel.pps)");
+  cmd->add_option("--gps", o->gps, "Graphics processors (overrides parallel.gps)")->check(CLI::Range(0, 4096));
+  cmd->add_option("--pps", o->pps, "Pixel processors (overrides parallel.pps)")->check(CLI::Range(0, 4096));
   cmd->add_flag("--verify", o->verify,
                 "Under mpirun: also run the serial pipeline on the host and require its images to be bitwise equal: "
                 "every image in lockstep; in tick mode the image once every frame is in, and those after it");

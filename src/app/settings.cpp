@@ -111,7 +111,7 @@ void registerAll(ConfigSchema& schema, Settings& s) {
                 "The grey level at the middle of the written slices' window.");
   schema.option("run.volume", &s.run.volume, true, "Write the final reconstructed volume (`volume.mha`, 8 bit).");
   schema.option("run.script", &s.run.script, {},
-                "Control changes by frame (distributed run): each entry is \"AFTER_FRAME key = value; key = value\" (the change follows the first frame sent whose source index is at least AFTER_FRAME), "
+                "Control changes by frame (serial and distributed runs alike): each entry is \"AFTER_FRAME key = value; key = value\" (the change follows the first frame sent whose source index is at least AFTER_FRAME), "
                 "with keys among render.azimuth_deg, elevation_deg, distance, projection, fov_deg, compositing (the "
                 "first is live), render.shading.* and render.tf.*; e.g. \"40 render.azimuth_deg = 0\".");
   schema.option("run.crop_origin", &s.run.cropOrigin, {0, 0}, 0, 100000,
