@@ -105,6 +105,13 @@ TEST(Cli, SettingsThatCannotWorkAreRefusedUpFront) {
   r = run("reconstruct none.mha --plus-config none.xml --threads -5");
   EXPECT_NE(r.status, 0) << r.out;
   EXPECT_NE(r.out.find("--threads"), std::string::npos) << r.out;
+  // A view whose ray cache cannot fit: named, with what to change (it was a bare std::bad_alloc).
+  r = run("run " + doll + " --serial -o /tmp/pp5cli-never --set render.width=2048 --set render.height=2048"
+          " --set render.step_mm=0.05 --set render.max_samples=65535");
+  EXPECT_EQ(r.status, 1) << r.out;
+  EXPECT_NE(r.out.find("the ray cache of this view"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("render.step_mm"), std::string::npos) << r.out;
+  EXPECT_EQ(r.out.find("bad_alloc"), std::string::npos) << r.out;
   // With a pixel method, hole filling is taken.
   pp5::gp::ReconSettings s;
   s.method = pp5::gp::Method::Trilinear;

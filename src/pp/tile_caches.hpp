@@ -43,6 +43,8 @@ public:
   std::uint64_t memoryBytes() const;
 
 private:
+  // InputError when a view of these counts could need more memory than there is.
+  void checkFits(std::span<const std::uint16_t> imageCounts) const;
   double window_[2] = {0.0, 255.0};
   std::vector<TileRect> rects_;
   int imageWidth_;
