@@ -161,6 +161,41 @@ TEST_F(ReconCli, EvaluateTruthAndLeaveOutWriteTheirFigures) {
       << l.out;
 }
 
+// The sequence with frame 3's ProbeToTrackerTransform replaced (the header is
+// text; the pixels follow it unchanged).
+fs::path withFrame3Pose(const fs::path& seqPath, const fs::path& out, const std::string& matrix) {
+  std::ifstream in(seqPath, std::ios::binary);
+  std::string s((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const std::string key = "Seq_Frame0003_ProbeToTrackerTransform = ";
+  const auto at = s.find(key);
+  EXPECT_NE(at, std::string::npos);
+  const auto end = s.find('\n', at);
+  s.replace(at + key.size(), end - at - key.size(), matrix);
+  std::ofstream(out, std::ios::binary) << s;
+  return out;
+}
+
+// Poses no method can use are refused by every command, naming the frame
+// (issue 20): `reconstruct` took an all-zero pose that `run` refused, an
+// outlier was blamed on the grid's spacing, and a 1e300 pose overflowed an
+// integer conversion.
+TEST_F(ReconCli, BadPosesAreRefusedNamingTheFrame) {
+  const fs::path zero = withFrame3Pose(seq(), dir() / "zero.igs.mha", "0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0");
+  Result r = run("reconstruct " + zero.string() + " --plus-config " + xml() + " -o " + (dir() / "z.mha").string());
+  EXPECT_EQ(r.status, 1) << r.out;
+  EXPECT_NE(r.out.find("frame 3"), std::string::npos) << r.out;
+  EXPECT_FALSE(fs::exists(dir() / "z.mha"));
+  for (const char* far : {"1e6", "1e300"}) {
+    const fs::path f = withFrame3Pose(seq(), dir() / "far.igs.mha",
+                                      std::string("0 0 1 ") + far + " -1 0 0 150 0 -1 0 180 0 0 0 1");
+    r = run("reconstruct " + f.string() + " --plus-config " + xml() + " -c " + toml() + " -o " +
+            (dir() / "f.mha").string());
+    EXPECT_EQ(r.status, 1) << far << ": " << r.out;
+    EXPECT_NE(r.out.find("frame 3: its image lies"), std::string::npos) << far << ": " << r.out;
+    EXPECT_EQ(r.out.find("coarser spacing"), std::string::npos) << far << ": " << r.out;
+  }
+}
+
 // An error over nothing is refused, never reported as a perfect score
 // (issue 20): a truth volume elsewhere in space, one with a NaN voxel, a
 // leave-out whose held-out pixels have no value all around them.

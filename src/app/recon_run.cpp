@@ -1,5 +1,6 @@
 #include "app/recon_run.hpp"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 
@@ -8,6 +9,43 @@
 #include "core/error.hpp"
 
 namespace pp5::app {
+
+void checkNoOutlierPose(const PosedSequence& seq) {
+  // A pose far from all others (a tracker glitch) would stretch the automatic
+  // extent to it, and the grid would then be refused for its size: name the
+  // frame instead. Far: more than a metre from the middle of the frames'
+  // centres, and twenty times farther than the frames typically lie from it.
+  const SequenceInfo& info = seq.reader->info();
+  std::vector<std::uint64_t> index;
+  std::vector<Vec3> centre;
+  for (std::size_t i = 0; i < seq.poses.size(); ++i)
+    if (seq.poses[i]) {
+      index.push_back(i);
+      centre.push_back(transformPoint(*seq.poses[i], Vec3(0.5 * info.width, 0.5 * info.height, 0.0)));
+    }
+  if (centre.size() < 3) return;
+  auto median = [](std::vector<double> v) {
+    std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
+    return v[v.size() / 2];
+  };
+  Vec3 mid;
+  for (int a = 0; a < 3; ++a) {
+    std::vector<double> c;
+    for (const Vec3& p : centre) c.push_back(p[a]);
+    mid[a] = median(c);
+  }
+  std::vector<double> dist;
+  for (const Vec3& p : centre) dist.push_back(glm::length(p - mid));
+  const double typical = median(dist);
+  const auto worst = static_cast<std::size_t>(std::max_element(dist.begin(), dist.end()) - dist.begin());
+  const double d = dist[worst];
+  if (!std::isfinite(d) || (d > 1000.0 && d > 20.0 * std::max(typical, 10.0)))
+    inputError(seq.path,
+               "frame {}: its image lies {:.4g} mm from the middle of the sweep, where the frames typically lie "
+               "within {:.0f} mm: an outlier pose (a tracker glitch?) would stretch the grid to it; mark its "
+               "transform INVALID or drop the frame",
+               index[worst], d, typical);
+}
 
 Grid chooseGrid(const PosedSequence& seq, const gp::ReconSettings& s, const Vec3& spacing, double marginMm,
                 bool useConfigExtent) {
@@ -25,6 +63,7 @@ Grid chooseGrid(const PosedSequence& seq, const gp::ReconSettings& s, const Vec3
   for (const auto& p : seq.poses)
     if (p) poses.push_back(*p);
   const SequenceInfo& info = seq.reader->info();
+  checkNoOutlierPose(seq);
   Grid g = gp::plusOutputGrid(poses, info.width, info.height, s, spacing);
   if (marginMm > 0.0) {
     const Index3 pad(std::llround(marginMm / spacing.x), std::llround(marginMm / spacing.y),

@@ -32,6 +32,10 @@ struct ReconRunStats {
 ReconRunStats runReconstruction(PosedSequence& seq, gp::Reconstructor& recon,
                                 const std::function<bool(std::uint64_t)>& keep = {});
 
+// InputError naming the frame when one pose lies far from all the others (a
+// tracker glitch that would stretch the automatic extent to it).
+void checkNoOutlierPose(const PosedSequence& seq);
+
 // The grid a run uses: OutputOrigin/OutputExtent when the PLUS config gives
 // both (PLUS's own tool ignores them; pp5echo honours them), otherwise PLUS's
 // automatic extent over every placeable frame, grown by `marginMm`.

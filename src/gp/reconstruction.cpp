@@ -175,7 +175,15 @@ Grid plusOutputGrid(const std::vector<Mat4>& imageToReference, int width, int he
   Grid g;
   g.origin = lo;
   g.spacing = spacing;
-  for (int a = 0; a < 3; ++a) g.dims[a] = static_cast<std::int64_t>(std::llround((hi[a] - lo[a]) / spacing[a])) + 1;
+  for (int a = 0; a < 3; ++a) {
+    const double n = (hi[a] - lo[a]) / spacing[a];
+    // No grid that wide fits in memory; and the conversion must be in range.
+    if (!(n < 1e7))
+      throw InputError(fmt::format("the frames' automatic extent is {} mm along axis {} ({} voxels of {} mm): a "
+                                   "pose far from the others? give the extent, or fix the pose",
+                                   hi[a] - lo[a], "xyz"[a], n, spacing[a]));
+    g.dims[a] = static_cast<std::int64_t>(std::llround(n)) + 1;
+  }
   return g;
 }
 

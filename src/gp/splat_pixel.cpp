@@ -25,6 +25,8 @@
 // then refreshes the holes near it.
 #include "gp/splat_pixel.hpp"
 
+#include "gp/slice_geometry.hpp"
+
 #include <omp.h>
 
 #include <algorithm>
@@ -187,8 +189,9 @@ void PixelReconstructor::checkSize(const std::string& what, int width, int heigh
 }
 
 void PixelReconstructor::checkTransform(const std::string& what, const Mat4& imageToReference) const {
-  if (!isFinite(imageToReference))
-    throw InputError(fmt::format("{}: the ImageToReference transform is not finite", what));
+  // Finite, affine, the image's axes not degenerate: what every method
+  // requires of a pose (one rule, gp/slice_geometry).
+  (void)poseFromMatrix(imageToReference, what);
 }
 
 void PixelReconstructor::checkMap(const std::string& what, int width, int height, const Mat4& imageToReference,
