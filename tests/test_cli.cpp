@@ -150,6 +150,27 @@ TEST(Cli, SerialRunAppliesItsScript) {
   std::filesystem::remove_all(d);
 }
 
+// SIGINT stops a serial run at the next frame, and the frames taken go
+// through the final passes and every output, as under mpirun (the serial run
+// went on to the end of the input, issue 20 item 3).
+TEST(Cli, SerialRunStopsOnSigintAndWritesItsOutputs) {
+  const auto d = tempDir("sigint");
+  const std::string doll = (std::filesystem::path(PP5_SOURCE_DIR) / "configs" / "doll.toml").string();
+  const auto log = d / "run.log";
+  // A live simulated sweep of about 360 frames (some 10 s); the signal after 3.
+  const Result r = run("run " + doll + " --serial -o " + (d / "out").string() +
+                       " --set run.simulate_live=true --set sim.sweep.capture_interval_mm=0.5 --set run.orbit_frames=0"
+                       " > " + log.string() + " 2>&1 & p=$!; sleep 3; kill -INT $p; wait $p; echo status=$?");
+  const std::string out = readFile(log);
+  EXPECT_NE(r.out.find("status=0"), std::string::npos) << r.out << out;
+  const auto at = out.find("interrupted; finishing the ");
+  ASSERT_NE(at, std::string::npos) << out;
+  EXPECT_GT(std::stoi(out.substr(at + 27)), 0) << out;
+  for (const char* f : {"final_over.png", "volume.mha", "stats.csv", "buildup.gif"})
+    EXPECT_GT(std::filesystem::file_size(d / "out" / f), 0u) << f;
+  std::filesystem::remove_all(d);
+}
+
 // run.source = "simulator" simulates the sweep once into the cache and
 // streams it from there; the second run reuses it, and the volume equals the
 // live simulator's (the poses read back agree to 1e-6 mm, so the values to

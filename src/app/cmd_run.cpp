@@ -238,7 +238,13 @@ int runSerial(const RunOptions& o) {
   const host::Preprocess pre = preprocessOf(s);
   host::IntervalCapture capture(s.run.captureIntervalMm);
   Frame cropped;
+  // Ctrl-C or SIGTERM: the source stops at the next frame, and the frames
+  // taken so far go through the final passes and every output, as under
+  // mpirun (the source is left by an exception of this type).
+  struct Interrupted {};
+  try {
   src.run([&](const Frame& in, const Mat4& inPose, double t) {
+    if (gInterrupted) throw Interrupted{};
     const auto arrival = Clock::now();
     Mat4 pose = inPose;
     const Frame* fp = &in;
@@ -275,6 +281,9 @@ int runSerial(const RunOptions& o) {
       lastLog = now;
     }
   });
+  } catch (const Interrupted&) {
+    spdlog::warn("run: interrupted; finishing the {} frames taken", done);
+  }
   if (done == 0) throw InputError("run: the source gave no frame that can be placed");
   for (; nextScript < script.size(); ++nextScript)
     spdlog::warn("run: the source ended before frame {}; run.script entry \"{}\" was not applied",
