@@ -11,6 +11,7 @@
 #include <gif_lib.h>
 
 #include "core/error.hpp"
+#include "core/io_util.hpp"
 
 namespace pp5 {
 namespace {
@@ -35,7 +36,13 @@ void writeImage(const std::string& path, int width, int height, int channels, co
     std::filesystem::remove(tmp);
     inputError(path, "write failed: {}", why);
   }
-  out->close();
+  // A full disk may show only when the last buffer goes out: checked, and the
+  // bytes on disk before the name is taken.
+  if (!out->close() || !io::syncFile(tmp.string())) {
+    const std::string why = out->geterror();
+    std::filesystem::remove(tmp);
+    inputError(path, "write failed: {}", why.empty() ? std::string("the file could not be completed") : why);
+  }
   std::error_code ec;
   std::filesystem::rename(tmp, final, ec);
   if (ec) inputError(path, "cannot rename the finished image into place: {}", ec.message());
@@ -142,7 +149,11 @@ void AnimatedGif::close() {
   int err = 0;
   const int rc = EGifCloseFile(I.gif, &err);
   I.gif = nullptr;
-  if (rc == GIF_ERROR) I.fail("close", err);
+  if (rc == GIF_ERROR || !io::syncFile(I.tmp.string())) {
+    std::error_code rm;
+    std::filesystem::remove(I.tmp, rm);  // no stray temporary beside the outputs
+    I.fail("close", rc == GIF_ERROR ? err : E_GIF_ERR_WRITE_FAILED);
+  }
   std::error_code ec;
   std::filesystem::rename(I.tmp, I.final, ec);
   if (ec) inputError(I.final.string(), "cannot rename the finished animation into place: {}", ec.message());

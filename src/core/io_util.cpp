@@ -1,5 +1,6 @@
 #include "core/io_util.hpp"
 
+#include <fcntl.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -194,6 +195,14 @@ void AtomicFile::appendContentsOf(AtomicFile& other) {
     write(buf.data(), want);
     left -= want;
   }
+}
+
+bool syncFile(const std::string& path) {
+  const int fd = ::open(path.c_str(), O_RDONLY);
+  if (fd < 0) return false;
+  const bool ok = ::fsync(fd) == 0;
+  ::close(fd);
+  return ok;
 }
 
 void AtomicFile::commit() {

@@ -48,6 +48,10 @@ bool readLine(std::FILE* f, std::string& line, const std::string& path, long lin
               std::size_t maxLength = std::size_t{1} << 20);
 
 // ---- writing files ----
+// fsync of a file written by someone else (a library that closed it): false
+// when it cannot be opened or synced.
+bool syncFile(const std::string& path);
+
 // A file written under a temporary name in the folder of its final path.
 // commit() renames it into place; destroyed without commit() it removes the
 // temporary, so a failed or abandoned write never leaves a partial file under
