@@ -11,6 +11,7 @@
 #include <fstream>
 #include <sstream>
 #include <string>
+#include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -168,6 +169,26 @@ TEST(Cli, SerialRunStopsOnSigintAndWritesItsOutputs) {
   EXPECT_GT(std::stoi(out.substr(at + 27)), 0) << out;
   for (const char* f : {"final_over.png", "volume.mha", "stats.csv", "buildup.gif"})
     EXPECT_GT(std::filesystem::file_size(d / "out" / f), 0u) << f;
+  std::filesystem::remove_all(d);
+}
+
+// A FIFO given as an input is refused at once, naming it (reading one with no
+// writer waited forever, issue 20 item 7): a sequence, a TOML config and a
+// PLUS device set.
+TEST(Cli, SpecialFilesAreRefusedNotWaitedOn) {
+  const auto d = tempDir("fifo");
+  for (const char* name : {"seq.mha", "cfg.toml", "set.xml"}) {
+    const auto p = d / name;
+    ASSERT_EQ(::mkfifo(p.c_str(), 0600), 0) << p;
+  }
+  const std::string doll = (std::filesystem::path(PP5_SOURCE_DIR) / "configs" / "doll.toml").string();
+  const std::string seq = (d / "seq.mha").string(), cfg = (d / "cfg.toml").string(), set = (d / "set.xml").string();
+  for (const std::string& args :
+       {"info " + seq, "config " + cfg, "reconstruct " + seq + " --plus-config " + set + " -o " + (d / "o.mha").string()}) {
+    const Result r = run(args + " 2>&1; echo status=$?");
+    EXPECT_NE(r.out.find("status=1"), std::string::npos) << args << ": " << r.out;
+    EXPECT_NE(r.out.find("FIFO"), std::string::npos) << args << ": " << r.out;
+  }
   std::filesystem::remove_all(d);
 }
 

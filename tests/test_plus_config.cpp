@@ -392,7 +392,7 @@ TEST_F(PlusConfigErrors, MalformedXmlNamesFileAndLine) {
               HasSubstr("root element is <Config>, expected <PlusConfiguration>"));
   const std::string missing = path("does_not_exist.xml");
   EXPECT_THAT(inputErrorOf([&] { readPlusConfig(missing); }), StartsWith(missing + ": cannot open"));
-  EXPECT_THAT(inputErrorOf([&] { readPlusConfig(dir_.string()); }), HasSubstr("cannot open: it is a directory"));
+  EXPECT_THAT(inputErrorOf([&] { readPlusConfig(dir_.string()); }), HasSubstr("cannot read: it is a folder, not a regular file"));
 }
 
 TEST_F(PlusConfigErrors, MatrixWithFifteenNumbers) {

@@ -9,6 +9,7 @@
 #include <toml++/toml.h>
 
 #include "core/error.hpp"
+#include "core/io_util.hpp"
 
 namespace pp5 {
 namespace {
@@ -372,6 +373,7 @@ void ConfigSchema::loadString(const std::string& text, const std::string& source
 }
 
 void ConfigSchema::loadFile(const std::string& path) const {
+  io::checkInputFile(path);
   toml::table tbl;
   try {
     tbl = toml::parse_file(path);

@@ -121,9 +121,20 @@ std::string excerpt(std::string_view s) {
   return "'" + out + "'";
 }
 
-FilePtr openForReading(const std::string& path) {
+void checkInputFile(const std::string& path) {
   std::error_code ec;
-  if (std::filesystem::is_directory(path, ec)) inputError(path, "cannot open: it is a folder, not a file");
+  const auto st = std::filesystem::status(path, ec);
+  if (ec || st.type() == std::filesystem::file_type::not_found || st.type() == std::filesystem::file_type::regular)
+    return;
+  const char* what = st.type() == std::filesystem::file_type::directory ? "a folder"
+                     : st.type() == std::filesystem::file_type::fifo    ? "a FIFO (named pipe)"
+                     : st.type() == std::filesystem::file_type::socket  ? "a socket"
+                                                                        : "a device or other special file";
+  inputError(path, "cannot read: it is {}, not a regular file", what);
+}
+
+FilePtr openForReading(const std::string& path) {
+  checkInputFile(path);
   FilePtr f(std::fopen(path.c_str(), "rb"));
   if (!f) inputError(path, "cannot open ({})", std::strerror(errno));
   return f;

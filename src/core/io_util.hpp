@@ -38,7 +38,12 @@ struct FileCloser {
 };
 using FilePtr = std::unique_ptr<std::FILE, FileCloser>;
 
-// Opens for binary reading; InputError "PATH: cannot open (reason)" otherwise.
+// InputError unless `path` is a regular file (or a link to one): a folder, a
+// FIFO or a device is refused before it is opened, since reading a FIFO
+// with no writer would wait forever. A missing file passes (the opener says so).
+void checkInputFile(const std::string& path);
+// Opens for binary reading (checkInputFile first); InputError "PATH: cannot
+// open (reason)" otherwise.
 FilePtr openForReading(const std::string& path);
 std::uint64_t fileSize(std::FILE* f, const std::string& path);
 // Reads one '\n'-terminated line (the '\n' and a '\r' before it are dropped).

@@ -21,6 +21,7 @@
 #include <spdlog/spdlog.h>
 
 #include "core/error.hpp"
+#include "core/io_util.hpp"
 #include "core/frame.hpp"
 
 // Attribute names, legal values and defaults follow PLUS's readers:
@@ -246,8 +247,7 @@ private:
 };
 
 void loadXml(XmlFile& f) {
-  std::error_code ec;
-  if (std::filesystem::is_directory(f.path, ec)) inputError(f.path, "cannot open: it is a directory");
+  io::checkInputFile(f.path);
   std::ifstream in(f.path, std::ios::binary);
   if (!in) inputError(f.path, "cannot open: {}", std::strerror(errno));
   std::ostringstream ss;
