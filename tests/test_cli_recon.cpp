@@ -196,6 +196,25 @@ TEST_F(ReconCli, BadPosesAreRefusedNamingTheFrame) {
   }
 }
 
+// A header field in another encoding than UTF-8: `info` still describes the
+// file, shows those bytes as U+FFFD and names the file (it failed with a bare
+// JSON library message, issue 20 item 7).
+TEST_F(ReconCli, InfoShowsAHeaderThatIsNotUtf8AndNamesIt) {
+  std::ifstream in(seq(), std::ios::binary);
+  std::string s((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const std::string from = "UltrasoundImageType = BRIGHTNESS";
+  const auto at = s.find(from);
+  ASSERT_NE(at, std::string::npos);
+  s.replace(at, from.size(), "UltrasoundImageType = BRIGHT\xff\xfeNESS");
+  const fs::path bad = dir() / "latin.igs.mha";
+  std::ofstream(bad, std::ios::binary) << s;
+  const Result r = run("info " + bad.string());
+  EXPECT_EQ(r.status, 0) << r.out;
+  EXPECT_NE(r.out.find(bad.string() + ": the header holds bytes that are not UTF-8"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("BRIGHT\xef\xbf\xbd\xef\xbf\xbdNESS"), std::string::npos) << r.out;
+  EXPECT_EQ(r.out.find("json.exception"), std::string::npos) << r.out;
+}
+
 // An error over nothing is refused, never reported as a perfect score
 // (issue 20): a truth volume elsewhere in space, one with a NaN voxel, a
 // leave-out whose held-out pixels have no value all around them.

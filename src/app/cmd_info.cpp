@@ -7,6 +7,7 @@
 #include <iostream>
 #include <memory>
 #include <nlohmann/json.hpp>
+#include <spdlog/spdlog.h>
 #include <string>
 
 #include "app/commands.hpp"
@@ -99,7 +100,17 @@ void addInfoCommand(CLI::App& app, int& exitCode) {
   cmd->add_option("FILE", *file, "Sequence or volume (.mha, .mhd, .nrrd)")->required();
   cmd->callback([file, &exitCode] {
     const bool sequence = probeImageFile(*file) == ImageFileKind::Sequence;
-    std::cout << (sequence ? describeSequence(*file) : describeVolume(*file)).dump(2) << '\n';
+    const Json j = sequence ? describeSequence(*file) : describeVolume(*file);
+    std::string text;
+    try {
+      text = j.dump(2);
+    } catch (const Json::type_error&) {
+      // JSON is UTF-8: a header written in another encoding is shown with
+      // U+FFFD where its bytes are not UTF-8, and said so, naming the file.
+      text = j.dump(2, ' ', false, Json::error_handler_t::replace);
+      spdlog::warn("{}: the header holds bytes that are not UTF-8; they are shown as U+FFFD", *file);
+    }
+    std::cout << text << '\n';
     exitCode = 0;
   });
 }
