@@ -13,9 +13,12 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <sstream>
+#include <string>
 #include <thread>
 
 #include "core/error.hpp"
@@ -274,6 +277,39 @@ TEST(IgtlClient, StreamsAllFramesExactly) {
 }
 
 // uint16 pixels sent big-endian arrive as the Frame's little-endian.
+// The local address of the TCP socket listening on `port` (from
+// /proc/net/tcp, hex as the kernel writes it: 0100007F is 127.0.0.1), "" if none.
+std::string listeningAddress(int port) {
+  std::ifstream in("/proc/net/tcp");
+  std::string line;
+  std::getline(in, line);  // the column names
+  char want[8];
+  std::snprintf(want, sizeof want, "%04X", port);
+  while (std::getline(in, line)) {
+    std::istringstream ss(line);
+    std::string slot, local, remote, state;
+    ss >> slot >> local >> remote >> state;
+    if (state == "0A" && local.size() == 13 && local.substr(9) == want) return local.substr(0, 8);
+  }
+  return "";
+}
+
+// pp5echo-igtl-server listens on this machine only unless --bind says
+// otherwise (it listened on every interface, issue 20 item 7).
+TEST(IgtlServer, ListensOnLoopbackUnlessToldOtherwise) {
+  TempDir dir;
+  writeAllFrames(dir / "seq.igs.mha", makeFrames(3, 16, 8, PixelType::U8));
+  {
+    Server server(dir, {dir / "seq.igs.mha", "--fps", "0"});
+    EXPECT_EQ(listeningAddress(server.port()), "0100007F");
+  }
+  {
+    Server server(dir, {dir / "seq.igs.mha", "--fps", "0", "--bind", "0.0.0.0"});
+    EXPECT_EQ(listeningAddress(server.port()), "00000000");
+  }
+  EXPECT_THROW(Server(dir, {dir / "seq.igs.mha", "--bind", "999.0.0.1"}), std::runtime_error);
+}
+
 TEST(IgtlClient, Uint16BigEndian) {
   TempDir dir;
   const auto frames = makeFrames(10, 40, 30, PixelType::U16);

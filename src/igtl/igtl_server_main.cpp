@@ -2,6 +2,7 @@
 // server does (each frame's TRANSFORMs, then its IMAGE), to one client. It is
 // the counterpart of pp5::igtl::Client for tests and demos, and can drop the
 // connection mid-stream (and come back) to exercise the client's reconnection.
+#include <arpa/inet.h>
 #include <netinet/in.h>
 #include <netinet/tcp.h>
 #include <poll.h>
@@ -39,6 +40,7 @@ using Clock = std::chrono::steady_clock;
 struct Options {
   std::string sequence;
   int port = pp5::igtl::kDefaultPort;
+  std::string bind = "127.0.0.1";  // this machine only, unless asked
   double fps = 30.0;
   std::uint64_t frames = 0;  // 0: all
   std::vector<std::string> transforms{"ProbeToTracker"};
@@ -76,16 +78,19 @@ void writePortFile(const std::string& path, int port) {
 class Listener {
 public:
   ~Listener() { close(); }
-  void open(int port) {
-    fd_ = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
-    const int one = 1;
+  void open(const std::string& address, int port) {
     sockaddr_in a{};
     a.sin_family = AF_INET;
-    a.sin_addr.s_addr = htonl(INADDR_ANY);
+    if (::inet_pton(AF_INET, address.c_str(), &a.sin_addr) != 1)
+      throw InputError(fmt::format("--bind {}: give an IPv4 address (127.0.0.1 for this machine, 0.0.0.0 for every "
+                                   "interface)",
+                                   address));
     a.sin_port = htons(static_cast<std::uint16_t>(port));
+    fd_ = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
+    const int one = 1;
     if (fd_ < 0 || ::setsockopt(fd_, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one) != 0 ||
         ::bind(fd_, reinterpret_cast<sockaddr*>(&a), sizeof a) != 0 || ::listen(fd_, 1) != 0)
-      throw InputError(fmt::format("cannot listen on port {}: {}", port, std::strerror(errno)));
+      throw InputError(fmt::format("cannot listen on {}:{}: {}", address, port, std::strerror(errno)));
     socklen_t len = sizeof a;
     ::getsockname(fd_, reinterpret_cast<sockaddr*>(&a), &len);
     port_ = ntohs(a.sin_port);
@@ -170,7 +175,7 @@ int serve(const Options& o) {
   }
 
   Listener listener;
-  listener.open(o.port);
+  listener.open(o.bind, o.port);
   const int port = listener.port();
   if (!o.portFile.empty()) writePortFile(o.portFile, port);
   event("listening on port {}", port);
@@ -194,7 +199,7 @@ int serve(const Options& o) {
       event("vanished after {} frames", k);
       if (o.reappearAfterS < 0) break;
       std::this_thread::sleep_for(std::chrono::duration<double>(o.reappearAfterS));
-      listener.open(port);
+      listener.open(o.bind, port);
       event("listening on port {} again", port);
       client = listener.accept(o.acceptTimeoutS);
       event("client connected again");
@@ -283,6 +288,8 @@ int main(int argc, char** argv) {
   CLI::App app{"pp5echo-igtl-server: streams a PLUS sequence over OpenIGTLink to one client (tests and demos)"};
   app.add_option("sequence", o.sequence, "PLUS sequence (.igs.mha, .seq.nrrd, ...)")->required();
   app.add_option("--port", o.port, "TCP port; 0 picks a free one (see --port-file)")->required()->check(CLI::Range(0, 65535));
+  app.add_option("--bind", o.bind, "Address to listen on (default 127.0.0.1, this machine only; 0.0.0.0 for every "
+                                   "interface)");
   app.add_option("--fps", o.fps, "frames per second; 0 sends as fast as possible")->check(CLI::NonNegativeNumber);
   app.add_option("--frames", o.frames, "send at most this many frames (0: all)");
   app.add_option("--transform", o.transforms, "transform sent as a TRANSFORM before each IMAGE (repeatable)")
