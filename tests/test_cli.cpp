@@ -31,6 +31,9 @@ std::string readFile(const std::filesystem::path& p) {
   return ss.str();
 }
 
+// configs/doll.toml of the source tree.
+std::string dollConfig() { return (std::filesystem::path(PP5_SOURCE_DIR) / "configs" / "doll.toml").string(); }
+
 std::filesystem::path tempDir(const std::string& name) {
   auto d = std::filesystem::temp_directory_path() / ("pp5cli-" + name + "-" + std::to_string(::getpid()));
   std::filesystem::remove_all(d);
@@ -90,7 +93,7 @@ TEST(Cli, BadConfigGivesOneLineWithFileKeyAndLine) {
 // ignored without a word), a drag stride that would not start every tile on
 // a strided pixel.
 TEST(Cli, SettingsThatCannotWorkAreRefusedUpFront) {
-  const std::string doll = (std::filesystem::path(PP5_SOURCE_DIR) / "configs" / "doll.toml").string();
+  const std::string doll = dollConfig();
   auto r = run("run " + doll + " --serial -o /tmp/pp5cli-never --set recon.fill_holes=true");
   EXPECT_EQ(r.status, 1) << r.out;
   EXPECT_NE(r.out.find("recon.fill_holes"), std::string::npos) << r.out;
@@ -128,7 +131,7 @@ TEST(Cli, SettingsThatCannotWorkAreRefusedUpFront) {
 // and differs from the run without it.
 TEST(Cli, SerialRunAppliesItsScript) {
   const auto d = tempDir("script");
-  const std::string doll = (std::filesystem::path(PP5_SOURCE_DIR) / "configs" / "doll.toml").string();
+  const std::string doll = dollConfig();
   const std::string common = " --serial --set run.orbit_frames=0 --set run.mpr=false --set run.volume=false"
                              " --set sim.sweep.max_frames=12 --set run.sweep_cache=" + (d / "cache").string();
   auto r = run("run " + doll + common + " -o " + (d / "scripted").string() +
@@ -156,7 +159,7 @@ TEST(Cli, SerialRunAppliesItsScript) {
 // went on to the end of the input, issue 20 item 3).
 TEST(Cli, SerialRunStopsOnSigintAndWritesItsOutputs) {
   const auto d = tempDir("sigint");
-  const std::string doll = (std::filesystem::path(PP5_SOURCE_DIR) / "configs" / "doll.toml").string();
+  const std::string doll = dollConfig();
   const auto log = d / "run.log";
   // A live simulated sweep of about 360 frames (some 10 s); the signal after 3.
   const Result r = run("run " + doll + " --serial -o " + (d / "out").string() +
@@ -181,7 +184,7 @@ TEST(Cli, SpecialFilesAreRefusedNotWaitedOn) {
     const auto p = d / name;
     ASSERT_EQ(::mkfifo(p.c_str(), 0600), 0) << p;
   }
-  const std::string doll = (std::filesystem::path(PP5_SOURCE_DIR) / "configs" / "doll.toml").string();
+  const std::string doll = dollConfig();
   const std::string seq = (d / "seq.mha").string(), cfg = (d / "cfg.toml").string(), set = (d / "set.xml").string();
   for (const std::string& args :
        {"info " + seq, "config " + cfg, "reconstruct " + seq + " --plus-config " + set + " -o " + (d / "o.mha").string()}) {

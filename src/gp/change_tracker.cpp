@@ -130,13 +130,11 @@ RowScan scanRowF32(const std::uint8_t* nowBytes, std::uint8_t* wasBytes, std::in
     widen(s.changedLo, s.changedHi, t.changedLo, t.changedHi);
     widen(s.selfLo, s.selfHi, t.selfLo, t.selfHi);
     widen(s.visibleLo, s.visibleHi, t.visibleLo, t.visibleHi);
-    n = v;  // the scalar scan copied its part
   }
-  if (s.changedLo <= s.changedHi) {
-    const std::int32_t hi = std::min(s.changedHi, n - 1);
-    if (s.changedLo <= hi)
-      std::memcpy(wasBytes + 4 * s.changedLo, nowBytes + 4 * s.changedLo, static_cast<std::size_t>(hi - s.changedLo + 1) * 4);
-  }
+  // The copy takes the changed range (the tail's part again, the same bytes).
+  if (s.changedLo <= s.changedHi)
+    std::memcpy(wasBytes + 4 * s.changedLo, nowBytes + 4 * s.changedLo,
+                static_cast<std::size_t>(s.changedHi - s.changedLo + 1) * 4);
   return s;
 }
 #endif

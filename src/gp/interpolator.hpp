@@ -9,6 +9,7 @@
 
 #include "core/error.hpp"
 #include "core/sample_lattice.hpp"
+#include "gp/empty_space.hpp"
 #include "gp/shade_buffer.hpp"
 #include "core/simd.hpp"
 
@@ -67,7 +68,7 @@ public:
 #if defined(__SSE2__)
     for (int l = 0; l < 4; ++l) {
       const std::int64_t i = index(c, l);
-      if (cellBits && !((cellBits[i >> 6] >> (i & 63)) & 1u)) continue;
+      if (cellBits && !EmptySpaceMap::bitSet(cellBits, i)) continue;
       const char* q = reinterpret_cast<const char*>(v_ + i);
       _mm_prefetch(q, _MM_HINT_T0);
       _mm_prefetch(q + 4 * sy_, _MM_HINT_T0);

@@ -626,11 +626,11 @@ void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const 
               }
               const int lanes = static_cast<int>(std::min<std::int64_t>(4, s1 - g + 1));
               for (int l = 0; l < lanes; ++l) {
-                if (changedCells && changedCells[interp.index(c, l)] == 0) continue;
+                const std::int64_t idx = interp.index(c, l);
+                if (changedCells && changedCells[idx] == 0) continue;
                 const std::size_t brick = brickOf(c, l, bd);
                 if (dist[brick] == 0) {
                   // An all-transparent cell blends to exact zeros: no voxels read.
-                  const std::int64_t idx = interp.index(c, l);
                   float* rgba = stage.slot();
                   if (EmptySpaceMap::bitSet(cells, idx)) interp.blendAt(c, l, idx, loaded, vox, rgba);
                   else rgba[0] = rgba[1] = rgba[2] = rgba[3] = 0.0f;
@@ -655,9 +655,9 @@ void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const 
             }
             const int lanes = static_cast<int>(std::min<std::int64_t>(4, s1 - g + 1));
             for (int l = 0; l < lanes; ++l) {
-              if (changedCells && changedCells[interp.index(c, l)] == 0) continue;
-              float* rgba = stage.slot();
               const std::int64_t idx = interp.index(c, l);
+              if (changedCells && changedCells[idx] == 0) continue;
+              float* rgba = stage.slot();
               if (!dist || (dist[brickOf(c, l, bd)] == 0 && EmptySpaceMap::bitSet(cells, idx))) {
                 interp.blendAt(c, l, idx, loaded, vox, rgba);
               } else {

@@ -55,6 +55,7 @@ void TileCaches::checkFits(std::span<const std::uint16_t> imageCounts) const {
                                static_cast<std::size_t>(r.x0 + x)];
   }
   const auto blocks = samples / static_cast<std::uint64_t>(settings_.blockSize) + rays;
+  // A ray's record and dirty-list entry take at most 32 bytes, its pixel 16.
   const std::uint64_t need = samples * sampleFormatBytes(settings_.format) + blocks * (sizeof(RayCache::Partial) + 1) +
                              rays * (32 + 16) + samples / 64;
   const std::uint64_t have = availableMemoryBytes() + memoryBytes();

@@ -27,13 +27,11 @@ gp::Box3 wholeGrid(const Grid& g) { return {Index3(0), g.dims}; }
 // ms)` follows each.
 class CacheSink final : public gp::SampleSink {
 public:
-  CacheSink(pp::RayCache& cache, int threads) : cache_(cache), concurrent_(true) {
-    cache.setPutLanes(resolveThreads(threads));
-  }
+  CacheSink(pp::RayCache& cache, int threads) : cache_(cache) { cache.setPutLanes(resolveThreads(threads)); }
   CacheSink(pp::RayCache& cache, std::function<void(std::span<const RaySample>, double)> onPut)
-      : cache_(cache), onPut_(std::move(onPut)), concurrent_(false) {}
+      : cache_(cache), onPut_(std::move(onPut)) {}
   void consume(int thread, std::uint32_t, std::span<const RaySample> batch) override {
-    if (concurrent_) return cache_.put(thread, batch.data(), batch.size());
+    if (!onPut_) return cache_.put(thread, batch.data(), batch.size());
     const std::lock_guard<std::mutex> lock(m_);
     const auto t = std::chrono::steady_clock::now();
     cache_.put(batch.data(), batch.size());
@@ -42,8 +40,7 @@ public:
 
 private:
   pp::RayCache& cache_;
-  std::function<void(std::span<const RaySample>, double)> onPut_;
-  bool concurrent_;
+  std::function<void(std::span<const RaySample>, double)> onPut_;  // none: every thread puts at once
   std::mutex m_;
 };
 
