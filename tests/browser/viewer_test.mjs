@@ -137,6 +137,8 @@ try {
   }
   const dragSeconds = (Date.now() - dragStart) / 1000;
   const dragImages = (await snap()).images - dragImages0;
+  // The coarse image a drag shows, before the mouse is let go (docs/viewer.md).
+  await page.locator('#render').screenshot({path: path.join(out, 'during-a-drag.png')});
   await page.mouse.up();
   // The drag's own image: one answering its view messages (the run may open
   // epochs of its own meanwhile, e.g. at the end of the sweep).
