@@ -25,6 +25,7 @@ LAYERS = {
     "interface_board": 1,  # the USB board's wire format, driver and emulator
     "igtl": 1,             # the OpenIGTLink client
     "viewer": 1,           # the live viewer's server
+    "calib": 1,            # probe calibration with an N-wire phantom
     "parallel": 2,         # schedules, partitionings, parallel settings
     "serial": 2,           # the single-process reference pipeline
     "ranks": 3,            # the GP and PP rank loops

@@ -17,6 +17,8 @@ void addReconstructCommand(CLI::App& app, int& exitCode);
 void addEvaluateCommand(CLI::App& app, int& exitCode);
 void addRunCommand(CLI::App& app, int& exitCode);
 void addBenchCommand(CLI::App& app, int& exitCode);
+void addCalibrateCommand(CLI::App& app, int& exitCode);
+void addSimulateCalibrationCommand(CLI::App& app, int& exitCode);
 void addBoardCommands(CLI::App& app, int& exitCode);
 // `pp5echo board-emulator ... -- COMMAND ARGS`: what follows the first `--`.
 std::vector<std::string>& trailingCommand();

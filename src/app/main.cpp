@@ -27,6 +27,8 @@ int main(int argc, char** argv) {
   pp5::app::addEvaluateCommand(app, exitCode);
   pp5::app::addRunCommand(app, exitCode);
   pp5::app::addBenchCommand(app, exitCode);
+  pp5::app::addCalibrateCommand(app, exitCode);
+  pp5::app::addSimulateCalibrationCommand(app, exitCode);
   pp5::app::addBoardCommands(app, exitCode);
 
   // board-emulator runs a command given after `--`; keep it away from CLI11.

@@ -88,6 +88,57 @@ struct PlusConfigTransform {
   bool operator==(const PlusConfigTransform&) const = default;
 };
 
+// One wire of a <PhantomDefinition><Geometry><Pattern>: a straight segment in
+// the Phantom frame, mm.
+struct PlusWire {
+  std::string name;  // Name, e.g. "8:L1_h1"
+  Vec3 front{0.0}, back{0.0};  // EndPointFront, EndPointBack
+  bool operator==(const PlusWire&) const = default;
+};
+
+// An N-wire pattern: two parallel outer wires and a diagonal one between them,
+// in one plane (PLUS's Pattern Type="NWire"), wires in file order.
+struct PlusNWirePattern {
+  std::array<PlusWire, 3> wires;
+  bool operator==(const PlusNWirePattern&) const = default;
+};
+
+// <PhantomDefinition>: the calibration phantom's wires (fCal's multi-N).
+struct PlusPhantomDefinition {
+  std::string name, version;  // Description Name / Version
+  std::vector<PlusNWirePattern> patterns;
+  bool operator==(const PlusPhantomDefinition&) const = default;
+};
+
+// <Segmentation>: how fCal finds the wire dots. Every attribute PLUS's
+// segmentation reads; the values are PLUS's own defaults where the attribute
+// is optional (ApproximateSpacingMmPerPixel, the clip rectangle and the
+// thresholds are required by PLUS, and by us).
+struct PlusSegmentation {
+  double approximateSpacingMmPerPixel = 0.0;      // ApproximateSpacingMmPerPixel, > 0
+  double morphologicalOpeningCircleRadiusMm = 0.27;  // MorphologicalOpeningCircleRadiusMm
+  double morphologicalOpeningBarSizeMm = 2.0;     // MorphologicalOpeningBarSizeMm
+  glm::ivec2 clipRectangleOrigin{0, 0};           // ClipRectangleOrigin (pixels)
+  glm::ivec2 clipRectangleSize{0, 0};             // ClipRectangleSize (pixels, 0 0 = whole frame)
+  double maxLinePairDistanceErrorPercent = 10.0;  // MaxLinePairDistanceErrorPercent
+  double angleToleranceDegrees = 10.0;            // AngleToleranceDegrees
+  double maxAngleDifferenceDegrees = 10.0;        // MaxAngleDifferenceDegrees
+  double minThetaDegrees = -70.0;                 // MinThetaDegrees
+  double maxThetaDegrees = 70.0;                  // MaxThetaDegrees
+  double maxLineShiftMm = 10.0;                   // MaxLineShiftMm
+  double thresholdImagePercent = 10.0;            // ThresholdImagePercent, 0..100
+  double collinearPointsMaxDistanceFromLineMm = 0.6;  // CollinearPointsMaxDistanceFromLineMm
+  bool useOriginalImageIntensityForDotIntensityScore = false;  // UseOriginalImageIntensityForDotIntensityScore
+  int numberOfMaximumFiducialPointCandidates = 20;  // NumberOfMaximumFiducialPointCandidates, >= 3
+  bool operator==(const PlusSegmentation&) const = default;
+};
+
+// <vtkPlusProbeCalibrationAlgo>: the coordinate frames of a probe calibration.
+struct PlusProbeCalibrationFrames {
+  std::string image = "Image", probe = "Probe", phantom = "Phantom", reference = "Reference";
+  bool operator==(const PlusProbeCalibrationFrames&) const = default;
+};
+
 struct PlusConfig {
   std::string path;
   TransformRepository coordinates;  // from <CoordinateDefinitions>
@@ -95,6 +146,10 @@ struct PlusConfig {
   std::optional<PlusVolumeReconstruction> volumeReconstruction;  // first one found anywhere
   std::string deviceSetName;         // DataCollection/DeviceSet Name, if any
   std::string deviceSetDescription;  // DataCollection/DeviceSet Description, if any
+  // Probe calibration (fCal): present when the config has the element.
+  std::optional<PlusPhantomDefinition> phantomDefinition;  // <PhantomDefinition>
+  std::optional<PlusSegmentation> segmentation;            // <Segmentation>
+  PlusProbeCalibrationFrames probeCalibrationFrames;       // <vtkPlusProbeCalibrationAlgo> (defaults without)
 
   // ImageToReference needs per-frame transforms from the sequence (e.g.
   // ProbeToTracker, ReferenceToTracker) plus the fixed ones here. Given the
@@ -131,6 +186,15 @@ PlusConfig readPlusConfig(const std::string& path);
 // beside it, then renamed); throws InputError when it cannot be written.
 void writePlusConfig(const std::string& path, const std::vector<PlusConfigTransform>& transforms,
                      const PlusVolumeReconstruction& recon, const std::string& description);
+
+// Writes a copy of the config at `sourcePath` to `path` with one transform of
+// <CoordinateDefinitions> set: any transform between the same two frames (in
+// either direction) is removed, and <Transform From To Matrix Error Date/> is
+// added as PLUS writes a calibration (Error in mm, Date as "mmddyy_hhmmss").
+// Everything else is kept as it was. The file is replaced atomically; throws
+// InputError when the source cannot be read or the result cannot be written.
+void writePlusConfigWithTransform(const std::string& sourcePath, const std::string& path,
+                                  const PlusConfigTransform& transform, double errorMm, const std::string& date);
 
 // The per-frame ImageToReference for a frame, combining the config's fixed
 // transforms with the frame's own tracked ones (through a TransformRepository).
