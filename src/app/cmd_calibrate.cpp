@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdio>
 #include <ctime>
+#include <unistd.h>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
@@ -30,7 +31,7 @@ using calib::Vec2;
 using calib::WireSegmentation;
 
 struct Opts {
-  std::string sequence, plusConfig, output, validate, images, json, compare, model = "rigid-scale", refine = "mean";
+  std::string sequence, plusConfig, output, validate, images, json, compare, model = "rigid-scale", refine = "all-wires";
   int holdoutEvery = 3, holdoutBlock = 10, threads = 0;
 };
 
@@ -108,12 +109,21 @@ std::string errorLine(const calib::ReprojectionError& e) {
 calib::SegmentedRecording segmentWithProgress(const std::string& path, const PlusConfig& cfg, int threads,
                                               const std::function<void(const Frame&, const WireSegmentation&)>& onFrame) {
   const auto start = std::chrono::steady_clock::now();
+  // On a terminal the count rewrites one line; in a log, a line per quarter.
+  const bool tty = isatty(fileno(stderr));
+  std::size_t nextQuarter = 1;
+  const std::string name = std::filesystem::path(path).filename().string();
   auto rec = calib::segmentRecording(path, cfg, threads, onFrame, [&](std::size_t done, std::size_t total) {
-    std::fprintf(stderr, "\rsegmenting %s: %zu/%zu frames", std::filesystem::path(path).filename().c_str(), done, total);
+    if (tty) {
+      std::fprintf(stderr, "\rsegmenting %s: %zu/%zu frames", name.c_str(), done, total);
+    } else if (total > 0 && done * 4 >= nextQuarter * total) {
+      std::fprintf(stderr, "segmenting %s: %zu/%zu frames\n", name.c_str(), done, total);
+      while (done * 4 >= nextQuarter * total) ++nextQuarter;
+    }
     std::fflush(stderr);
   });
   const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  std::fprintf(stderr, "\n");
+  if (tty) std::fprintf(stderr, "\n");
   fmt::print("{}: the pattern found in {} of {} frames ({:.1f} s)\n", path, rec.found.size(), rec.frames, s);
   return rec;
 }
@@ -320,8 +330,9 @@ void addCalibrateCommand(CLI::App& app, int& exitCode) {
   cmd->add_option("--model", o->model, "rigid-scale (a rotation, a translation and a scale per image axis) or affine (a 3x4 on the image plane, as PLUS)")
       ->check(CLI::IsMember({"affine", "rigid-scale"}));
   cmd->add_option("--refine", o->refine,
-                  "After the linear fit, minimise: mean (the mean 3D reprojection error of the middle wires), "
-                  "all-wires (every dot's squared distance from its wire) or none")
+                  "After the linear fit, minimise: all-wires (every dot's squared distance from its wire's line, "
+                  "the middle dots' from their ratio points), mean (the mean 3D reprojection error of the middle "
+                  "wires) or none")
       ->check(CLI::IsMember({"mean", "all-wires", "none"}));
   cmd->add_option("--holdout-every", o->holdoutEvery,
                   "Hold out every Nth block of frames from the fit to score it (0 = fit every frame)")

@@ -166,10 +166,11 @@ bool rejectOutliers(const std::vector<double>& dist, std::vector<char>& use, dou
   return any;
 }
 
-// Every dot of every frame with its wire in the Probe frame.
+// Every dot of every frame with where it belongs in the Probe frame: on the
+// line through `point` along `dir` (unit), or at `point` when dir is zero.
 struct DotOnWire {
   Vec2 pixel;
-  dvec3 point, dir;  // the wire, Probe frame, unit direction
+  dvec3 point, dir;
 };
 
 std::vector<DotOnWire> dotsOnWires(const NWirePhantom& phantom, const std::vector<CalibrationFrame>& frames,
@@ -178,9 +179,13 @@ std::vector<DotOnWire> dotsOnWires(const NWirePhantom& phantom, const std::vecto
   for (const auto& fr : frames)
     for (int k = 0; k < phantom.patternCount(); ++k) {
       const PatternDots d = labelled(fr.dots[static_cast<std::size_t>(k)], wire0OnRight);
-      for (int w = 0; w < 3; ++w)
+      // The outer dots lie on their wires' lines; the middle dot at the point
+      // the ratio gives (a line with no direction: a point).
+      for (int w : {0, 2})
         out.push_back({d[static_cast<std::size_t>(w)], transformPoint(fr.phantomToProbe, phantom.wirePoint(k, w)),
                        glm::normalize(transformVector(fr.phantomToProbe, phantom.wireDirection(k, w)))});
+      out.push_back({d[1], transformPoint(fr.phantomToProbe, phantom.middleWirePoint(k, ratioAlong(d[0], d[1], d[2]))),
+                     dvec3(0.0)});
     }
   return out;
 }
@@ -191,7 +196,7 @@ dvec3 offWire(const DotOnWire& d, const Mat4& m) {
 }
 
 // The affine that minimises the summed squared distance of the dots in use
-// from their wires: linear in the 9 parameters.
+// from their lines or points: linear in the 9 parameters.
 Mat4 fitAffineToWires(const std::vector<DotOnWire>& dots, const std::vector<char>& use) {
   std::vector<Vec2> px;
   for (std::size_t i = 0; i < dots.size(); ++i)

@@ -5,8 +5,9 @@
 // pixel of each middle dot has a known place in the Probe frame. A linear least
 // squares fit of those pairs, with points beyond mean + 2 sd rejected and the
 // fit repeated, gives the start; a refinement then minimises the mean 3D
-// reprojection error itself (or, as an option, every dot's distance from its
-// wire), over an affine or a rigid-plus-scale ImageToProbe.
+// reprojection error itself, or every dot's distance from where it belongs
+// (the outer wires' lines too), over an affine or a rigid-plus-scale
+// ImageToProbe.
 #include <cstddef>
 #include <string>
 #include <vector>
@@ -34,14 +35,15 @@ enum class CalibrationRefinement {
   None,          // the linear fit alone (its squared middle-wire distances), as PLUS's first step
   MeanDistance,  // the mean 3D reprojection error of the middle wires itself (PLUS's figure),
                  // by iteratively reweighted least squares
-  AllWires,      // the squared distance of every dot (all nine wires) from its wire
+  AllWires,      // every dot's squared distance: the outer ones from their wires' lines, the
+                 // middle ones from where the ratio places them (all nine wires)
 };
 
 // The defaults were chosen on simulated sweeps with a known calibration
 // (docs/calibration.md, "Choosing the defaults").
 struct CalibrationOptions {
   CalibrationModel model = CalibrationModel::RigidScale;
-  CalibrationRefinement refinement = CalibrationRefinement::MeanDistance;
+  CalibrationRefinement refinement = CalibrationRefinement::AllWires;
   double outlierSd = 2.0;  // reject points beyond mean + outlierSd * sd of the distances
   int outlierRounds = 3;   // at most this many reject-and-refit rounds
   int minFrames = 10;      // fewer frames with the pattern found: an error
@@ -69,7 +71,7 @@ struct CalibrationResult {
   Mat4 linearImageToProbe{1.0};     // the linear fit alone (before the refinement)
   ReprojectionError linearError;    // on the frames used, after the linear fit
   ReprojectionError error;          // on the frames used, final
-  double wireDistanceRms = 0.0;     // RMS distance of every dot from its wire (the points in use)
+  double wireDistanceRms = 0.0;     // RMS distance of every dot from its wire's line or middle point (in use)
 };
 
 // Fits ImageToProbe. Throws InputError when the frames cannot determine it:
