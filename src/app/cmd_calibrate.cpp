@@ -187,6 +187,7 @@ int runCalibrate(const Opts& o) {
   j["frames_held_out"] = held.size();
   j["wire0_on_right"] = res.wire0OnRight;
   j["points_rejected"] = res.pointsRejected;
+  j["dots_rejected"] = res.dotsRejected;
   j["condition_number"] = res.conditionNumber;
   j["rotation_spread_deg"] = res.rotationSpreadDeg;
   j["translation_spread_mm"] = res.translationSpreadMm;
@@ -195,8 +196,10 @@ int runCalibrate(const Opts& o) {
   j["calibration_error"] = errorJson(res.error);
   j["wire_distance_rms_mm"] = res.wireDistanceRms;
 
-  fmt::print("fitted {} frames ({} middle-wire points rejected as outliers), held out {}\n", fit.size(),
-             res.pointsRejected, held.size());
+  fmt::print("fitted {} frames, held out {}; outliers: {} of {} middle-wire points in the linear fit, {} of {} dots "
+             "in the refinement\n",
+             fit.size(), held.size(), res.pointsRejected, fit.size() * static_cast<std::size_t>(phantom.patternCount()),
+             res.dotsRejected, co.refinement == calib::CalibrationRefinement::AllWires ? fit.size() * 3 * static_cast<std::size_t>(phantom.patternCount()) : 0);
   fmt::print("probe motion: turned up to {:.1f} degrees, moved up to {:.1f} mm; condition number {:.1f}\n",
              res.rotationSpreadDeg, res.translationSpreadMm, res.conditionNumber);
   fmt::print("ImageToProbe ({}, refinement {}):\n", o.model, o.refine);

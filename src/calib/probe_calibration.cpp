@@ -432,6 +432,7 @@ CalibrationResult calibrateProbe(const NWirePhantom& phantom, const std::vector<
       fit = fitDots(fit);
     }
     m = withElevationColumn(fit);
+    res.dotsRejected = static_cast<std::size_t>(std::count(dotUse.begin(), dotUse.end(), 0));
   } else if (o.refinement == CalibrationRefinement::MeanDistance || rigid) {
     // Iteratively reweighted least squares: weights 1 / distance turn the sum
     // of squares into the sum of distances (floored at 10 um, so a point that

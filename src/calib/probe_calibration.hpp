@@ -64,7 +64,8 @@ struct CalibrationResult {
   // Chosen once for the recording, by the linear fit's residual.
   bool wire0OnRight = false;
   std::size_t frames = 0;           // frames used
-  std::size_t pointsRejected = 0;   // middle-wire points rejected as outliers
+  std::size_t pointsRejected = 0;   // middle-wire points the linear fit rejected as outliers
+  std::size_t dotsRejected = 0;     // dots the all-wires refinement rejected as outliers
   double conditionNumber = 0.0;     // of the linear fit's (normalised) design
   double rotationSpreadDeg = 0.0;   // largest angle between a frame's PhantomToProbe and the first's
   double translationSpreadMm = 0.0; // largest distance between the phantom's origin in two frames' Probe
