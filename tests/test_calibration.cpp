@@ -260,6 +260,7 @@ TEST(ProbeCalibration, RecoversExactCalibration) {
         EXPECT_LT(calib::cornerDistanceMm(r.imageToProbe, s.imageToProbe, 820, 616), 1e-5) << what;
         EXPECT_LT(r.error.max, 1e-5) << what;
         EXPECT_EQ(r.pointsRejected, 0u) << what;
+        for (double e : calib::wireErrors(ph, s.frames, r.imageToProbe, r.wire0OnRight)) EXPECT_LT(e, 1e-5) << what;
         // The elevation column: square to the image axes, their mean length.
         EXPECT_NEAR(glm::dot(dvec3(r.imageToProbe[2]), dvec3(r.imageToProbe[0])), 0.0, 1e-9) << what;
         EXPECT_NEAR(glm::length(dvec3(r.imageToProbe[2])), 0.5 * (0.0795 + 0.0745), 1e-7) << what;
@@ -277,6 +278,15 @@ TEST(ProbeCalibration, RejectsAWrongDot) {
   const auto r = calib::calibrateProbe(ph, s.frames, o);
   EXPECT_EQ(r.pointsRejected, 1u);
   EXPECT_LT(calib::cornerDistanceMm(r.imageToProbe, s.imageToProbe, 820, 616), 1e-5);
+  // Per wire, only pattern 1's middle wire (index 4) shows the bad dot: 3 mm
+  // or more in one of 40 frames.
+  const auto w = calib::wireErrors(ph, s.frames, r.imageToProbe, r.wire0OnRight);
+  ASSERT_EQ(w.size(), 9u);
+  for (std::size_t i = 0; i < 9; ++i)
+    if (i == 4)
+      EXPECT_GT(w[i], 0.05);
+    else
+      EXPECT_LT(w[i], 1e-5) << i;
 }
 
 TEST(ProbeCalibration, RefusesTooFewFramesAndNoMotion) {

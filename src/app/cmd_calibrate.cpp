@@ -212,6 +212,24 @@ int runCalibrate(const Opts& o) {
   fmt::print("  linear fit, fitted frames: {}\n", errorLine(res.linearError));
   fmt::print("  final, fitted frames:      {}\n", errorLine(res.error));
   fmt::print("  every dot's RMS distance from its wire, fitted frames: {:.3f} mm\n", res.wireDistanceRms);
+  // Per wire: the mean distance of its dots from their line (outer wires) or
+  // ratio point (middle wires).
+  auto perWire = [&](const std::vector<calib::CalibrationFrame>& frames, const char* label, const char* key) {
+    const auto w = calib::wireErrors(phantom, frames, res.imageToProbe, res.wire0OnRight);
+    std::string line;
+    Json jw = Json::object();
+    for (int k = 0; k < phantom.patternCount(); ++k)
+      for (int i = 0; i < 3; ++i) {
+        const std::string& name = phantom.pattern(k).wires[static_cast<std::size_t>(i)].name;
+        const double v = w[static_cast<std::size_t>(3 * k + i)];
+        line += fmt::format("{}{} {:.3f}", line.empty() ? "" : ", ", name, v);
+        jw[name] = v;
+      }
+    fmt::print("  per wire, {} (mm): {}\n", label, line);
+    j[key] = jw;
+  };
+  perWire(fit, "fitted frames", "per_wire_fitted_mm");
+  if (!held.empty()) perWire(held, "held-out frames", "per_wire_held_out_mm");
   if (!held.empty()) {
     const auto e = calib::middleWireError(phantom, held, res.imageToProbe, res.wire0OnRight);
     fmt::print("  final, held-out frames:    {}\n", errorLine(e));

@@ -335,6 +335,25 @@ ReprojectionError middleWireError(const NWirePhantom& phantom, const std::vector
   return summarise(d, pat, phantom.patternCount());
 }
 
+std::vector<double> wireErrors(const NWirePhantom& phantom, const std::vector<CalibrationFrame>& frames,
+                               const Mat4& imageToProbe, bool wire0OnRight) {
+  // dotsOnWires lists each pattern's dots as wire 0, wire 2, then the middle one.
+  const auto dots = dotsOnWires(phantom, frames, wire0OnRight);
+  const std::size_t patterns = static_cast<std::size_t>(phantom.patternCount());
+  std::vector<double> sum(3 * patterns, 0.0);
+  std::vector<std::size_t> count(3 * patterns, 0);
+  constexpr int kWireOf[3] = {0, 2, 1};
+  for (std::size_t i = 0; i < dots.size(); ++i) {
+    const std::size_t k = (i / 3) % patterns;
+    const std::size_t slot = 3 * k + static_cast<std::size_t>(kWireOf[i % 3]);
+    sum[slot] += glm::length(offWire(dots[i], imageToProbe));
+    ++count[slot];
+  }
+  for (std::size_t j = 0; j < sum.size(); ++j)
+    if (count[j]) sum[j] /= static_cast<double>(count[j]);
+  return sum;
+}
+
 double cornerDistanceMm(const Mat4& a, const Mat4& b, int width, int height) {
   const double w = width - 1.0, h = height - 1.0;
   double worst = 0.0;

@@ -86,6 +86,13 @@ CalibrationResult calibrateProbe(const NWirePhantom& phantom, const std::vector<
 ReprojectionError middleWireError(const NWirePhantom& phantom, const std::vector<CalibrationFrame>& frames,
                                   const Mat4& imageToProbe, bool wire0OnRight);
 
+// Per wire (pattern k's wire w at index 3 k + w), the mean distance of its
+// dots mapped through `imageToProbe` from where they belong: an outer wire's
+// line, a middle wire's ratio point (so the middle wires' entries are PLUS's
+// figure per wire).
+std::vector<double> wireErrors(const NWirePhantom& phantom, const std::vector<CalibrationFrame>& frames,
+                               const Mat4& imageToProbe, bool wire0OnRight);
+
 // The largest distance between where two ImageToProbe put the corners and the
 // centre of a w x h image (mm).
 double cornerDistanceMm(const Mat4& a, const Mat4& b, int width, int height);
