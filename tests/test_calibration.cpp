@@ -12,6 +12,7 @@
 
 #include "calib/nwire.hpp"
 #include "calib/probe_calibration.hpp"
+#include "calib/recording.hpp"
 #include "calib/wire_segmentation.hpp"
 #include "core/error.hpp"
 #include "core/plus_config.hpp"
@@ -338,6 +339,12 @@ TEST(CalibrationConfig, ReadsBothFcalPhantoms) {
   EXPECT_DOUBLE_EQ(p1.outerSpacingMm(1), 30.0);  // x = 20 and 50
   // A config with no phantom has none.
   EXPECT_FALSE(readPlusConfig(kData + "/BoneUltrasound_L14_config.xml").phantomDefinition);
+  // PLUS's older spelling, <NWire> for <Pattern Type="NWire"> (fCal 1.0, two patterns).
+  const PlusConfig c0 = readPlusConfig(kData + "/PlusDeviceSet_NwirePhantomFreehand_vtkVolumeReconstructorTest2.xml");
+  ASSERT_TRUE(c0.phantomDefinition) << c0.calibrationError;
+  ASSERT_EQ(c0.phantomDefinition->patterns.size(), 2u);
+  EXPECT_EQ(c0.phantomDefinition->patterns[1].wires[1].name, "J4_f4");
+  EXPECT_EQ(c0.phantomDefinition->patterns[1].wires[1].front, dvec3(45, 0, 0));
 }
 
 std::string writeTemp(const std::string& name, const std::string& text) {
@@ -351,10 +358,15 @@ TEST(CalibrationConfig, RefusesPatternsThatAreNotN) {
     return std::string("<PlusConfiguration><PhantomDefinition><Geometry><Pattern Type=\"NWire\">") + wires +
            "</Pattern></Geometry></PhantomDefinition></PlusConfiguration>";
   };
+  // The config still reads (a reconstruction does not need the phantom); the
+  // calibration is refused with the reason.
   auto fails = [&](const char* wires, const char* needle) {
     const std::string p = writeTemp("pp5_calib_bad.xml", cfg(wires));
+    const PlusConfig c = readPlusConfig(p);
+    EXPECT_FALSE(c.phantomDefinition);
+    EXPECT_NE(c.calibrationError.find(needle), std::string::npos) << c.calibrationError;
     try {
-      readPlusConfig(p);
+      calib::phantomOf(c);
       ADD_FAILURE() << "accepted: " << wires;
     } catch (const InputError& e) {
       EXPECT_NE(std::string(e.what()).find(needle), std::string::npos) << e.what();

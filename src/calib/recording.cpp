@@ -11,6 +11,7 @@
 namespace pp5::calib {
 
 NWirePhantom phantomOf(const PlusConfig& cfg) {
+  if (!cfg.calibrationError.empty()) throw InputError(cfg.calibrationError);
   if (!cfg.phantomDefinition)
     inputError(cfg.path, "no <PhantomDefinition>: a probe calibration needs the N-wire phantom's geometry");
   if (!cfg.segmentation)

@@ -552,13 +552,18 @@ PlusPhantomDefinition readPhantomDefinition(const XmlFile& f, pugi::xml_node n) 
   const pugi::xml_node geometry = n.child("Geometry");
   if (!geometry) failAt(f, n, "PhantomDefinition: no Geometry element");
   int index = 0;
-  for (const pugi::xml_node& pat : geometry.children("Pattern")) {
+  for (const pugi::xml_node& pat : geometry.children()) {
+    // PLUS writes <Pattern Type="NWire">; its older configs <NWire>.
+    const bool pattern = std::strcmp(pat.name(), "Pattern") == 0;
+    if (!pattern && std::strcmp(pat.name(), "NWire") != 0) continue;
     ++index;
     ElementReader pe(f, pat, fmt::format("PhantomDefinition: Pattern {}", index));
-    const auto type = pe.string("Type");
-    if (!type) pe.fail("Type is missing");
-    if (!equalsNoCase(trim(*type), "NWire"))
-      pe.fail("Type '{}' is not supported: pp5echo calibrates with N-wire patterns (Type=\"NWire\")", *type);
+    if (pattern) {
+      const auto type = pe.string("Type");
+      if (!type) pe.fail("Type is missing");
+      if (!equalsNoCase(trim(*type), "NWire"))
+        pe.fail("Type '{}' is not supported: pp5echo calibrates with N-wire patterns (Type=\"NWire\")", *type);
+    }
     PlusNWirePattern p;
     int w = 0;
     for (const pugi::xml_node& wire : pat.children("Wire")) {
@@ -627,8 +632,17 @@ PlusConfig readPlusConfig(const std::string& path) {
       root.find_node([](const pugi::xml_node& n) { return std::strcmp(n.name(), "VolumeReconstruction") == 0; });
   if (vr) cfg.volumeReconstruction = readVolumeReconstruction(f, vr);
 
-  if (const pugi::xml_node pd = root.child("PhantomDefinition")) cfg.phantomDefinition = readPhantomDefinition(f, pd);
-  if (const pugi::xml_node seg = root.child("Segmentation")) cfg.segmentation = readSegmentation(f, seg);
+  // The calibration's elements are read here but only a calibration needs
+  // them: a problem in them is kept for `calibrate` to report, and does not
+  // stop a reconstruction with the same config.
+  try {
+    if (const pugi::xml_node pd = root.child("PhantomDefinition")) cfg.phantomDefinition = readPhantomDefinition(f, pd);
+    if (const pugi::xml_node seg = root.child("Segmentation")) cfg.segmentation = readSegmentation(f, seg);
+  } catch (const InputError& e) {
+    cfg.phantomDefinition.reset();
+    cfg.segmentation.reset();
+    cfg.calibrationError = e.what();
+  }
   if (const pugi::xml_node pc = root.child("vtkPlusProbeCalibrationAlgo")) {
     ElementReader e(f, pc, "vtkPlusProbeCalibrationAlgo");
     auto& fr = cfg.probeCalibrationFrames;

@@ -150,6 +150,9 @@ struct PlusConfig {
   std::optional<PlusPhantomDefinition> phantomDefinition;  // <PhantomDefinition>
   std::optional<PlusSegmentation> segmentation;            // <Segmentation>
   PlusProbeCalibrationFrames probeCalibrationFrames;       // <vtkPlusProbeCalibrationAlgo> (defaults without)
+  // Why <PhantomDefinition> or <Segmentation> could not be read (both are then
+  // empty): only a calibration needs them, so reading the config goes on.
+  std::string calibrationError;
 
   // ImageToReference needs per-frame transforms from the sequence (e.g.
   // ProbeToTracker, ReferenceToTracker) plus the fixed ones here. Given the
