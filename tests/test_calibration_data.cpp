@@ -103,6 +103,24 @@ TEST(CalibrationPlus, NotThePhantomIsRefused) {
   EXPECT_NE(r2.out.find("no <PhantomDefinition>"), std::string::npos) << r2.out;
 }
 
+TEST(CalibrationPlus, OutputsCheckedBeforeAnyWork) {
+  const std::string seq = kData + "/fCal_Test_Calibration_3NWires.igs.mha";
+  const std::string good = (std::filesystem::temp_directory_path() / "pp5_cal_out.xml").string();
+  std::filesystem::remove(good);
+  for (const std::string& args : {std::string("-o /nonexistent-folder/cal.xml"),
+                                  "-o " + good + " --json /nonexistent-folder/r.json"}) {
+    const auto r = test::runCli("calibrate " + seq + " --plus-config " + kFcal12 + " " + args);
+    EXPECT_NE(r.status, 0) << args;
+    EXPECT_NE(r.out.find("the folder '/nonexistent-folder' does not exist"), std::string::npos) << r.out;
+    EXPECT_EQ(r.out.find("segmenting"), std::string::npos) << "worked before refusing: " << r.out;
+    EXPECT_FALSE(std::filesystem::exists(good));
+  }
+  const auto r = test::runCli("simulate-calibration --plus-config " + kFcal2 +
+                              " -o /nonexistent-folder/s.igs.mha --truth " + good);
+  EXPECT_NE(r.status, 0);
+  EXPECT_NE(r.out.find("does not exist"), std::string::npos) << r.out;
+}
+
 TEST(CalibrationPlus, SegmentationImagesAndValidation) {
   const auto dir = std::filesystem::temp_directory_path() / "pp5_calib_images";
   std::filesystem::remove_all(dir);

@@ -19,6 +19,7 @@
 #include "calib/recording.hpp"
 #include "core/error.hpp"
 #include "core/image_io.hpp"
+#include "core/io_util.hpp"
 #include "core/plus_config.hpp"
 #include "core/sequence_io.hpp"
 #include "sim/calibration_sweep.hpp"
@@ -138,10 +139,26 @@ std::string missedSummary(const calib::SegmentedRecording& rec) {
   return s;
 }
 
+// An output's folder must exist before any work is done, so a typo does not
+// cost the whole calibration or leave some outputs written and others not.
+void checkOutputFolder(const std::string& path) {
+  if (path.empty()) return;
+  const std::filesystem::path dir = std::filesystem::absolute(path).parent_path();
+  std::error_code ec;
+  if (!std::filesystem::is_directory(dir, ec)) inputError(path, "cannot write: the folder '{}' does not exist", dir.string());
+}
+
 int runCalibrate(const Opts& o) {
   const PlusConfig cfg = readPlusConfig(o.plusConfig);
   const calib::NWirePhantom phantom = calib::phantomOf(cfg);
-  if (!o.images.empty()) std::filesystem::create_directories(o.images);
+  checkOutputFolder(o.output);
+  checkOutputFolder(o.json);
+  if (!o.images.empty()) {
+    std::error_code ec;
+    std::filesystem::create_directories(o.images, ec);
+    if (ec || !std::filesystem::is_directory(o.images))
+      inputError(o.images, "cannot create the folder for --images: {}", ec ? ec.message() : "not a folder");
+  }
 
   std::size_t drawn = 0;
   auto draw = [&](const Frame& f, const WireSegmentation& s) {
@@ -288,9 +305,9 @@ int runCalibrate(const Opts& o) {
   fmt::print("wrote {} (the config with {}To{} set)\n", o.output, fr.image, fr.probe);
 
   if (!o.json.empty()) {
-    std::ofstream out(o.json);
-    out << j.dump(2) << "\n";
-    if (!out) throw InputError(o.json + ": cannot write the JSON report");
+    io::AtomicFile out(o.json);
+    out.write(j.dump(2) + "\n");
+    out.commit();
   }
   return 0;
 }
@@ -320,7 +337,10 @@ void addSimulateCalibrationCommand(CLI::App& app, int& exitCode) {
   cmd->add_option("--threads", o->threads, "Threads (0 = every core)")->check(CLI::Range(0, 1024));
   cmd->callback([o, &exitCode] {
     const PlusConfig cfg = readPlusConfig(o->plusConfig);
+    if (!cfg.calibrationError.empty()) throw InputError(cfg.calibrationError);
     if (!cfg.phantomDefinition) inputError(o->plusConfig, "no <PhantomDefinition>: nothing to simulate");
+    checkOutputFolder(o->output);
+    checkOutputFolder(o->truth);
     const auto& fr = cfg.probeCalibrationFrames;
     const auto phantomToReference = cfg.coordinates.get(fr.phantom, fr.reference);
     if (!phantomToReference) inputError(o->plusConfig, "no {}To{} transform: the phantom has no place", fr.phantom, fr.reference);
