@@ -1,15 +1,23 @@
 #!/usr/bin/env bash
-# Fuzzes the interface board's frame decoder with libFuzzer (clang), starting
-# from a copy of tests/fuzz/corpus.
+# Fuzzes pp5echo's parsers with libFuzzer (clang, with ASan and UBSan):
+#   decoder  the interface board's frame decoder (corpus: tests/fuzz/corpus)
+#   metaio   a MetaIO file read as a sequence and as a volume
+#   nrrd     the same for NRRD
+#   plus_xml a PLUS device-set config (coordinates, reconstruction, phantom, segmentation)
+#   toml     a TOML settings file with every section pp5echo registers
+#   igtl     an OpenIGTLink stream decoded by the live source's client
+# The parsers' corpora are made from ../shared/data/plus, configs/ and packed
+# seed messages each time, in the build folder; only the decoder's is committed.
 #
-# Usage: scripts/fuzz.sh [SECONDS] [--merge] [--seeds]
-#   SECONDS   how long to fuzz (default 60)
-#   --merge   afterwards, merge the inputs that add coverage back into
+# Usage: scripts/fuzz.sh [SECONDS] [--only NAME[,NAME...]] [--merge] [--seeds]
+#   SECONDS   how long to fuzz each target (default 60)
+#   --only    these targets (default: all six)
+#   --merge   afterwards, merge the decoder's inputs that add coverage back into
 #             tests/fuzz/corpus (minimised; the seed-* files are kept)
 #   --seeds   (re)write the seed-* files of tests/fuzz/corpus and stop
 # Exit status: 0 clean; 1 a crash, leak, timeout or out-of-memory (the input
-# is saved under the build folder's artifacts/) or a build failure; 77 when
-# clang++ is not installed (CTest counts that as skipped).
+# is saved under the build folder's artifacts-NAME/) or a build failure; 77
+# when clang++ is not installed (CTest counts that as skipped).
 # Build folder: $PP5_FUZZ_BUILD_DIR, default build-fuzz/ in the checkout.
 set -euo pipefail
 
@@ -17,13 +25,16 @@ root=$(cd "$(dirname "$0")/.." && pwd)
 secs=60
 merge=0
 seeds=0
-for arg in "$@"; do
-  case "$arg" in
+only="decoder,metaio,nrrd,plus_xml,toml,igtl"
+while [ $# -gt 0 ]; do
+  case "$1" in
     --merge) merge=1 ;;
     --seeds) seeds=1 ;;
-    ''|*[!0-9]*) echo "usage: scripts/fuzz.sh [SECONDS] [--merge] [--seeds]" >&2; exit 2 ;;
-    *) secs=$arg ;;
+    --only) shift; only=${1:?--only needs target names} ;;
+    ''|*[!0-9]*) echo "usage: scripts/fuzz.sh [SECONDS] [--only NAME[,NAME...]] [--merge] [--seeds]" >&2; exit 2 ;;
+    *) secs=$1 ;;
   esac
+  shift
 done
 
 cxx=""
@@ -37,10 +48,6 @@ fi
 
 out=${PP5_FUZZ_BUILD_DIR:-$root/build-fuzz}
 mkdir -p "$out"
-corpus=$root/tests/fuzz/corpus
-srcs=("$root/src/interface_board/wire.cpp" "$root/tests/fuzz/fuzz_decoder.cpp")
-deps=("${srcs[@]}" "$root/src/interface_board/wire.hpp" "$root/src/core/error.hpp")
-flags=(-std=c++20 -O1 -g -fno-omit-frame-pointer -I "$root/src")
 
 # libFuzzer's runtime ships separately from clang on Debian: check it first.
 echo 'extern "C" int LLVMFuzzerTestOneInput(const unsigned char*, unsigned long) { return 0; }' >"$out/probe.cpp"
@@ -49,64 +56,111 @@ if ! "$cxx" -fsanitize=fuzzer "$out/probe.cpp" -o "$out/probe" 2>"$out/probe.log
   exit 1
 fi
 
-# Rebuilds only when a source is newer than the binary.
-stale() {
-  local bin=$1 f
-  [ -x "$bin" ] || return 0
-  for f in "${deps[@]}"; do [ "$f" -nt "$bin" ] && return 0; done
-  return 1
-}
+IFS=, read -r -a names <<<"$only"
+targets=()
+for n in "${names[@]}"; do
+  case "$n" in
+    decoder|metaio|nrrd|plus_xml|toml|igtl) targets+=("fuzz_$n") ;;
+    *) echo "fuzz.sh: unknown target '$n' (decoder, metaio, nrrd, plus_xml, toml, igtl)" >&2; exit 2 ;;
+  esac
+done
+[ "$seeds" = 1 ] && targets=(fuzz_decoder_seeds)
+
+# Every library is built with the fuzzer's coverage and the sanitizers
+# (PP5_FUZZ in CMakeLists.txt); ninja rebuilds only what changed.
+gen=()
+command -v ninja >/dev/null 2>&1 && gen=(-G Ninja)
+if [ ! -f "$out/CMakeCache.txt" ]; then
+  echo "fuzz.sh: configuring $out with $cxx"
+  cmake -S "$root" -B "$out" "${gen[@]}" -DCMAKE_CXX_COMPILER="$cxx" -DCMAKE_BUILD_TYPE=RelWithDebInfo \
+    -DPP5_FUZZ=ON -DPP5_BUILD_TESTS=OFF -DPP5_BUILD_BENCH=OFF >"$out/configure.log" 2>&1 ||
+    { echo "fuzz.sh: configuring failed; see $out/configure.log" >&2; exit 1; }
+fi
+echo "fuzz.sh: building ${targets[*]} in $out"
+cmake --build "$out" --target "${targets[@]}" -- >"$out/build.log" 2>&1 ||
+  { tail -n 30 "$out/build.log" >&2; echo "fuzz.sh: the build failed; see $out/build.log" >&2; exit 1; }
+bindir=$out/tests/fuzz
 
 if [ "$seeds" = 1 ]; then
-  gen=$out/fuzz_decoder_seeds
-  if stale "$gen"; then
-    "$cxx" "${flags[@]}" -DPP5_FUZZ_MAKE_CORPUS -fsanitize=address,undefined "${srcs[@]}" -o "$gen" -lz -lfmt
-  fi
+  corpus=$root/tests/fuzz/corpus
   mkdir -p "$corpus"
   rm -f "$corpus"/seed-*
-  "$gen" "$corpus"
+  "$bindir/fuzz_decoder_seeds" "$corpus"
   echo "fuzz.sh: wrote $(ls "$corpus"/seed-* | wc -l) seeds to $corpus"
   exit 0
 fi
 
-bin=$out/fuzz_decoder
-if stale "$bin"; then
-  echo "fuzz.sh: building $bin with $cxx"
-  "$cxx" "${flags[@]}" -fsanitize=fuzzer,address,undefined -fno-sanitize-recover=undefined "${srcs[@]}" -o "$bin" -lz -lfmt
-fi
+data=$root/../shared/data/plus
+# The starting inputs of one target, in $2.
+make_corpus() {
+  local t=$1 dir=$2 f
+  rm -rf "$dir"
+  mkdir -p "$dir"
+  case "$t" in
+    fuzz_decoder) cp "$root"/tests/fuzz/corpus/* "$dir"/ 2>/dev/null || true ;;
+    fuzz_metaio|fuzz_nrrd)
+      local ext=mha
+      [ "$t" = fuzz_nrrd ] && ext=nrrd
+      for f in "$data"/*."$ext"; do
+        [ -f "$f" ] || continue
+        # Headers with the first 4 KiB of data: every header field, short data.
+        python3 - "$f" "$dir/$(basename "$f")" <<'PY'
+import sys
+raw = open(sys.argv[1], "rb").read()
+for mark in (b"ElementDataFile = LOCAL\n", b"\n\n"):
+    i = raw.find(mark)
+    if i >= 0:
+        raw = raw[: i + len(mark) + 4096]
+        break
+open(sys.argv[2], "wb").write(raw[:65536])
+PY
+      done ;;
+    fuzz_plus_xml) cp "$data"/*.xml "$dir"/ 2>/dev/null || true ;;
+    fuzz_toml)
+      cp "$root"/configs/*.toml "$root"/tests/configs/*.toml "$dir"/ 2>/dev/null || true ;;
+    fuzz_igtl) PP5_FUZZ_SEEDS_DIR="$dir" "$bindir/fuzz_igtl" ;;
+  esac
+}
 
-# Fuzz a scratch copy so that a run never edits the committed corpus.
-work=$out/corpus
-rm -rf "$work" "$out/artifacts"
-mkdir -p "$work" "$out/artifacts"
-cp "$corpus"/* "$work"/ 2>/dev/null || true
-opts=(-rss_limit_mb=512 -timeout=5 -max_len=16384 -error_exitcode=1 -timeout_exitcode=1
-      -artifact_prefix="$out/artifacts/")
-echo "fuzz.sh: fuzzing for ${secs}s from $(ls "$work" | wc -l) inputs"
-set +e
-ASAN_OPTIONS=detect_leaks=1 "$bin" "${opts[@]}" -max_total_time="$secs" -print_final_stats=1 "$work" \
-  >"$out/fuzz.log" 2>&1
-rc=$?
-set -e
-tail -n 25 "$out/fuzz.log"
-if [ "$rc" != 0 ]; then
-  echo "fuzz.sh: the fuzzer failed (exit $rc); inputs in $out/artifacts/, log in $out/fuzz.log" >&2
-  exit 1
-fi
-
-if [ "$merge" = 1 ]; then
-  # Start from the seeds, then let libFuzzer add only what brings new coverage.
-  merged=$out/merged
-  rm -rf "$merged" "$out/rest"
-  mkdir -p "$merged" "$out/rest"
-  cp "$corpus"/seed-* "$merged"/
-  find "$corpus" -maxdepth 1 -type f ! -name 'seed-*' -exec cp {} "$out/rest"/ \;
-  if ! "$bin" "${opts[@]}" -merge=1 "$merged" "$out/rest" "$work" >"$out/merge.log" 2>&1; then
-    echo "fuzz.sh: merging failed; see $out/merge.log" >&2
-    exit 1
+status=0
+for t in "${targets[@]}"; do
+  work=$out/corpus-$t
+  art=$out/artifacts-$t
+  make_corpus "$t" "$work"
+  rm -rf "$art"
+  mkdir -p "$art"
+  opts=(-rss_limit_mb=1024 -malloc_limit_mb=512 -timeout=10 -max_len=65536 -error_exitcode=1 -timeout_exitcode=1
+        -artifact_prefix="$art/")
+  echo "fuzz.sh: $t for ${secs}s from $(ls "$work" | wc -l) inputs"
+  set +e
+  ASAN_OPTIONS=detect_leaks=1 "$bindir/$t" "${opts[@]}" -max_total_time="$secs" -print_final_stats=1 "$work" \
+    >"$out/$t.log" 2>&1
+  rc=$?
+  set -e
+  grep -E "^stat::number_of_executed_runs|^stat::peak_rss_mb|^#[0-9]+ +DONE" "$out/$t.log" | tr '\n' ' ' || true
+  echo
+  if [ "$rc" != 0 ]; then
+    tail -n 40 "$out/$t.log" >&2
+    echo "fuzz.sh: $t failed (exit $rc); inputs in $art/, log in $out/$t.log" >&2
+    status=1
+    continue
   fi
-  find "$corpus" -maxdepth 1 -type f ! -name 'seed-*' -delete
-  find "$merged" -maxdepth 1 -type f ! -name 'seed-*' -exec cp {} "$corpus"/ \;
-  echo "fuzz.sh: corpus now $(ls "$corpus" | wc -l) files, $(du -sk "$corpus" | cut -f1) KiB"
-fi
-echo "fuzz.sh: no failures in ${secs}s"
+  if [ "$merge" = 1 ] && [ "$t" = fuzz_decoder ]; then
+    # Start from the seeds, then let libFuzzer add only what brings new coverage.
+    corpus=$root/tests/fuzz/corpus
+    merged=$out/merged
+    rm -rf "$merged" "$out/rest"
+    mkdir -p "$merged" "$out/rest"
+    cp "$corpus"/seed-* "$merged"/
+    find "$corpus" -maxdepth 1 -type f ! -name 'seed-*' -exec cp {} "$out/rest"/ \;
+    if ! "$bindir/$t" "${opts[@]}" -merge=1 "$merged" "$out/rest" "$work" >"$out/merge.log" 2>&1; then
+      echo "fuzz.sh: merging failed; see $out/merge.log" >&2
+      exit 1
+    fi
+    find "$corpus" -maxdepth 1 -type f ! -name 'seed-*' -delete
+    find "$merged" -maxdepth 1 -type f ! -name 'seed-*' -exec cp {} "$corpus"/ \;
+    echo "fuzz.sh: corpus now $(ls "$corpus" | wc -l) files, $(du -sk "$corpus" | cut -f1) KiB"
+  fi
+done
+[ "$status" = 0 ] && echo "fuzz.sh: no failures in ${secs}s per target (${targets[*]})"
+exit "$status"

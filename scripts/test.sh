@@ -1,6 +1,9 @@
 #!/usr/bin/env bash
 # The test command: installs what is missing, builds, and runs every test.
-# Usage: scripts/test.sh [--asan]   (--asan: the sanitizer build, ASan + UBSan)
+# Usage: scripts/test.sh [--asan]   (--asan: CTest in the GCC sanitizer build, ASan + UBSan)
+# After CTest, scripts/sanitize.sh builds with clang, ASan and UBSan, runs the
+# bad-input and fault tests there and every fuzz target for a bounded time
+# (PP5_SKIP_SANITIZE=1 leaves that stage out, for a quick local run).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -10,3 +13,8 @@ export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 OMPI_MCA_rmaps_
 # Every ASan, LSan and UBSan finding fails the test.
 export ASAN_OPTIONS="${ASAN_OPTIONS:-detect_leaks=1}" UBSAN_OPTIONS="${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1}"
 ctest --test-dir "$dir" --output-on-failure -j "$(nproc 2>/dev/null || echo 2)"
+if [ "${PP5_SKIP_SANITIZE:-0}" != 1 ]; then
+  rc=0
+  bash scripts/sanitize.sh "${PP5_FUZZ_SECONDS:-10}" || rc=$?
+  if [ "$rc" = 77 ]; then echo "test.sh: no clang++; the sanitizer stage was skipped" >&2; elif [ "$rc" != 0 ]; then exit "$rc"; fi
+fi

@@ -24,6 +24,8 @@
 #include "core/error.hpp"
 #include "core/sequence_io.hpp"
 #include "igtl/igtl_client.hpp"
+
+#include <igtlImageMessage.h>
 #include "io_test_util.hpp"
 
 extern char** environ;
@@ -308,6 +310,42 @@ TEST(IgtlServer, ListensOnLoopbackUnlessToldOtherwise) {
     EXPECT_EQ(listeningAddress(server.port()), "00000000");
   }
   EXPECT_THROW(Server(dir, {dir / "seq.igs.mha", "--bind", "999.0.0.1"}), std::runtime_error);
+}
+
+// One IMAGE a frame cannot hold (RGB) among good ones: skipped and counted,
+// and the frames before and after it arrive (it used to end the scan).
+TEST(IgtlClient, AnImageItCannotUseIsSkippedAndCounted) {
+  auto packed = [](int components) {
+    auto img = ::igtl::ImageMessage::New();
+    img->SetDeviceName("Image");
+    img->SetDimensions(8, 6, 1);
+    img->SetScalarType(::igtl::ImageMessage::TYPE_UINT8);
+    img->SetNumComponents(components);
+    img->AllocateScalars();
+    std::memset(img->GetScalarPointer(), 7, static_cast<std::size_t>(img->GetImageSize()));
+    img->Pack();
+    const auto* p = static_cast<const std::uint8_t*>(img->GetPackPointer());
+    return std::vector<std::uint8_t>(p, p + img->GetPackSize());
+  };
+  std::vector<std::uint8_t> stream;
+  for (int comps : {1, 3, 1}) {
+    const auto m = packed(comps);
+    stream.insert(stream.end(), m.begin(), m.end());
+  }
+  int fds[2];
+  ASSERT_EQ(socketpair(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0, fds), 0);
+  ASSERT_EQ(::write(fds[1], stream.data(), stream.size()), static_cast<ssize_t>(stream.size()));
+  ::close(fds[1]);
+  Client client(ClientOptions{});
+  std::vector<Frame> got;
+  client.decode(fds[0], [&](Frame&& f) { got.push_back(std::move(f)); });
+  ASSERT_EQ(got.size(), 2u);
+  EXPECT_EQ(got[0].width, 8);
+  EXPECT_EQ(got[1].pixels, got[0].pixels);
+  const ClientStats st = client.stats();
+  EXPECT_EQ(st.images, 2u);
+  EXPECT_EQ(st.rejected, 1u);
+  EXPECT_EQ(st.skipped, 1u);
 }
 
 TEST(IgtlClient, Uint16BigEndian) {

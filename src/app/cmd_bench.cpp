@@ -29,6 +29,7 @@
 #include <set>
 #include <sstream>
 #include <string>
+#include <tuple>
 #include <thread>
 #include <vector>
 
@@ -241,7 +242,10 @@ int runBench(BenchOptions o) {
   if (o.outDir.empty()) o.outDir = s.output.dir;
 
   if (o.costModel) {
-    const auto [mpirun, exe] = mpirunAndSelf();
+    // Named, not a structured binding: clang 14 cannot capture one in a lambda.
+  const auto launcher = mpirunAndSelf();
+  const auto& mpirun = std::get<0>(launcher);
+  const auto& exe = std::get<1>(launcher);
     std::signal(SIGINT, onBenchInterrupt);
     std::signal(SIGTERM, onBenchInterrupt);
     CostModelRun run;
@@ -265,7 +269,10 @@ int runBench(BenchOptions o) {
     return 0;
   }
   if (all.empty()) throw InputError(fmt::format("bench: no layout's name contains \"{}\"", o.only));
-  const auto [mpirun, exe] = mpirunAndSelf();
+  // Named, not a structured binding: clang 14 cannot capture one in a lambda.
+  const auto launcher = mpirunAndSelf();
+  const auto& mpirun = std::get<0>(launcher);
+  const auto& exe = std::get<1>(launcher);
   std::error_code ec;
 
   makeOutputDir(o.outDir);

@@ -2,6 +2,9 @@
 #include <cstddef>
 #include <cstdint>
 #include <cstring>
+#if defined(__x86_64__) || defined(__i386__)
+#include <cpuid.h>
+#endif
 
 namespace pp5 {
 
@@ -58,10 +61,22 @@ void floatToHalfN(const float* src, std::size_t n, std::uint16_t* dst);
 // Whether the CPU converts with F16C (and AVX), which the N-value conversions
 // and the cache's half put loop then use. A function-local static, so that it
 // is set even when called during another file's static initialisation.
+// CPUID leaf 1 (ECX: OSXSAVE bit 27, AVX 28, F16C 29) and XGETBV (the OS saves
+// the YMM registers), which GCC and clang both compile (clang 14's
+// __builtin_cpu_supports does not know "f16c").
 inline bool halfConversionUsesF16c() {
   static const bool has = [] {
-    __builtin_cpu_init();
-    return __builtin_cpu_supports("f16c") && __builtin_cpu_supports("avx");
+#if defined(__x86_64__) || defined(__i386__)
+    unsigned a = 0, b = 0, c = 0, d = 0;
+    if (!__get_cpuid(1, &a, &b, &c, &d)) return false;
+    const unsigned need = (1u << 27) | (1u << 28) | (1u << 29);
+    if ((c & need) != need) return false;
+    unsigned lo = 0, hi = 0;
+    __asm__ volatile("xgetbv" : "=a"(lo), "=d"(hi) : "c"(0));
+    return (lo & 6u) == 6u;
+#else
+    return false;
+#endif
   }();
   return has;
 }

@@ -131,7 +131,8 @@ Frame frameFromFields(const ImageHeader& h, std::uint64_t index, const std::vect
   // A status whose transform never came is not a pose; keep it as the text it was.
   for (const auto& [name, text] : statusText) {
     if (std::find(withMatrix.begin(), withMatrix.end(), name) != withMatrix.end()) continue;
-    std::erase_if(meta.transforms, [&](const FrameTransform& t) { return t.name == name; });
+    const std::string& n = name;  // clang 14 cannot capture a structured binding
+    std::erase_if(meta.transforms, [&](const FrameTransform& t) { return t.name == n; });
     meta.customFields.emplace_back(name + std::string(kTransformStatusSuffix), text);
   }
   return meta;

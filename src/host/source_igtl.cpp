@@ -36,8 +36,8 @@ Source igtlSource(const igtl::ClientOptions& opt, const LiveSetup& live) {
     const igtl::ClientStats c = st->client->stats();
     return fmt::format(
         "{{\"kind\": \"igtl\", \"images\": {}, \"transforms\": {}, \"paired\": {}, \"images_without_pose\": {}, "
-        "\"skipped\": {}, \"disconnects\": {}, \"reconnects\": {}, \"bytes\": {}, \"unplaced\": {}}}",
-        c.images, c.transforms, c.paired, c.imagesWithoutPose, c.skipped, c.disconnects, c.reconnects, c.bytes,
+        "\"skipped\": {}, \"rejected\": {}, \"disconnects\": {}, \"reconnects\": {}, \"bytes\": {}, \"unplaced\": {}}}",
+        c.images, c.transforms, c.paired, c.imagesWithoutPose, c.skipped, c.rejected, c.disconnects, c.reconnects, c.bytes,
         st->placer.unplaced.load());
   };
   return src;

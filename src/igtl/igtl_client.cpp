@@ -6,6 +6,7 @@
 #include <sys/socket.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <chrono>
 #include <cmath>
@@ -94,6 +95,12 @@ public:
   void close() {
     if (fd_ >= 0) ::close(fd_);
     fd_ = -1;
+  }
+
+  // An already open stream (a socketpair in tests), read as a connection.
+  void adopt(int fd) {
+    close();
+    fd_ = fd;
   }
 
   // One attempt, across the host's addresses, until `deadline`.
@@ -213,7 +220,7 @@ struct Client::Impl {
   std::vector<std::string> devices;
   std::map<std::string, std::deque<StampedMatrix>> history;
 
-  std::atomic<std::uint64_t> images{0}, transforms{0}, paired{0}, imagesWithoutPose{0}, skipped{0}, disconnects{0},
+  std::atomic<std::uint64_t> images{0}, transforms{0}, paired{0}, imagesWithoutPose{0}, skipped{0}, rejected{0}, disconnects{0},
       reconnects{0}, bytes{0};
 
   // Tries to connect until `timeoutS` has passed, again and again: a server
@@ -300,12 +307,24 @@ struct Client::Impl {
       tr = ::igtl::TransformMessage::New();
       msg = tr;
     }
+    // The body is read in chunks into a buffer that grows with what arrives, so
+    // a header that claims a huge body costs memory only as the bytes come
+    // (a corrupt or hostile header once made the client allocate 1 GiB).
+    std::vector<std::uint8_t> body;
+    while (body.size() < static_cast<std::size_t>(bodySize)) {
+      const std::size_t chunk = std::min<std::size_t>(static_cast<std::size_t>(bodySize) - body.size(), std::size_t{1} << 20);
+      const std::size_t at = body.size();
+      body.resize(at + chunk);
+      if (const Status s = c.readExact(body.data() + at, chunk, stop, why); s != Status::Ok) return s;
+    }
+    bytes += static_cast<std::uint64_t>(bodySize);
     msg->SetMessageHeader(header);
     msg->AllocatePack();
-    if (const Status s = c.readExact(msg->GetPackBodyPointer(), static_cast<std::size_t>(msg->GetPackBodySize()), stop, why);
-        s != Status::Ok)
-      return s;
-    bytes += static_cast<std::uint64_t>(bodySize);
+    if (static_cast<std::size_t>(msg->GetPackBodySize()) != body.size()) {
+      *why = fmt::format("a {} message from '{}' whose body size the library reads differently", type, device);
+      return Status::Closed;
+    }
+    if (!body.empty()) std::memcpy(msg->GetPackBodyPointer(), body.data(), body.size());
     if (!(msg->Unpack(1) & ::igtl::MessageHeader::UNPACK_BODY)) {  // CRC mismatch: drop this one message
       spdlog::warn("igtl: dropped a {} message from '{}' (bad CRC)", type, device);
       ++skipped;
@@ -321,7 +340,15 @@ struct Client::Impl {
     }
 
     Frame f;
-    wire::imageToFrame(*img, f);
+    try {
+      wire::imageToFrame(*img, f);
+    } catch (const InputError& e) {
+      // An image a Frame cannot hold (RGB, a size that does not match its
+      // data): skipped and counted, never the end of the scan.
+      if (rejected++ < 5) spdlog::warn("igtl: skipped an IMAGE: {}", e.what());
+      ++skipped;
+      return Status::Ok;
+    }
     f.index = nextIndex++;
     const int n = pair(f);
     paired += static_cast<std::uint64_t>(n);
@@ -371,6 +398,15 @@ void Client::run(const std::function<void(Frame&&)>& onFrame, const std::atomic<
   }
 }
 
+void Client::decode(int fd, const std::function<void(Frame&&)>& onFrame) {
+  Connection conn;
+  conn.adopt(fd);
+  std::atomic<bool> stop{false};
+  std::string why;
+  while (impl_->receiveOne(conn, onFrame, stop, &why) == Status::Ok) {
+  }
+}
+
 ClientStats Client::stats() const {
   const Impl& s = *impl_;
   ClientStats r;
@@ -379,6 +415,7 @@ ClientStats Client::stats() const {
   r.paired = s.paired.load();
   r.imagesWithoutPose = s.imagesWithoutPose.load();
   r.skipped = s.skipped.load();
+  r.rejected = s.rejected.load();
   r.disconnects = s.disconnects.load();
   r.reconnects = s.reconnects.load();
   r.bytes = s.bytes.load();

@@ -45,7 +45,9 @@ struct ClientStats {
   std::uint64_t transforms = 0;         // TRANSFORM messages received
   std::uint64_t paired = 0;             // transforms attached to frames
   std::uint64_t imagesWithoutPose = 0;  // frames with no paired TRANSFORM and no Image_<Frame> matrix
-  std::uint64_t skipped = 0;            // other messages (STATUS, other devices, bad CRC), body skipped
+  std::uint64_t skipped = 0;            // other messages (STATUS, other devices, bad CRC), body skipped,
+                                        // and the rejected images below
+  std::uint64_t rejected = 0;           // IMAGEs a frame cannot hold (RGB, data shorter than the size): skipped
   std::uint64_t disconnects = 0;        // the server went away (or the stream broke)
   std::uint64_t reconnects = 0;         // ... and came back
   std::uint64_t bytes = 0;              // received, headers included
@@ -78,6 +80,10 @@ public:
 
   // Safe to call from another thread while run() is going.
   ClientStats stats() const;
+  // What run() does with a connection, on a stream that is already open (a
+  // socketpair in tests and the fuzz target): decodes messages until the
+  // stream ends or breaks, without connecting or reconnecting. Takes `fd`.
+  void decode(int fd, const std::function<void(Frame&&)>& onFrame);
 
 private:
   struct Impl;

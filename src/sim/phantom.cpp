@@ -330,7 +330,8 @@ Phantom makeDoll() {
   const double eyeR = 3.0;
   for (const auto& [name, c] : {std::pair<const char*, Vec3>{"doll.eye_left", {61.0, -7.5, 118.0}},
                                 std::pair<const char*, Vec3>{"doll.eye_right", {61.0, 7.5, 118.0}}}) {
-    ph.add(makeBody(name, Tissue::HardPlastic, [c, eyeR](const Vec3& p) { return sdf::sphere(p, c, eyeR); },
+    const Vec3 centre = c;  // clang 14 cannot capture a structured binding
+    ph.add(makeBody(name, Tissue::HardPlastic, [centre, eyeR](const Vec3& p) { return sdf::sphere(p, centre, eyeR); },
                     ellipsoidBox(c, Vec3(eyeR))));
   }
 

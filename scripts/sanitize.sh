@@ -1,0 +1,70 @@
+#!/usr/bin/env bash
+# The sanitizer stage of the test command: a clang build with AddressSanitizer
+# and UndefinedBehaviorSanitizer (UBSan's float-cast-overflow and the rest of
+# what clang checks and GCC does not), in which the bad-input and fault tests
+# run, and then every fuzz target for a bounded time (scripts/fuzz.sh).
+# Any finding fails the stage.
+#
+# Usage: scripts/sanitize.sh [FUZZ_SECONDS]   (default 10 per fuzz target)
+# Build folder: $PP5_FUZZ_BUILD_DIR, default build-fuzz/ (shared with scripts/fuzz.sh).
+# Exit status 77 when clang++ is not installed.
+set -euo pipefail
+root=$(cd "$(dirname "$0")/.." && pwd)
+cd "$root"
+secs=${1:-10}
+
+cxx=""
+for c in "${CLANGXX:-}" clang++ clang++-14; do
+  if [ -n "$c" ] && command -v "$c" >/dev/null 2>&1; then cxx=$c; break; fi
+done
+if [ -z "$cxx" ]; then
+  echo "sanitize.sh: clang++ not found (Debian: apt-get install clang libclang-rt-14-dev); skipping" >&2
+  exit 77
+fi
+dir=${PP5_FUZZ_BUILD_DIR:-$root/build-fuzz}
+jobs=$(nproc 2>/dev/null || echo 2)
+start=$(date +%s)
+
+echo "sanitize.sh: configuring $dir (clang, ASan + UBSan, fuzzer coverage)" >&2
+cmake -S . -B "$dir" -G Ninja -DCMAKE_CXX_COMPILER="$cxx" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DPP5_FUZZ=ON \
+  -DPP5_BUILD_TESTS=ON -DPP5_BUILD_BENCH=OFF -DMPIEXEC_PREFLAGS="--allow-run-as-root;--oversubscribe" >"$dir.configure.log" 2>&1 ||
+  { cat "$dir.configure.log" >&2; exit 1; }
+echo "sanitize.sh: building the sanitized pp5echo and tests with $jobs jobs (several minutes the first time)" >&2
+cmake --build "$dir" -j "$jobs" --target pp5echo test_io test_plus_config test_calibration test_cli test_igtl >&2
+
+export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 OMPI_MCA_rmaps_base_oversubscribe=1
+export UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1"
+fail=0
+run() {  # run NAME ASAN_OPTIONS COMMAND...
+  local name=$1 asan=$2
+  shift 2
+  echo "sanitize.sh: $name" >&2
+  if ASAN_OPTIONS="$asan" "$@" >"$dir/$name.log" 2>&1; then
+    echo "ok:   $name" >&2
+  else
+    tail -n 40 "$dir/$name.log" >&2
+    echo "FAIL: $name (log: $dir/$name.log)" >&2
+    fail=1
+  fi
+}
+t=$dir/tests
+# Parsers and bad input: sequences, volumes, PLUS configs, calibration, OpenIGTLink.
+run bad_input_io detect_leaks=1 "$t/test_io"
+run plus_config detect_leaks=1 "$t/test_plus_config"
+run calibration detect_leaks=1 "$t/test_calibration"
+run igtl detect_leaks=1 "$t/test_igtl"
+# The command line's refusals, through the sanitized pp5echo. Leaks are not
+# checked in the child processes: Open MPI's runtime keeps memory to exit.
+run bad_input_cli detect_leaks=0 "$t/test_cli" \
+  --gtest_filter='*Refuse*:*Bad*:*Special*:*NotUtf8*:*Malformed*:*Invalid*:*Missing*'
+# The faults: a killed, a stopped and a corrupt-fed rank, Ctrl-C, a wrong layout.
+run faults detect_leaks=0 bash tests/mpi/clean_ends.sh "$dir/src/app/pp5echo" "$dir/clean_ends" "$root/../shared/data/plus"
+# Every fuzz target, for a bounded time.
+if ! PP5_FUZZ_BUILD_DIR="$dir" bash scripts/fuzz.sh "$secs"; then fail=1; fi
+
+echo "sanitize.sh: $(( $(date +%s) - start )) s" >&2
+if [ "$fail" != 0 ]; then
+  echo "sanitize.sh: FAILED" >&2
+  exit 1
+fi
+echo "sanitize.sh: every sanitized test and fuzz target passed" >&2
