@@ -6,12 +6,13 @@
 #   plus_xml a PLUS device-set config (coordinates, reconstruction, phantom, segmentation)
 #   toml     a TOML settings file with every section pp5echo registers
 #   igtl     an OpenIGTLink stream decoded by the live source's client
+#   control  the live viewer's control messages
 # The parsers' corpora are made from ../shared/data/plus, configs/ and packed
 # seed messages each time, in the build folder; only the decoder's is committed.
 #
 # Usage: scripts/fuzz.sh [SECONDS] [--only NAME[,NAME...]] [--merge] [--seeds]
 #   SECONDS   how long to fuzz each target (default 60)
-#   --only    these targets (default: all six)
+#   --only    these targets (default: all seven)
 #   --merge   afterwards, merge the decoder's inputs that add coverage back into
 #             tests/fuzz/corpus (minimised; the seed-* files are kept)
 #   --seeds   (re)write the seed-* files of tests/fuzz/corpus and stop
@@ -25,7 +26,7 @@ root=$(cd "$(dirname "$0")/.." && pwd)
 secs=60
 merge=0
 seeds=0
-only="decoder,metaio,nrrd,plus_xml,toml,igtl"
+only="decoder,metaio,nrrd,plus_xml,toml,igtl,control"
 while [ $# -gt 0 ]; do
   case "$1" in
     --merge) merge=1 ;;
@@ -60,8 +61,8 @@ IFS=, read -r -a names <<<"$only"
 targets=()
 for n in "${names[@]}"; do
   case "$n" in
-    decoder|metaio|nrrd|plus_xml|toml|igtl) targets+=("fuzz_$n") ;;
-    *) echo "fuzz.sh: unknown target '$n' (decoder, metaio, nrrd, plus_xml, toml, igtl)" >&2; exit 2 ;;
+    decoder|metaio|nrrd|plus_xml|toml|igtl|control) targets+=("fuzz_$n") ;;
+    *) echo "fuzz.sh: unknown target '$n' (decoder, metaio, nrrd, plus_xml, toml, igtl, control)" >&2; exit 2 ;;
   esac
 done
 [ "$seeds" = 1 ] && targets=(fuzz_decoder_seeds)
@@ -118,7 +119,7 @@ PY
     fuzz_plus_xml) cp "$data"/*.xml "$dir"/ 2>/dev/null || true ;;
     fuzz_toml)
       cp "$root"/configs/*.toml "$root"/tests/configs/*.toml "$dir"/ 2>/dev/null || true ;;
-    fuzz_igtl) PP5_FUZZ_SEEDS_DIR="$dir" "$bindir/fuzz_igtl" ;;
+    fuzz_igtl|fuzz_control) PP5_FUZZ_SEEDS_DIR="$dir" "$bindir/$t" ;;
   esac
 }
 

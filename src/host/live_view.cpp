@@ -233,7 +233,8 @@ struct LiveView::Impl {
     const std::lock_guard lock(m);
     const auto now = Clock::now();
     while (!recent.empty() && now - recent.front() > std::chrono::seconds(1)) recent.pop_front();
-    if (recent.size() >= 240) return "too many control messages: at most 240 a second";
+    if (recent.size() >= static_cast<std::size_t>(s.maxControlPerSecond))
+      return fmt::format("too many control messages: at most {} a second", s.maxControlPerSecond);
     recent.push_back(now);
     json msg;
     try {

@@ -44,6 +44,9 @@ struct ViewSettings {
   double dragStepScale = 2.0;  // the ray step times this while the user drags
   int dragPixelStride = 2;     // and a ray for every n-th pixel along x and y
   std::string webRoot;       // the page's folder; "" = the one built in
+  // Control messages accepted per second, more are answered with an error (not
+  // a TOML option: the fuzz target of tests/fuzz raises it).
+  int maxControlPerSecond = 240;
 };
 void registerOptions(ConfigSchema& schema, ViewSettings& s);
 // InputError for settings that cannot work together: view.serve without
