@@ -59,10 +59,15 @@ enum Tag : int {
   // reconstruction grid, which only the host's source knows (its extent comes
   // from the frames it reads or simulates).
   kTagGrid = 14,
-  // host -> GP, PP (EmptyMsg): nothing to do, the host is alive. Sent while
-  // the pipeline idles for the live viewer (acquisition paused, the final
-  // volume served), so that no rank's parallel.timeout_s runs out.
+  // host -> GP, PP (EmptyMsg): nothing to do, the host is alive. Sent every
+  // quarter of parallel.timeout_s while the host's loop runs (a quiet live
+  // source, acquisition paused, the final volume served), so that no rank's
+  // parallel.timeout_s runs out while there is simply nothing to do.
   kTagKeepAlive = 15,
+  // GP, PP -> host (EmptyMsg): the answer to a keep-alive, the ranks'
+  // heartbeat. A quiet source is then told apart from a rank that died or
+  // stopped, and the host names the rank whose heartbeat stopped.
+  kTagAlive = 16,
 };
 
 // What the bytes a rank sends are for (summary.json's bytes_by_kind): the

@@ -124,6 +124,7 @@ private:
   };
   std::deque<Sample> window_;
   Clock::time_point lastFigures_{}, lastKeepAlive_ = Clock::now();
+  std::vector<Clock::time_point> lastHeard_;  // per rank: the last message from it (the heartbeat)
   std::uint64_t pausedFrames_ = 0;
   std::unique_ptr<StatsCsv> stats_;
   std::unique_ptr<AnimatedGif> buildup_;
@@ -140,7 +141,9 @@ private:
 
   // ---- messages -------------------------------------------------------
   void handle(const Message& m) {
+    if (m.source > 0 && m.source < static_cast<int>(lastHeard_.size())) lastHeard_[static_cast<std::size_t>(m.source)] = Clock::now();
     switch (m.tag) {
+      case kTagAlive: break;
       case kTagCredit: {
         const CreditMsg& c = m.as<CreditMsg>();
         ++credits_[c.gp];
@@ -267,13 +270,55 @@ private:
   void waitUntil(F done, const std::string& what) {
     while (!done()) {
       const double w0 = t_.waitSeconds();
-      Message m = t_.wait(what);
+      Message m;
+      try {
+        m = t_.wait(what);
+      } catch (const CommError& e) {
+        // Name the rank that went quiet, as the heartbeat would.
+        const auto [r, age] = quietestRank();
+        throw CommError(fmt::format("{}; {} was heard from last, {:.1f} s ago", e.what(), rankName(r), age));
+      }
       clock_.add(kWait, 1e3 * (t_.waitSeconds() - w0));
       handle(m);
     }
   }
   void pump() {
     while (auto m = t_.poll()) handle(*m);
+  }
+
+  // The heartbeat: every quarter of parallel.timeout_s a keep-alive to every
+  // rank, which answers it. Nothing to do (a quiet live source, a pause, the
+  // served final volume) is then never mistaken for a dead rank, and a rank
+  // that does not answer for parallel.timeout_s is named.
+  std::string rankName(int r) const {
+    if (r >= 1 && r <= L_.gps) return fmt::format("rank {} (graphics processor {})", r, r - 1);
+    return fmt::format("rank {} (pixel processor {})", r, r - 1 - L_.gps);
+  }
+  // The rank heard from least recently, and how long ago (s).
+  std::pair<int, double> quietestRank() const {
+    const auto now = Clock::now();
+    int worst = 1;
+    double age = 0.0;
+    for (int r = 1; r < L_.worldSize(); ++r) {
+      const double a = std::chrono::duration<double>(now - lastHeard_[static_cast<std::size_t>(r)]).count();
+      if (a > age) age = a, worst = r;
+    }
+    return {worst, age};
+  }
+  void heartbeat() {
+    const auto now = Clock::now();
+    const double period = 0.25 * j_.parallel.timeoutS;
+    if (std::chrono::duration<double>(now - lastKeepAlive_).count() > period) {
+      lastKeepAlive_ = now;
+      EmptyMsg ka;
+      ka.h = {kTagKeepAlive, epoch_, sent_ ? sent_ - 1 : 0};
+      for (int r = 1; r < L_.worldSize(); ++r) t_.send(r, ka);
+    }
+    const auto [r, age] = quietestRank();
+    if (age > j_.parallel.timeoutS)
+      throw CommError(fmt::format("{} has not answered the host's heartbeat for {:.1f} s: it died or is stopped "
+                                  "(parallel.timeout_s = {} s)",
+                                  rankName(r), age, j_.parallel.timeoutS));
   }
   void waitCredits() {
     waitUntil([&] { return std::all_of(credits_.begin(), credits_.end(), [](int c) { return c > 0; }); },
@@ -441,13 +486,6 @@ private:
       for (int g = 0; g < L_.gps; ++g) t_.send(L_.gpRank(g), rq);
     }
     const auto now = Clock::now();
-    if (std::chrono::duration<double>(now - lastKeepAlive_).count() > 0.25 * j_.parallel.timeoutS) {
-      // The viewer can keep the pipeline idle (a pause, the served final volume).
-      lastKeepAlive_ = now;
-      EmptyMsg ka;
-      ka.h = {kTagKeepAlive, epoch_, sent_ ? sent_ - 1 : 0};
-      for (int r = 1; r < L_.worldSize(); ++r) t_.send(r, ka);
-    }
     if (now - lastFigures_ > std::chrono::milliseconds(250)) {
       lastFigures_ = now;
       window_.push_back({now, sent_, images_, gpBusyMs_, ppBusyMs_});
@@ -482,6 +520,7 @@ private:
     std::fflush(stdout);
     while (!(j_.interrupt && j_.interrupt->load())) {
       pump();
+      heartbeat();
       serveViewer(j_.parallel.lockstep());
       std::this_thread::sleep_for(std::chrono::milliseconds(5));
     }
@@ -541,8 +580,10 @@ int HostRank::run() {
   const bool liveSource = j_.source.live || j_.paceFps > 0.0;
   Clock::time_point firstSent{}, lastLog = start;
   bool stopping = false;
+  lastHeard_.assign(static_cast<std::size_t>(L_.worldSize()), Clock::now());
   for (;;) {
     pump();
+    heartbeat();
     if (serveViewer(lockstep) && !stopping) {
       // Paused: a live source's frames go by unused; a file's wait.
       AcquiredFrame skipped;

@@ -99,7 +99,12 @@ public:
         case kTagPrevious: onPrevious(m); break;
         case kTagControl: onControl(m); break;
         case kTagVolumeRequest: sendVolume(h); break;
-        case kTagKeepAlive: break;
+        case kTagKeepAlive: {
+          EmptyMsg alive;
+          alive.h = {kTagAlive, h.epoch, h.frame};
+          t_.send(0, alive);
+          break;
+        }
         case kTagQuit: {
           const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
           const std::uint64_t mem =

@@ -84,7 +84,12 @@ public:
             else pending_.push_back(m->as<ControlMsg>());
             break;
           case kTagRequest: onRequest(m->as<RequestMsg>()); break;
-          case kTagKeepAlive: break;
+          case kTagKeepAlive: {
+            EmptyMsg alive;
+            alive.h = {kTagAlive, m->header().epoch, m->header().frame};
+            t_.send(0, alive);
+            break;
+          }
           case kTagQuit: {
             const double wall = std::chrono::duration<double>(Clock::now() - start_).count();
             const std::uint64_t mem = caches_->memoryBytes() + spare_->memoryBytes();

@@ -3,7 +3,7 @@
 # emulator (`pp5echo board-emulator`), end to end and with every fault.
 # Also the OpenIGTLink source against pp5echo-igtl-server.
 # Usage: board.sh PP5ECHO SOURCE_DIR WORK_DIR CASE [IGTL_SERVER]
-#   CASE: e2e | faults | unplug_end | arm | igtl | igtl_vanish
+#   CASE: e2e | faults | unplug_end | quiet | arm | igtl | igtl_vanish
 set -euo pipefail
 bin=$1 src=$2 work=$3 case=$4
 export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 OMPI_MCA_rmaps_base_oversubscribe=1
@@ -82,6 +82,21 @@ unplug_end)
   grep -q "unplugged; the stream ends here" "$work/board.log" || fail "no clear report of the unplug"
   [ -f "$work/board/final_over.png" ] && [ -f "$work/board/volume.mha" ] || fail "outputs missing after the unplug"
   echo "board unplug: the run ended cleanly after 100 frames and wrote its outputs"
+  ;;
+quiet)
+  # A live source quiet for three times parallel.timeout_s (the board unplugged
+  # for 7 s, the probe put down) while the MPI ranks idle: the heartbeat keeps
+  # them waiting, and the run ends complete, every frame in (it used to abort
+  # after parallel.timeout_s and lose every output).
+  "$bin" board-emulator --sequence "$seq" --fps 100 --fault unplug@100:7 -- \
+    mpiexec -n 4 "$bin" run "$cfg" -o "$work/board" --source board "${plus[@]}" \
+    --set 'board.on_unplug="wait"' --set parallel.timeout_s=2 > "$work/board.log" 2>&1 \
+    || fail "board run: $(tail -5 "$work/board.log")"
+  grep -q '"kind": "board", "end": "end of stream", "frames": 300' "$work/board/summary.json" \
+    || fail "summary: $(grep source "$work/board/summary.json")"
+  grep -q '"dropped_frames": 0' "$work/board/summary.json" || fail "the quiet run dropped frames"
+  [ -f "$work/board/final_over.png" ] && [ -f "$work/board/volume.mha" ] || fail "outputs missing after the quiet spell"
+  echo "board quiet: 7 s without frames under a 2 s parallel.timeout_s; all 300 frames and every output"
   ;;
 arm)
   # The 1990 arm: the emulator simulates the [sim] sweep itself and sends the
