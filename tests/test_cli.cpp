@@ -175,6 +175,46 @@ TEST(Cli, SerialRunStopsOnSigintAndWritesItsOutputs) {
   std::filesystem::remove_all(d);
 }
 
+// A disk that fills up during the outputs (RLIMIT_FSIZE, with SIGXFSZ ignored
+// so that a write fails with EFBIG as on a full disk): the run exits non-zero
+// naming the file, and no file under a final name is cut short (PNGs through
+// OpenImageIO had been left truncated with exit 1, and the animation's mode was 0600).
+TEST(Cli, AFullDiskLeavesNoTruncatedOutput) {
+  const auto d = tempDir("fulldisk");
+  const std::string cfg = std::string(PP5_SOURCE_DIR) + "/tests/configs/mpi_small.toml";
+  const std::string cmd = "bash -c 'trap \"\" XFSZ; ulimit -f 30; exec " + std::string(PP5_BINARY) + " run " + cfg +
+                          " --serial -o " + (d / "out").string() + " --set run.orbit_frames=0' 2>&1; echo status=$?";
+  FILE* p = popen(cmd.c_str(), "r");
+  ASSERT_NE(p, nullptr);
+  std::string out;
+  std::array<char, 4096> buf{};
+  while (std::size_t n = fread(buf.data(), 1, buf.size(), p)) out.append(buf.data(), n);
+  pclose(p);
+  EXPECT_EQ(out.find("status=0"), std::string::npos) << out;
+  EXPECT_NE(out.find("File too large"), std::string::npos) << out;
+  std::size_t checked = 0;
+  for (const auto& e : std::filesystem::directory_iterator(d / "out")) {
+    const std::string name = e.path().filename().string();
+    EXPECT_NE(name.rfind(".tmp", 0), 0u) << "a temporary left behind: " << name;
+    const std::string bytes = readFile(e.path());
+    if (e.path().extension() == ".png") {
+      EXPECT_EQ(bytes.substr(bytes.size() >= 8 ? bytes.size() - 8 : 0, 4), "IEND") << name << " is cut short";
+      ++checked;
+    }
+    if (e.path().extension() == ".gif") {
+      EXPECT_EQ(bytes.back(), ';') << name << " is cut short";  // the GIF trailer
+      ++checked;
+    }
+    if (e.path().extension() == ".png" || e.path().extension() == ".gif") {
+      struct stat st {};
+      ASSERT_EQ(::stat(e.path().c_str(), &st), 0);
+      EXPECT_EQ(st.st_mode & 0044, 0044u) << name << " is not readable by others, as a new file would be";
+    }
+  }
+  EXPECT_GT(checked, 1u) << "the run failed before any image: " << out;
+  std::filesystem::remove_all(d);
+}
+
 // A FIFO given as an input is refused at once, naming it (reading one with no
 // writer waited forever, issue 20 item 7): a sequence, a TOML config and a
 // PLUS device set.

@@ -7,6 +7,7 @@
 #include <memory>
 #include <vector>
 
+#include <OpenImageIO/filesystem.h>
 #include <OpenImageIO/imageio.h>
 #include <gif_lib.h>
 
@@ -19,33 +20,25 @@ namespace {
 void writeImage(const std::string& path, int width, int height, int channels, const std::uint8_t* px) {
   PP5_CHECK_GT(width, 0);
   PP5_CHECK_GT(height, 0);
-  // Keep the real extension on the temporary name: OpenImageIO picks the format from it.
+  // Encoded in memory, then written with io::AtomicFile, which checks every
+  // write, syncs and renames: OpenImageIO's PNG writer reported success for a
+  // file the disk had cut short (found with `ulimit -f`).
   const std::filesystem::path final(path);
-  const std::filesystem::path tmp =
-      final.parent_path() / (".tmp-" + final.stem().string() + final.extension().string());
-  auto out = OIIO::ImageOutput::create(tmp.string());
+  auto out = OIIO::ImageOutput::create(path);  // the format by the extension; nothing is opened
   if (!out) inputError(path, "cannot write an image of this type ({})", OIIO::geterror());
+  if (!out->supports("ioproxy")) inputError(path, "the image writer cannot encode to memory");
+  std::vector<unsigned char> encoded;
+  OIIO::Filesystem::IOVecOutput memory(encoded);
+  out->set_ioproxy(&memory);
   OIIO::ImageSpec spec(width, height, channels, OIIO::TypeDesc::UINT8);
   // Level 1 is ~3x faster than the default for noisy ultrasound content, for
   // files only a little larger.
   spec.attribute("png:compressionLevel", 1);
-  if (!out->open(tmp.string(), spec)) inputError(path, "cannot open for writing: {}", out->geterror());
-  if (!out->write_image(OIIO::TypeDesc::UINT8, px)) {
-    const std::string why = out->geterror();
-    out->close();
-    std::filesystem::remove(tmp);
-    inputError(path, "write failed: {}", why);
-  }
-  // A full disk may show only when the last buffer goes out: checked, and the
-  // bytes on disk before the name is taken.
-  if (!out->close() || !io::syncFile(tmp.string())) {
-    const std::string why = out->geterror();
-    std::filesystem::remove(tmp);
-    inputError(path, "write failed: {}", why.empty() ? std::string("the file could not be completed") : why);
-  }
-  std::error_code ec;
-  std::filesystem::rename(tmp, final, ec);
-  if (ec) inputError(path, "cannot rename the finished image into place: {}", ec.message());
+  if (!out->open(path, spec)) inputError(path, "cannot encode: {}", out->geterror());
+  if (!out->write_image(OIIO::TypeDesc::UINT8, px) || !out->close()) inputError(path, "cannot encode: {}", out->geterror());
+  io::AtomicFile file(path);
+  file.write(encoded.data(), encoded.size());
+  file.commit();
 }
 
 }  // namespace
@@ -68,11 +61,17 @@ void writeRgbPng(const std::string& path, int width, int height, const std::uint
 // colour quantises close to the old one, which left fragments of earlier
 // views in orbit.gif (tests/gif_frames.py).
 struct AnimatedGif::Impl {
-  std::filesystem::path final, tmp;
+  std::filesystem::path final;
+  std::vector<unsigned char> encoded;  // the whole file, written atomically on close()
   GifFileType* gif = nullptr;
   int width = 0, height = 0, delay = 0;
   void fail(const char* what, int error) const {
     inputError(final.string(), "cannot write the animation ({}): {}", what, GifErrorString(error));
+  }
+  static int append(GifFileType* g, const GifByteType* data, int n) {
+    auto* self = static_cast<Impl*>(g->UserData);
+    self->encoded.insert(self->encoded.end(), data, data + n);
+    return n;
   }
 };
 
@@ -83,12 +82,12 @@ AnimatedGif::AnimatedGif(const std::string& path, int width, int height, double 
   if (width > 65535 || height > 65535) inputError(path, "a GIF is at most 65535 pixels a side");
   Impl& I = *impl_;
   I.final = path;
-  I.tmp = I.final.parent_path() / (".tmp-" + I.final.filename().string());
   I.width = width;
   I.height = height;
   I.delay = std::max(1, static_cast<int>(std::lround(100.0 / fps)));  // hundredths of a second
   int err = 0;
-  I.gif = EGifOpenFileName(I.tmp.string().c_str(), false, &err);
+  // Encoded in memory and written with io::AtomicFile on close(), as the PNGs.
+  I.gif = EGifOpen(&I, &Impl::append, &err);
   if (!I.gif) I.fail("open", err);
   EGifSetGifVersion(I.gif, true);
   if (EGifPutScreenDesc(I.gif, width, height, 8, 0, nullptr) == GIF_ERROR) I.fail("screen", I.gif->Error);
@@ -104,8 +103,6 @@ AnimatedGif::~AnimatedGif() {
   if (impl_ && impl_->gif) {
     int err = 0;
     EGifCloseFile(impl_->gif, &err);
-    std::error_code ec;
-    std::filesystem::remove(impl_->tmp, ec);
   }
 }
 
@@ -149,14 +146,10 @@ void AnimatedGif::close() {
   int err = 0;
   const int rc = EGifCloseFile(I.gif, &err);
   I.gif = nullptr;
-  if (rc == GIF_ERROR || !io::syncFile(I.tmp.string())) {
-    std::error_code rm;
-    std::filesystem::remove(I.tmp, rm);  // no stray temporary beside the outputs
-    I.fail("close", rc == GIF_ERROR ? err : E_GIF_ERR_WRITE_FAILED);
-  }
-  std::error_code ec;
-  std::filesystem::rename(I.tmp, I.final, ec);
-  if (ec) inputError(I.final.string(), "cannot rename the finished animation into place: {}", ec.message());
+  if (rc == GIF_ERROR) I.fail("close", err);
+  io::AtomicFile file(I.final.string());
+  file.write(I.encoded.data(), I.encoded.size());
+  file.commit();
 }
 
 Image8 readImage8(const std::string& path) {
