@@ -38,14 +38,7 @@ while [ $# -gt 0 ]; do
   shift
 done
 
-cxx=""
-for c in "${CLANGXX:-}" clang++ clang++-14; do
-  if [ -n "$c" ] && command -v "$c" >/dev/null 2>&1; then cxx=$c; break; fi
-done
-if [ -z "$cxx" ]; then
-  echo "fuzz.sh: clang++ not found; the fuzzer needs clang with libFuzzer (Debian: apt-get install clang libclang-rt-14-dev); skipping" >&2
-  exit 77
-fi
+cxx=$(bash "$root/scripts/clang.sh") || exit 77
 
 out=${PP5_FUZZ_BUILD_DIR:-$root/build-fuzz}
 mkdir -p "$out"

@@ -13,14 +13,7 @@ root=$(cd "$(dirname "$0")/.." && pwd)
 cd "$root"
 secs=${1:-10}
 
-cxx=""
-for c in "${CLANGXX:-}" clang++ clang++-14; do
-  if [ -n "$c" ] && command -v "$c" >/dev/null 2>&1; then cxx=$c; break; fi
-done
-if [ -z "$cxx" ]; then
-  echo "sanitize.sh: clang++ not found (Debian: apt-get install clang libclang-rt-14-dev); skipping" >&2
-  exit 77
-fi
+cxx=$(bash "$root/scripts/clang.sh") || exit 77
 dir=${PP5_FUZZ_BUILD_DIR:-$root/build-fuzz}
 jobs=$(nproc 2>/dev/null || echo 2)
 start=$(date +%s)
