@@ -28,12 +28,18 @@ bin=$build/src/app/pp5echo
 [ -n "$out" ] || out=$(mktemp -d)
 rm -rf "$out/run" && mkdir -p "$out"
 export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 OMPI_MCA_rmaps_base_oversubscribe=1
-# A pass over the doll is about 95 frames at the default 2 mm.
-repeats=$(( frames / 90 + 1 ))
-[ "$repeats" -gt 100 ] && repeats=100
+# A pass over the doll is about 90 frames at the default 2 mm; at most 100
+# passes, so a longer soak captures a frame every less than 2 mm.
+repeats=$(( frames / 88 + 1 ))
+interval=2.0
+if [ "$repeats" -gt 100 ]; then
+  repeats=100
+  interval=$(python3 -c "print(round(2.0 * 8800 / $frames, 3))")
+fi
 echo "soak.sh: $frames frames at 30 frames/s ($(( frames / 30 )) s), output in $out"
 mpirun -n 4 "$bin" run "$root/configs/doll.toml" -o "$out/run" \
   --set 'sim.sweep.kind="back_and_forth"' --set "sim.sweep.repeats=$repeats" --set "sim.sweep.max_frames=$frames" \
+  --set "sim.sweep.capture_interval_mm=$interval" \
   --set run.orbit_frames=0 --set run.buildup_every=100 > "$out/run.log" 2>&1 &
 mp=$!
 trap 'kill "$mp" 2>/dev/null || true' EXIT INT TERM
