@@ -62,16 +62,26 @@ void writeRgbPng(const std::string& path, int width, int height, const std::uint
 // views in orbit.gif (tests/gif_frames.py).
 struct AnimatedGif::Impl {
   std::filesystem::path final;
-  std::vector<unsigned char> encoded;  // the whole file, written atomically on close()
+  // Streamed to a temporary beside the final name as frames come (a long
+  // run's animation need not fit in memory); every write checked, renamed into
+  // place by close().
+  std::unique_ptr<io::AtomicFile> file;
+  std::string writeError;  // why the last write failed (giflib only sees a short count)
   GifFileType* gif = nullptr;
   int width = 0, height = 0, delay = 0;
   void fail(const char* what, int error) const {
+    if (!writeError.empty()) inputError(final.string(), "cannot write the animation ({}): {}", what, writeError);
     inputError(final.string(), "cannot write the animation ({}): {}", what, GifErrorString(error));
   }
   static int append(GifFileType* g, const GifByteType* data, int n) {
     auto* self = static_cast<Impl*>(g->UserData);
-    self->encoded.insert(self->encoded.end(), data, data + n);
-    return n;
+    try {  // no exception may cross giflib's C frames
+      self->file->write(data, static_cast<std::size_t>(n));
+      return n;
+    } catch (const std::exception& e) {
+      self->writeError = e.what();
+      return 0;
+    }
   }
 };
 
@@ -86,7 +96,7 @@ AnimatedGif::AnimatedGif(const std::string& path, int width, int height, double 
   I.height = height;
   I.delay = std::max(1, static_cast<int>(std::lround(100.0 / fps)));  // hundredths of a second
   int err = 0;
-  // Encoded in memory and written with io::AtomicFile on close(), as the PNGs.
+  I.file = std::make_unique<io::AtomicFile>(path);
   I.gif = EGifOpen(&I, &Impl::append, &err);
   if (!I.gif) I.fail("open", err);
   EGifSetGifVersion(I.gif, true);
@@ -135,7 +145,9 @@ void AnimatedGif::add(const std::uint8_t* rgb) {
   for (int y = 0; ok && y < I.height; ++y)
     ok = EGifPutLine(I.gif, index.data() + static_cast<std::size_t>(y) * I.width, I.width) != GIF_ERROR;
   GifFreeMapObject(map);
-  if (!ok) inputError(I.final.string(), "cannot write frame {}: {}", frames_, GifErrorString(I.gif->Error));
+  if (!ok)
+    inputError(I.final.string(), "cannot write frame {}: {}", frames_,
+               I.writeError.empty() ? std::string(GifErrorString(I.gif->Error)) : I.writeError);
   ++frames_;
 }
 
@@ -147,9 +159,7 @@ void AnimatedGif::close() {
   const int rc = EGifCloseFile(I.gif, &err);
   I.gif = nullptr;
   if (rc == GIF_ERROR) I.fail("close", err);
-  io::AtomicFile file(I.final.string());
-  file.write(I.encoded.data(), I.encoded.size());
-  file.commit();
+  I.file->commit();
 }
 
 Image8 readImage8(const std::string& path) {
