@@ -282,11 +282,12 @@ int runCalibrate(const Opts& o) {
     c["config"] = o.compare;
     c["corner_distance_mm"] = calib::cornerDistanceMm(*m, res.imageToProbe, rec.width, rec.height);
     c["linear_fit_corner_distance_mm"] = calib::cornerDistanceMm(*m, res.linearImageToProbe, rec.width, rec.height);
-    c["fitted_error"] = errorJson(calib::middleWireError(phantom, fit, *m, res.wire0OnRight));
+    const auto fitted = calib::middleWireError(phantom, fit, *m, res.wire0OnRight);
+    c["fitted_error"] = errorJson(fitted);
     fmt::print("{}'s {}To{}: corners and centre up to {:.3f} mm from this one's\n", o.compare,
                cfg.probeCalibrationFrames.image, cfg.probeCalibrationFrames.probe, c["corner_distance_mm"].get<double>());
     fmt::print("  (the linear fit's: up to {:.3f} mm)\n", c["linear_fit_corner_distance_mm"].get<double>());
-    fmt::print("  on the fitted frames:   {}\n", errorLine(calib::middleWireError(phantom, fit, *m, res.wire0OnRight)));
+    fmt::print("  on the fitted frames:   {}\n", errorLine(fitted));
     if (!held.empty()) {
       const auto e = calib::middleWireError(phantom, held, *m, res.wire0OnRight);
       c["held_out_error"] = errorJson(e);
