@@ -31,6 +31,10 @@ std::string readFile(const std::filesystem::path& p) {
   return ss.str();
 }
 
+void writeFile(const std::filesystem::path& p, const std::string& bytes) {
+  std::ofstream(p, std::ios::binary) << bytes;
+}
+
 // configs/doll.toml of the source tree.
 std::string dollConfig() { return (std::filesystem::path(PP5_SOURCE_DIR) / "configs" / "doll.toml").string(); }
 
@@ -158,61 +162,161 @@ TEST(Cli, SerialRunAppliesItsScript) {
 // through the final passes and every output, as under mpirun (the serial run
 // went on to the end of the input, issue 20 item 3).
 TEST(Cli, SerialRunStopsOnSigintAndWritesItsOutputs) {
-  const auto d = tempDir("sigint");
-  const std::string doll = dollConfig();
-  const auto log = d / "run.log";
-  // A live simulated sweep of about 360 frames (some 10 s); the signal after 3.
-  const Result r = run("run " + doll + " --serial -o " + (d / "out").string() +
-                       " --set run.simulate_live=true --set sim.sweep.capture_interval_mm=0.5 --set run.orbit_frames=0"
-                       " > " + log.string() + " 2>&1 & p=$!; sleep 3; kill -INT $p; wait $p; echo status=$?");
-  const std::string out = readFile(log);
-  EXPECT_NE(r.out.find("status=0"), std::string::npos) << r.out << out;
-  const auto at = out.find("interrupted; finishing the ");
-  ASSERT_NE(at, std::string::npos) << out;
-  EXPECT_GT(std::stoi(out.substr(at + 27)), 0) << out;
-  for (const char* f : {"final_over.png", "volume.mha", "stats.csv", "buildup.gif"})
-    EXPECT_GT(std::filesystem::file_size(d / "out" / f), 0u) << f;
-  std::filesystem::remove_all(d);
+  for (const std::string sig : {"INT", "TERM"}) {
+    SCOPED_TRACE(sig);
+    const auto d = tempDir("sig" + sig);
+    const std::string doll = dollConfig();
+    const auto log = d / "run.log";
+    // A live simulated sweep of about 360 frames (some 10 s); the signal after 3.
+    const Result r = run("run " + doll + " --serial -o " + (d / "out").string() +
+                         " --set run.simulate_live=true --set sim.sweep.capture_interval_mm=0.5 --set run.orbit_frames=0"
+                         " > " + log.string() + " 2>&1 & p=$!; sleep 3; kill -" + sig + " $p; wait $p; echo status=$?");
+    const std::string out = readFile(log);
+    EXPECT_NE(r.out.find("status=0"), std::string::npos) << r.out << out;
+    const auto at = out.find("interrupted; finishing the ");
+    ASSERT_NE(at, std::string::npos) << out;
+    EXPECT_GT(std::stoi(out.substr(at + 27)), 0) << out;
+    for (const char* f : {"final_over.png", "volume.mha", "stats.csv", "buildup.gif"})
+      EXPECT_GT(std::filesystem::file_size(d / "out" / f), 0u) << f;
+    EXPECT_FALSE(std::filesystem::exists(d / "out" / "RUN_INCOMPLETE.txt")) << "every output was written";
+    std::filesystem::remove_all(d);
+  }
 }
 
-// A disk that fills up during the outputs (RLIMIT_FSIZE, with SIGXFSZ ignored
-// so that a write fails with EFBIG as on a full disk): the run exits non-zero
-// naming the file, and no file under a final name is cut short (PNGs through
-// OpenImageIO had been left truncated with exit 1, and the animation's mode was 0600).
-TEST(Cli, AFullDiskLeavesNoTruncatedOutput) {
-  const auto d = tempDir("fulldisk");
-  const std::string cfg = std::string(PP5_SOURCE_DIR) + "/tests/configs/mpi_small.toml";
-  const std::string cmd = "bash -c 'trap \"\" XFSZ; ulimit -f 30; exec " + std::string(PP5_BINARY) + " run " + cfg +
-                          " --serial -o " + (d / "out").string() + " --set run.orbit_frames=0' 2>&1; echo status=$?";
-  FILE* p = popen(cmd.c_str(), "r");
-  ASSERT_NE(p, nullptr);
+// Runs a bash script, returning what it printed and "status=N" at the end.
+std::string shell(const std::string& script) {
+  char name[] = "/tmp/pp5cli-script-XXXXXX";
+  const int fd = ::mkstemp(name);
+  EXPECT_GE(fd, 0);
+  ::close(fd);
+  writeFile(name, script + "\n");
+  FILE* p = popen(("bash " + std::string(name) + " 2>&1; echo status=$?").c_str(), "r");
+  EXPECT_NE(p, nullptr);
   std::string out;
   std::array<char, 4096> buf{};
   while (std::size_t n = fread(buf.data(), 1, buf.size(), p)) out.append(buf.data(), n);
   pclose(p);
-  EXPECT_EQ(out.find("status=0"), std::string::npos) << out;
-  EXPECT_NE(out.find("File too large"), std::string::npos) << out;
-  std::size_t checked = 0;
-  for (const auto& e : std::filesystem::directory_iterator(d / "out")) {
-    const std::string name = e.path().filename().string();
-    EXPECT_NE(name.rfind(".tmp", 0), 0u) << "a temporary left behind: " << name;
-    const std::string bytes = readFile(e.path());
-    if (e.path().extension() == ".png") {
-      EXPECT_EQ(bytes.substr(bytes.size() >= 8 ? bytes.size() - 8 : 0, 4), "IEND") << name << " is cut short";
-      ++checked;
+  std::remove(name);
+  return out;
+}
+
+// `pp5echo run ARGS` in each run mode: serial, and 4 MPI ranks. `limit`: shell
+// commands run first in the host's process only (under mpirun, rank 0's; the
+// ranks then talk over TCP, so that a file-size limit meets only the outputs,
+// not Open MPI's shared-memory files).
+const char* const kRunModes[] = {"serial", "mpi"};
+std::string runIn(const std::string& mode, const std::string& args, const std::string& limit = "") {
+  const std::string exec = "exec " + std::string(PP5_BINARY) + " run " + args;
+  if (mode == "serial") return limit + "\n" + exec + " --serial";
+  return "export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 OMPI_MCA_rmaps_base_oversubscribe=1\n"
+         "mpirun -n 4 --mca btl self,tcp bash -c 'if [ \"$OMPI_COMM_WORLD_RANK\" = 0 ]; then " +
+         (limit.empty() ? std::string(":") : limit) + "; fi; " + exec + "'";
+}
+
+// A disk that fills up during the outputs (RLIMIT_FSIZE, with SIGXFSZ ignored
+// so that a write fails with EFBIG as on a full disk), in a folder an earlier
+// run wrote to, in both run modes: the run exits non-zero naming the cause, no
+// file under a final name is cut short (PNGs through OpenImageIO had been left
+// truncated with exit 1, and the animation's mode was 0600), none of the
+// earlier run's images is left beside the new ones (they were), the folder is
+// marked unfinished, and a recording in it is never touched.
+TEST(Cli, AFullDiskLeavesNoTruncatedOutput) {
+  for (const std::string mode : kRunModes) {
+    SCOPED_TRACE(mode);
+    const auto d = tempDir("fulldisk-" + mode);
+    const auto out = d / "out";
+    std::filesystem::create_directories(out);
+    const std::vector<std::string> earlier = {"buildup.gif", "final_over.png", "final_additive.png", "mpr_axial.png",
+                                              "orbit.gif",   "volume.mha",     "stats.csv",          "summary.json"};
+    for (const auto& n : earlier) writeFile(out / n, "an earlier run's " + n);
+    for (const char* keep : {"recording.mha", "recording-1.mha.journal", "notes.txt"})
+      writeFile(out / keep, "kept");
+    const std::string cfg = std::string(PP5_SOURCE_DIR) + "/tests/configs/mpi_small.toml";
+    const std::string o =
+        shell(runIn(mode, cfg + " -o " + out.string() + " --set run.orbit_frames=0", "trap \"\" XFSZ; ulimit -f 30"));
+    EXPECT_EQ(o.find("status=0"), std::string::npos) << o;
+    EXPECT_NE(o.find("File too large"), std::string::npos) << o;
+    if (mode == "mpi") {
+      EXPECT_NE(o.find("rank 0 (host)"), std::string::npos) << "the failing rank is named: " << o;
     }
-    if (e.path().extension() == ".gif") {
-      EXPECT_EQ(bytes.back(), ';') << name << " is cut short";  // the GIF trailer
-      ++checked;
+    std::size_t checked = 0;
+    for (const auto& e : std::filesystem::directory_iterator(out)) {
+      const std::string name = e.path().filename().string();
+      EXPECT_NE(name.rfind(".tmp", 0), 0u) << "a temporary left behind: " << name;
+      const std::string bytes = readFile(e.path());
+      EXPECT_EQ(bytes.find("an earlier run's"), std::string::npos) << name << " is an earlier run's, left beside";
+      if (e.path().extension() == ".png") {
+        EXPECT_EQ(bytes.substr(bytes.size() >= 8 ? bytes.size() - 8 : 0, 4), "IEND") << name << " is cut short";
+        ++checked;
+      }
+      if (e.path().extension() == ".gif") {
+        EXPECT_EQ(bytes.back(), ';') << name << " is cut short";  // the GIF trailer
+        ++checked;
+      }
+      if (e.path().extension() == ".png" || e.path().extension() == ".gif") {
+        struct stat st {};
+        ASSERT_EQ(::stat(e.path().c_str(), &st), 0);
+        EXPECT_EQ(st.st_mode & 0044, 0044u) << name << " is not readable by others, as a new file would be";
+      }
     }
-    if (e.path().extension() == ".png" || e.path().extension() == ".gif") {
-      struct stat st {};
-      ASSERT_EQ(::stat(e.path().c_str(), &st), 0);
-      EXPECT_EQ(st.st_mode & 0044, 0044u) << name << " is not readable by others, as a new file would be";
-    }
+    EXPECT_GT(checked, 1u) << "the run failed before any image: " << o;
+    EXPECT_TRUE(std::filesystem::exists(out / "RUN_INCOMPLETE.txt")) << "the folder looks complete";
+    for (const char* keep : {"recording.mha", "recording-1.mha.journal", "notes.txt"})
+      EXPECT_EQ(readFile(out / keep), "kept") << keep;
+    // The same folder, a run that finishes: no marker.
+    const std::string again = shell(runIn(mode, cfg + " -o " + out.string() + " --set run.orbit_frames=0"));
+    EXPECT_NE(again.find("status=0"), std::string::npos) << again;
+    EXPECT_FALSE(std::filesystem::exists(out / "RUN_INCOMPLETE.txt"));
+    EXPECT_TRUE(std::filesystem::exists(out / "final_over.png"));
+    std::filesystem::remove_all(d);
   }
-  EXPECT_GT(checked, 1u) << "the run failed before any image: " << out;
-  std::filesystem::remove_all(d);
+}
+
+// Makes `dir` refuse new files, as a read-only folder or file system does:
+// its mode, or for root (whom the mode does not stop) the immutable attribute.
+// False where neither works here.
+bool makeReadOnly(const std::filesystem::path& dir) {
+  std::filesystem::permissions(dir, std::filesystem::perms::owner_read | std::filesystem::perms::owner_exec);
+  auto refuses = [&] {
+    const auto probe = dir / "probe";
+    FILE* f = std::fopen(probe.c_str(), "w");
+    if (!f) return true;
+    std::fclose(f);
+    std::filesystem::remove(probe);
+    return false;
+  };
+  if (refuses()) return true;
+  return std::system(("chattr +i " + dir.string() + " 2>/dev/null").c_str()) == 0 && refuses();
+}
+void undoReadOnly(const std::filesystem::path& dir) {
+  [[maybe_unused]] const int r = std::system(("chattr -i " + dir.string() + " 2>/dev/null").c_str());
+  std::filesystem::permissions(dir, std::filesystem::perms::owner_all);
+}
+
+// A read-only output folder fails at once in both run modes, naming the folder
+// and the cause, with a non-zero exit, and before a frame is taken.
+TEST(Cli, AReadOnlyFolderFailsBeforeAnyWork) {
+  for (const std::string mode : kRunModes) {
+    SCOPED_TRACE(mode);
+    const auto d = tempDir("readonly-" + mode);
+    const auto out = d / "out";
+    std::filesystem::create_directories(out);
+    if (!makeReadOnly(out)) {
+      undoReadOnly(out);
+      GTEST_SKIP() << "cannot make a read-only folder here (neither its mode nor chattr +i stops this user)";
+    }
+    const std::string cfg = std::string(PP5_SOURCE_DIR) + "/tests/configs/mpi_small.toml";
+    const std::string o = shell(runIn(mode, cfg + " -o " + out.string()));
+    undoReadOnly(out);
+    EXPECT_EQ(o.find("status=0"), std::string::npos) << o;
+    EXPECT_NE(o.find(out.string()), std::string::npos) << "the folder is named: " << o;
+    EXPECT_TRUE(o.find("Permission denied") != std::string::npos || o.find("Operation not permitted") != std::string::npos ||
+                o.find("Read-only") != std::string::npos)
+        << "the cause is given: " << o;
+    EXPECT_EQ(o.find("run: frame"), std::string::npos) << "work began: " << o;
+    EXPECT_TRUE(std::filesystem::is_empty(out));
+    std::filesystem::remove_all(d);
+  }
 }
 
 // A FIFO given as an input is refused at once, naming it (reading one with no

@@ -6,6 +6,7 @@
 #include <random>
 
 #include "core/error.hpp"
+#include "core/recording_journal.hpp"
 #include "core/sequence_io.hpp"
 #include "io_test_util.hpp"
 
@@ -428,6 +429,143 @@ TEST(SequenceIo, ProbeTellsSequencesFromVolumes) {
   EXPECT_EQ(probeImageFile(test::dataFile("vtkVolumeReconstructorTestNNMEANvolumeRef.mha")), ImageFileKind::Volume);
   // Its third axis is called a list, but it has no per-frame fields.
   EXPECT_EQ(probeImageFile(test::dataFile("SpinePhantomFreehandReconstructed.mha")), ImageFileKind::Volume);
+}
+
+// ---- a recording's journal (core/recording_journal.hpp) ----
+
+// Journals `frames` for a sequence at `seq` and leaves the journal behind, as a
+// killed recording does.
+void journal(const std::string& seq, const std::vector<Frame>& frames, const SequenceWriteOptions& opt = {}) {
+  JournalWriter j(seq, opt);
+  for (const auto& f : frames) j.append(f);
+}
+
+TEST(RecordingJournal, ReadsBackEveryFrameExactly) {
+  for (PixelType type : {PixelType::U8, PixelType::U16}) {
+    TempDir dir;
+    const auto frames = makeFrames(type, 7, 5, 4);
+    SequenceWriteOptions opt;
+    opt.fields = {{"UltrasoundImageType", "BRIGHTNESS"}};
+    journal(dir / "scan.igs.mha", frames, opt);
+    EXPECT_EQ(dir.list(), std::vector<std::string>{"scan.igs.mha.journal"});
+    SequenceInfo info;
+    expectSameFrames(frames, readAllFrames(dir / "scan.igs.mha.journal", &info));
+    EXPECT_EQ(info.frameCount, 4u);
+    EXPECT_EQ(info.pixelType, type);
+    EXPECT_EQ(info.fields, opt.fields);
+    EXPECT_EQ(probeImageFile(dir / "scan.igs.mha.journal"), ImageFileKind::Sequence);
+    auto r = SequenceReader::open(dir / "scan.igs.mha.journal");
+    EXPECT_EQ(toRowMajor(r->metadata(3).transforms[0].matrix), toRowMajor(frames[3].transforms[0].matrix));
+  }
+}
+
+// A process killed in the middle of a write leaves a journal cut at any byte:
+// every frame whose record is whole reads back, the cut one does not, and the
+// reader says where it stopped.
+TEST(RecordingJournal, CutAtEveryByteKeepsEveryCompleteFrame) {
+  TempDir dir;
+  const auto frames = makeFrames(PixelType::U8, 6, 4, 3);
+  journal(dir / "scan.mha", frames);
+  const std::string whole = test::readBytes(dir / "scan.mha.journal");
+  // Where each record ends: the journal of the first k frames.
+  std::vector<std::size_t> ends;
+  for (std::size_t k = 0; k <= frames.size(); ++k) {
+    TempDir d;
+    journal(d / "scan.mha", std::vector<Frame>(frames.begin(), frames.begin() + static_cast<long>(k)));
+    ends.push_back(test::readBytes(d / "scan.mha.journal").size());
+  }
+  ASSERT_EQ(ends.back(), whole.size());
+  for (std::size_t cut = ends[0]; cut <= whole.size(); ++cut) {
+    SCOPED_TRACE("cut at byte " + std::to_string(cut));
+    test::writeBytes(dir / "cut.mha.journal", whole.substr(0, cut));
+    const std::size_t complete =
+        static_cast<std::size_t>(std::upper_bound(ends.begin(), ends.end(), cut) - ends.begin()) - 1;
+    JournalContents c;
+    auto r = openJournal(dir / "cut.mha.journal", &c);
+    ASSERT_EQ(c.frames, complete);
+    EXPECT_EQ(c.keptBytes, ends[complete]);
+    EXPECT_EQ(c.cut.empty(), cut == ends[complete]) << c.cut;
+    Frame f;
+    std::vector<Frame> back;
+    while (r->next(f)) back.push_back(f);
+    expectSameFrames(std::vector<Frame>(frames.begin(), frames.begin() + static_cast<long>(complete)), back);
+  }
+  // The header cut short is not a journal at all.
+  test::writeBytes(dir / "short.mha.journal", whole.substr(0, ends[0] - 2));
+  EXPECT_THROW(openJournal(dir / "short.mha.journal"), InputError);
+}
+
+TEST(RecordingJournal, ADamagedRecordEndsTheFramesKept) {
+  TempDir dir;
+  const auto frames = makeFrames(PixelType::U8, 6, 4, 3);
+  journal(dir / "scan.mha", frames);
+  std::string bytes = test::readBytes(dir / "scan.mha.journal");
+  // Flip one pixel byte of the second frame: the last byte of its record.
+  TempDir two;
+  journal(two / "scan.mha", {frames[0], frames[1]});
+  const std::size_t endOfSecond = test::readBytes(two / "scan.mha.journal").size();
+  bytes[endOfSecond - 1] ^= 0x01;
+  test::writeBytes(dir / "bad.mha.journal", bytes);
+  JournalContents c;
+  openJournal(dir / "bad.mha.journal", &c);
+  EXPECT_EQ(c.frames, 1u);
+  EXPECT_NE(c.cut.find("frame 1"), std::string::npos) << c.cut;
+  EXPECT_NE(c.cut.find("checksum"), std::string::npos) << c.cut;
+}
+
+// `pp5echo restore`'s work: the journal's frames become the sequence the
+// recording would have written, byte for byte, in every layout; the journal
+// and the cut-off writer's temporaries go.
+TEST(RecordingJournal, RestoreWritesTheSequenceTheRecordingWouldHave) {
+  const auto frames = makeFrames(PixelType::U8, 7, 5, 4);
+  for (const char* name : {"scan.igs.mha", "scan.mhd", "scan.igs.nrrd"}) {
+    SCOPED_TRACE(name);
+    TempDir dir, expected;
+    SequenceWriteOptions opt;
+    opt.fields = {{"UltrasoundImageType", "BRIGHTNESS"}};
+    writeAllFrames(expected / name, frames, opt);
+    journal(dir / name, frames, opt);
+    test::writeBytes(dir / (std::string(".") + name + ".tmp-Ab12Cd"), "half a compressed stream");
+    test::writeBytes(dir / "other.txt", "not ours");
+    std::vector<std::uint64_t> progress;
+    const RestoreResult res = restoreJournal(dir / (std::string(name) + ".journal"), {},
+                                             [&](std::uint64_t done, std::uint64_t) { progress.push_back(done); });
+    EXPECT_EQ(res.contents.frames, 4u);
+    EXPECT_EQ(res.leftoverTemporaries, 1u);
+    EXPECT_EQ(progress, (std::vector<std::uint64_t>{1, 2, 3, 4}));
+    std::vector<std::string> want = expected.list();
+    want.push_back("other.txt");
+    std::sort(want.begin(), want.end());
+    EXPECT_EQ(dir.list(), want);
+    for (const auto& f : expected.list()) EXPECT_EQ(test::readBytes(dir / f), test::readBytes(expected / f)) << f;
+  }
+  // Restored elsewhere, the journal stays; with no complete frame there is nothing to restore.
+  TempDir dir;
+  journal(dir / "scan.mha", frames);
+  restoreJournal(dir / "scan.mha.journal", dir / "copy.mha");
+  EXPECT_EQ(dir.list(), (std::vector<std::string>{"copy.mha", "scan.mha.journal"}));
+  expectSameFrames(frames, readAllFrames(dir / "copy.mha"));
+  journal(dir / "empty.mha", {});
+  EXPECT_THROW(restoreJournal(dir / "empty.mha.journal"), InputError);
+}
+
+// A journal left by a recording that was cut off is never replaced by a new one.
+TEST(RecordingJournal, ALeftJournalIsNeverReplaced) {
+  TempDir dir;
+  const auto frames = makeFrames(PixelType::U8, 4, 4, 2);
+  journal(dir / "scan.mha", frames);
+  const std::string before = test::readBytes(dir / "scan.mha.journal");
+  try {
+    JournalWriter again(dir / "scan.mha", {});
+    FAIL() << "a second journal was opened over the first";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("pp5echo restore"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(test::readBytes(dir / "scan.mha.journal"), before);
+  JournalWriter done(dir / "next.mha", {});
+  done.append(frames[0]);
+  done.discard();
+  EXPECT_EQ(dir.list(), std::vector<std::string>{"scan.mha.journal"});
 }
 
 }  // namespace

@@ -11,6 +11,7 @@
 #include <string>
 
 #include "app/commands.hpp"
+#include "core/recording_journal.hpp"
 #include "core/sequence_io.hpp"
 #include "core/volume_io.hpp"
 
@@ -87,6 +88,13 @@ Json describeSequence(const std::string& path) {
   j["transforms"] = Json::object();
   for (const auto& t : transforms) j["transforms"][t.name] = Json{{"frames", t.frames}, {"valid_frames", t.valid}};
   j["time"] = time;
+  if (std::filesystem::path(path).extension() == ".journal") {  // a recording that was cut off
+    JournalContents c;
+    openJournal(path, &c);
+    j["journal"] = Json{{"sequence", c.sequencePath}, {"complete_frames", c.frames}, {"kept_bytes", c.keptBytes},
+                        {"file_bytes", c.fileBytes}, {"cut", c.cut.empty() ? Json(nullptr) : Json(c.cut)},
+                        {"restore", "pp5echo restore " + path}};
+  }
   return j;
 }
 
@@ -97,7 +105,8 @@ void addInfoCommand(CLI::App& app, int& exitCode) {
   auto* cmd = app.add_subcommand("info", "Describe a PLUS sequence (.igs.mha, .igs.nrrd, ...) or a volume as JSON");
   // Not CLI11's ExistingFile check: a missing file should get the same
   // one-line error as any other bad input.
-  cmd->add_option("FILE", *file, "Sequence or volume (.mha, .mhd, .nrrd)")->required();
+  cmd->add_option("FILE", *file, "Sequence or volume (.mha, .mhd, .nrrd), or a cut-off recording's .journal")
+      ->required();
   cmd->callback([file, &exitCode] {
     const bool sequence = probeImageFile(*file) == ImageFileKind::Sequence;
     const Json j = sequence ? describeSequence(*file) : describeVolume(*file);

@@ -8,9 +8,10 @@
 #include <csignal>
 #include <cstdio>
 #include <filesystem>
-#include <memory>
 #include <deque>
+#include <memory>
 #include <numeric>
+#include <optional>
 #include <thread>
 
 #include <fmt/format.h>
@@ -193,7 +194,7 @@ int runSerial(const RunOptions& o) {
   loadSettings(schema, o.file, o.overrides);
   checkSettings(s);
   const std::string dir = o.outDir.empty() ? s.output.dir : o.outDir;
-  makeOutputDir(dir);
+  host::RunFolder folder(dir);
   std::signal(SIGINT, onInterrupt);
   std::signal(SIGTERM, onInterrupt);
 
@@ -359,6 +360,7 @@ int runSerial(const RunOptions& o) {
   if (capture.skipped())
     std::printf("  constant-interval capture (every %g mm) left out %llu frames\n", capture.intervalMm(),
                 static_cast<unsigned long long>(capture.skipped()));
+  folder.finished();
   std::printf("wrote to %s\n", fs::absolute(dir).string().c_str());
   for (const auto& n : wrote) std::printf("  %s\n", n.c_str());
   return 0;
@@ -455,8 +457,9 @@ int runDistributed(const RunOptions& o) {
     host::Source src;
     comm::GridMsg gm;
     gm.h.tag = comm::kTagGrid;
+    std::optional<host::RunFolder> folder;
     if (rank == 0) {
-      makeOutputDir(dir);
+      folder.emplace(dir);
       src = makeSource(s);
       for (int a = 0; a < 3; ++a) {
         gm.dims[a] = src.grid.dims[a];
@@ -508,6 +511,7 @@ int runDistributed(const RunOptions& o) {
           settingsFile.commit();
         }
         status = host::runHostRank(t, j);
+        if (status == 0) folder->finished();
         break;
       }
       case parallel::Role::Gp: {

@@ -21,6 +21,7 @@ int main(int argc, char** argv) {
   int exitCode = 0;
   pp5::app::addConfigCommand(app, exitCode);
   pp5::app::addInfoCommand(app, exitCode);
+  pp5::app::addRestoreCommand(app, exitCode);
   pp5::app::addSimulateCommand(app, exitCode);
   pp5::app::addFrameCommand(app, exitCode);
   pp5::app::addReconstructCommand(app, exitCode);

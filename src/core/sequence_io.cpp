@@ -6,6 +6,7 @@
 
 #include "core/error.hpp"
 #include "core/image_file.hpp"
+#include "core/recording_journal.hpp"
 
 namespace pp5 {
 
@@ -330,6 +331,7 @@ private:
 }  // namespace
 
 std::unique_ptr<SequenceReader> SequenceReader::open(const std::string& path) {
+  if (io::extensionOf(path) == ".journal") return openJournal(path);
   return std::make_unique<SequenceReaderImpl>(path);
 }
 
@@ -353,6 +355,7 @@ void writeAllFrames(const std::string& path, const std::vector<Frame>& frames, c
 }
 
 ImageFileKind probeImageFile(const std::string& path) {
+  if (io::extensionOf(path) == ".journal") return ImageFileKind::Sequence;
   const io::ImageHeader h = io::readImageHeader(path);
   // PLUS's reconstructions carry a stray Seq_Frame0000_ImageStatus, and older
   // ones call their third axis a "list": a spatial third axis decides first,

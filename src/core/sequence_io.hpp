@@ -39,8 +39,9 @@ struct SequenceInfo {
 class SequenceReader {
 public:
   virtual ~SequenceReader() = default;
-  // Opens by extension (.mha/.mhd -> MetaIO, .nrrd -> NRRD) and parses the
-  // header; throws InputError on any header problem.
+  // Opens by extension (.mha/.mhd -> MetaIO, .nrrd -> NRRD; .journal -> the
+  // complete frames of a recording that was cut off, recording_journal.hpp)
+  // and parses the header; throws InputError on any header problem.
   static std::unique_ptr<SequenceReader> open(const std::string& path);
 
   virtual const SequenceInfo& info() const = 0;

@@ -20,6 +20,7 @@
 #include "core/error.hpp"
 #include "gp/shading.hpp"
 #include "host/coverage.hpp"
+#include "core/recording_journal.hpp"
 #include "host/recorder.hpp"
 #include "host/slices.hpp"
 #include "parallel/parallel_settings.hpp"
@@ -340,8 +341,13 @@ struct LiveView::Impl {
       } else if (type == "record") {
         onlyKeys(msg, {"on"});
         next.recording = boolean(msg, "on");
-        if (next.recording && recording.empty())
-          recording = (std::filesystem::path(recordDir) / fmt::format("recording-{}.mha", ++recordings)).string();
+        // A new name each time: never over an earlier recording, nor over the
+        // journal of one that was cut off.
+        while (next.recording && recording.empty()) {
+          const std::string p =
+              (std::filesystem::path(recordDir) / fmt::format("recording-{}.mha", ++recordings)).string();
+          if (!std::filesystem::exists(p) && !std::filesystem::exists(journalPathFor(p))) recording = p;
+        }
         if (!next.recording) recording.clear();
       } else {
         return fmt::format("unknown control message type \"{}\"", type);

@@ -1,10 +1,68 @@
 #include "host/outputs.hpp"
 
 #include <fmt/format.h>
+#include <spdlog/spdlog.h>
+
+#include <chrono>
+#include <cstring>
+#include <ctime>
+#include <filesystem>
 
 #include "core/error.hpp"
+#include "core/io_util.hpp"
 
 namespace pp5::host {
+
+namespace fs = std::filesystem;
+
+bool isRunOutput(const std::string& n) {
+  auto ext = [&](const char* prefix, const char* suffix) {
+    return io::startsWith(n, prefix) && io::endsWith(n, suffix) && n.size() > std::strlen(prefix) + std::strlen(suffix);
+  };
+  for (const char* fixed : {"buildup.gif", "orbit.gif", "volume.mha", "stats.csv", "summary.json", "settings.toml",
+                            RunFolder::kIncompleteMarker})
+    if (n == fixed) return true;
+  return ext("final_", ".png") || ext("mpr_", ".png");
+}
+
+RunFolder::RunFolder(const std::string& dir) : dir_(dir) {
+  std::error_code ec;
+  fs::create_directories(dir, ec);
+  if (ec || !fs::is_directory(dir))
+    inputError(dir, "cannot create the output folder{}", ec ? " (" + ec.message() + ")" : std::string());
+  // The marker goes first: written, it also shows that the folder takes files.
+  try {
+    io::AtomicFile marker((fs::path(dir) / kIncompleteMarker).string());
+    const std::time_t now = std::chrono::system_clock::to_time_t(std::chrono::system_clock::now());
+    char when[64] = "";
+    std::strftime(when, sizeof when, "%Y-%m-%d %H:%M:%S", std::localtime(&now));
+    marker.write(fmt::format(
+        "A pp5echo run started writing to this folder at {} and has not finished.\n"
+        "Until it does (this file is then removed), the outputs here are incomplete.\n"
+        "A run that was cut off leaves this file; a recording it made is kept as\n"
+        "recording.mha, or as recording.mha.journal (pp5echo restore recording.mha.journal).\n",
+        when));
+    marker.commit();
+  } catch (const InputError& e) {
+    inputError(dir, "cannot write in the output folder: {}", e.what());
+  }
+  std::vector<fs::path> earlier;
+  for (const auto& e : fs::directory_iterator(dir, ec))
+    if (e.is_regular_file(ec) && isRunOutput(e.path().filename().string()) &&
+        e.path().filename() != kIncompleteMarker)
+      earlier.push_back(e.path());
+  for (const auto& p : earlier)
+    if (!fs::remove(p, ec) && ec) inputError(p.string(), "cannot remove an earlier run's output ({})", ec.message());
+  if (!earlier.empty())
+    spdlog::info("run: removed {} output{} an earlier run left in {}", earlier.size(), earlier.size() == 1 ? "" : "s",
+                 dir);
+}
+
+void RunFolder::finished() {
+  std::error_code ec;
+  fs::remove(fs::path(dir_) / kIncompleteMarker, ec);
+  if (ec) inputError(dir_, "cannot remove {} after the run ({})", kIncompleteMarker, ec.message());
+}
 
 StatsCsv::StatsCsv(const std::string& path, const std::vector<std::string>& columns)
     : columns_(columns.size()), path_(path) {

@@ -1,5 +1,6 @@
 #pragma once
-// The per-frame statistics file a run writes (its slices: host/slices.hpp).
+// A run's output folder, and the per-frame statistics file a run writes (its
+// slices: host/slices.hpp).
 #include <cstdint>
 #include <cstdio>
 #include <string>
@@ -22,5 +23,29 @@ private:
   std::size_t columns_ = 0;
   std::string path_;
 };
+
+// The folder a run writes its outputs to, from the start of the run to its
+// end. Opening it creates it and checks that a file can be written there (a
+// read-only folder fails before any work), removes what an earlier run left
+// there (its images, volume, statistics and settings; never a recording or a
+// recording's journal), and marks the folder unfinished with kIncompleteMarker.
+// finished() removes the marker once every output is in place, so a run that
+// failed or was killed never leaves a folder that looks complete, nor old
+// images beside new statistics.
+class RunFolder {
+public:
+  static constexpr const char* kIncompleteMarker = "RUN_INCOMPLETE.txt";
+  explicit RunFolder(const std::string& dir);
+  void finished();
+  const std::string& dir() const { return dir_; }
+
+private:
+  std::string dir_;
+};
+
+// True for a file an earlier run wrote and RunFolder clears: buildup.gif,
+// orbit.gif, final_*.png, mpr_*.png, volume.mha, stats.csv, summary.json,
+// settings.toml and the marker.
+bool isRunOutput(const std::string& fileName);
 
 }  // namespace pp5::host

@@ -2,6 +2,8 @@
 
 #include <spdlog/spdlog.h>
 
+#include "core/error.hpp"
+
 #include "host/sources.hpp"
 
 namespace pp5::host {
@@ -16,7 +18,11 @@ Recorder::~Recorder() {
 
 void Recorder::write(const Frame& f) {
   if (path_.empty()) return;
-  if (!w_) w_ = SequenceWriter::create(path_);
+  if (!w_) {
+    journal_ = std::make_unique<JournalWriter>(path_, SequenceWriteOptions{});
+    w_ = SequenceWriter::create(path_);
+  }
+  journal_->append(f);
   w_->write(f);
   ++frames_;
 }
@@ -32,7 +38,13 @@ void Recorder::writePlaced(const Frame& f, const Mat4& imageToReference, double 
 void Recorder::close() {
   if (!w_) return;
   auto w = std::move(w_);
-  w->close();
+  try {
+    w->close();
+  } catch (const std::exception& e) {
+    throw InputError(fmt::format("{} (the {} frames recorded are kept in {}: pp5echo restore {})", e.what(), frames_,
+                                 journal_->path(), journal_->path()));
+  }
+  journal_->discard();
   spdlog::info("run.record: {} frames written to {}", frames_, path_);
 }
 

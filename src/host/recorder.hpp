@@ -9,14 +9,17 @@
 
 #include "core/frame.hpp"
 #include "core/plus_config.hpp"
+#include "core/recording_journal.hpp"
 #include "core/sequence_io.hpp"
 #include "core/transform.hpp"
 
 namespace pp5::host {
 
 // Writes every frame a source produces to `path`, closing the file when the
-// source ends (however it ends), so that nothing acquired is lost. An empty
-// path writes nothing.
+// source ends (however it ends), so that nothing acquired is lost. Each frame
+// goes to the recording's journal first (core/recording_journal.hpp), so that
+// a process killed in the middle keeps every frame it had: `pp5echo restore`
+// makes the sequence from it. An empty path writes nothing.
 class Recorder {
 public:
   explicit Recorder(const std::string& path) : path_(path) {}
@@ -31,6 +34,7 @@ public:
 
 private:
   std::string path_;
+  std::unique_ptr<JournalWriter> journal_;
   std::unique_ptr<SequenceWriter> w_;
   std::uint64_t frames_ = 0;
 };

@@ -13,11 +13,13 @@
 #include <csignal>
 #include <cstdio>
 #include <cstring>
+#include <exception>
 #include <filesystem>
 #include <fstream>
 #include <set>
 #include <string>
 #include <thread>
+#include <utility>
 #include <vector>
 
 #include <CLI/CLI.hpp>
@@ -188,6 +190,17 @@ int serve(const Options& o) {
   bool vanished = false;
   auto paceStart = Clock::now();
   std::uint64_t paceFirst = 0;
+  // A client that goes away ends the stream with an error; the record of
+  // what was sent keeps every frame sent before it.
+  struct CloseRecordOnError {
+    std::unique_ptr<SequenceWriter>& w;
+    ~CloseRecordOnError() {
+      if (w && std::uncaught_exceptions() > 0) try {
+          w->close();
+        } catch (const std::exception&) {
+        }
+    }
+  } closeRecordOnError{sentWriter};
   while (k < total && reader->next(f)) {
     if (o.vanishAfter >= 0 && k == static_cast<std::uint64_t>(o.vanishAfter) && !vanished) {
       vanished = true;
@@ -276,7 +289,7 @@ int serve(const Options& o) {
   // take the client's immediate reconnection attempt and then reset it.
   listener.close();
   if (client >= 0) ::close(client);
-  if (sentWriter) sentWriter->close();
+  if (sentWriter) std::exchange(sentWriter, nullptr)->close();
   event("done: {} frames sent", k);
   return 0;
 }

@@ -4,8 +4,9 @@
 #  1. a rank killed mid-sweep ends the job within seconds;
 #  2. a corrupt frame in the input ends the job with a message naming it;
 #  3. a rank that stops answering (SIGSTOP) ends the job after parallel.timeout_s, named by the host;
-#  4. Ctrl-C through scripts/mpirun.sh finishes the frames acquired and writes every output (tick mode);
-#  5. a layout that does not match the job's size is refused with a clear message.
+#  4. Ctrl-C or SIGTERM through scripts/mpirun.sh finishes the frames acquired and writes every output (tick mode);
+#  5. a layout that does not match the job's size is refused with a clear message;
+#  6. SIGTERM to mpirun itself does the same (mpirun's own status is non-zero).
 # Usage: clean_ends.sh PP5ECHO OUTDIR DATADIR
 set -uo pipefail
 bin="$1" out="$2" data="$3"
@@ -46,6 +47,8 @@ t1=$(date +%s)
 check "killed rank: job ends non-zero" "$([[ -n "$gp" && $st -ne 0 ]]; echo $?)" "status $st, rank pid '$gp'"
 check "killed rank: within 20 s" "$([[ $((t1 - t0)) -le 20 ]]; echo $?)" "took $((t1 - t0)) s"
 check "killed rank: mpirun names it" "$(grep -q 'rank 1 with PID' "$log"; echo $?)" "$(tail -5 "$log")"
+check "killed rank: the output folder is marked unfinished" "$([[ -f "$out/kill/RUN_INCOMPLETE.txt" ]]; echo $?)" \
+  "$(ls "$out/kill")"
 
 # 2. a corrupt frame: 200 kB of garbage in the middle of a compressed PLUS sequence.
 seq="$out/corrupt.igs.mha"
@@ -75,21 +78,42 @@ check "stopped rank: job ends non-zero" "$([[ -n "$pp" && $st -ne 0 ]]; echo $?)
 check "stopped rank: the host names it by its heartbeat" \
   "$(grep -q 'rank 3 (pixel processor 0)' "$log"; echo $?)" "$(grep -i 'error' "$log" | head -5)"
 
-# 4. Ctrl-C through scripts/mpirun.sh, in tick mode: a clean end with every output.
-log="$out/interrupt.log"
-# (A background job starts with SIGINT ignored, and bash cannot trap a signal
-# ignored on entry; python restores the default first, as a terminal has it.)
-python3 -c 'import os, signal, sys; signal.signal(signal.SIGINT, signal.SIG_DFL); os.execvp("bash", ["bash"] + sys.argv[1:])' \
-  "$root/scripts/mpirun.sh" 4 "$bin" run "${long[@]}" -o "$out/interrupt" > "$log" 2>&1 &
-sh=$!
-wait_for "$log" "run: frame" 60
-kill -INT "$sh"
-timeout 120 tail --pid="$sh" -f /dev/null; wait "$sh"; st=$?
-check "Ctrl-C: exit 0" "$([[ $st -eq 0 ]]; echo $?)" "status $st: $(tail -5 "$log")"
-check "Ctrl-C: the host says so" "$(grep -q 'interrupted; finishing the' "$log"; echo $?)" "$(tail -5 "$log")"
-for f in buildup.gif final_over.png final_mip.png mpr_axial.png volume.mha stats.csv summary.json settings.toml; do
-  check "Ctrl-C: wrote $f" "$([[ -s "$out/interrupt/$f" ]]; echo $?)" "missing"
+# 4. Ctrl-C (SIGINT), or SIGTERM, through scripts/mpirun.sh, in tick mode: a
+#    clean end with every output and the folder no longer marked unfinished.
+for sig in INT TERM; do
+  log="$out/interrupt-$sig.log"
+  # (A background job starts with SIGINT ignored, and bash cannot trap a signal
+  # ignored on entry; python restores the default first, as a terminal has it.)
+  python3 -c 'import os, signal, sys; signal.signal(signal.SIGINT, signal.SIG_DFL); os.execvp("bash", ["bash"] + sys.argv[1:])' \
+    "$root/scripts/mpirun.sh" 4 "$bin" run "${long[@]}" -o "$out/interrupt-$sig" > "$log" 2>&1 &
+  sh=$!
+  wait_for "$log" "run: frame" 60
+  kill -"$sig" "$sh"
+  timeout 120 tail --pid="$sh" -f /dev/null; wait "$sh"; st=$?
+  check "SIG$sig: exit 0" "$([[ $st -eq 0 ]]; echo $?)" "status $st: $(tail -5 "$log")"
+  check "SIG$sig: the host says so" "$(grep -q 'interrupted; finishing the' "$log"; echo $?)" "$(tail -5 "$log")"
+  for f in buildup.gif final_over.png final_mip.png mpr_axial.png volume.mha stats.csv summary.json settings.toml; do
+    check "SIG$sig: wrote $f" "$([[ -s "$out/interrupt-$sig/$f" ]]; echo $?)" "missing"
+  done
+  check "SIG$sig: the folder is not marked unfinished" "$([[ ! -e "$out/interrupt-$sig/RUN_INCOMPLETE.txt" ]]; echo $?)" \
+    "RUN_INCOMPLETE.txt is there"
 done
+
+# 6. SIGTERM to mpirun itself (as a batch system sends it): mpirun passes it to
+#    every rank, the host finishes the frames it has and writes every output;
+#    mpirun's own status for a signalled job is non-zero.
+log="$out/term-mpirun.log"
+mpirun -n 4 "$bin" run "${long[@]}" -o "$out/term-mpirun" > "$log" 2>&1 &
+mp=$!
+wait_for "$log" "run: frame" 60
+kill -TERM "$mp"
+timeout 120 tail --pid="$mp" -f /dev/null; wait "$mp"; st=$?
+check "SIGTERM to mpirun: the host finishes" "$(grep -q 'interrupted; finishing the' "$log"; echo $?)" "$(tail -5 "$log")"
+for f in buildup.gif final_over.png volume.mha summary.json; do
+  check "SIGTERM to mpirun: wrote $f" "$([[ -s "$out/term-mpirun/$f" ]]; echo $?)" "missing"
+done
+check "SIGTERM to mpirun: the folder is not marked unfinished" \
+  "$([[ ! -e "$out/term-mpirun/RUN_INCOMPLETE.txt" ]]; echo $?)" "RUN_INCOMPLETE.txt is there"
 
 # 5. a layout that does not fit the job.
 log="$out/layout.log"
