@@ -3,6 +3,7 @@
 #   decoder  the interface board's frame decoder (corpus: tests/fuzz/corpus)
 #   metaio   a MetaIO file read as a sequence and as a volume
 #   nrrd     the same for NRRD
+#   journal  a cut-off recording's journal (core/recording_journal.hpp)
 #   plus_xml a PLUS device-set config (coordinates, reconstruction, phantom, segmentation)
 #   toml     a TOML settings file with every section pp5echo registers
 #   igtl     an OpenIGTLink stream decoded by the live source's client
@@ -12,7 +13,7 @@
 #
 # Usage: scripts/fuzz.sh [SECONDS] [--only NAME[,NAME...]] [--merge] [--seeds]
 #   SECONDS   how long to fuzz each target (default 60)
-#   --only    these targets (default: all seven)
+#   --only    these targets (default: all eight)
 #   --merge   afterwards, merge the decoder's inputs that add coverage back into
 #             tests/fuzz/corpus (minimised; the seed-* files are kept)
 #   --seeds   (re)write the seed-* files of tests/fuzz/corpus and stop
@@ -26,7 +27,7 @@ root=$(cd "$(dirname "$0")/.." && pwd)
 secs=60
 merge=0
 seeds=0
-only="decoder,metaio,nrrd,plus_xml,toml,igtl,control"
+only="decoder,metaio,nrrd,journal,plus_xml,toml,igtl,control"
 while [ $# -gt 0 ]; do
   case "$1" in
     --merge) merge=1 ;;
@@ -54,8 +55,8 @@ IFS=, read -r -a names <<<"$only"
 targets=()
 for n in "${names[@]}"; do
   case "$n" in
-    decoder|metaio|nrrd|plus_xml|toml|igtl|control) targets+=("fuzz_$n") ;;
-    *) echo "fuzz.sh: unknown target '$n' (decoder, metaio, nrrd, plus_xml, toml, igtl, control)" >&2; exit 2 ;;
+    decoder|metaio|nrrd|journal|plus_xml|toml|igtl|control) targets+=("fuzz_$n") ;;
+    *) echo "fuzz.sh: unknown target '$n' (decoder, metaio, nrrd, journal, plus_xml, toml, igtl, control)" >&2; exit 2 ;;
   esac
 done
 [ "$seeds" = 1 ] && targets=(fuzz_decoder_seeds)
@@ -112,7 +113,7 @@ PY
     fuzz_plus_xml) cp "$data"/*.xml "$dir"/ 2>/dev/null || true ;;
     fuzz_toml)
       cp "$root"/configs/*.toml "$root"/tests/configs/*.toml "$dir"/ 2>/dev/null || true ;;
-    fuzz_igtl|fuzz_control) PP5_FUZZ_SEEDS_DIR="$dir" "$bindir/$t" ;;
+    fuzz_igtl|fuzz_control|fuzz_journal) PP5_FUZZ_SEEDS_DIR="$dir" "$bindir/$t" ;;
   esac
 }
 

@@ -1,13 +1,23 @@
 // Constant-interval capture (host/capture.hpp) on the host, for any source:
 // a frame is taken once some image corner has moved the interval from the
 // last frame taken, in translation and in rotation, and the Acquisition
-// thread leaves the others out and counts them.
+// thread leaves the others out and counts them. Also the recorder that
+// writes a live source's frames (host/recorder.hpp).
 #include <gtest/gtest.h>
 
 #include <glm/gtc/matrix_transform.hpp>
 
+#include <unistd.h>
+
+#include <cstdlib>
+#include <filesystem>
+#include <memory>
+
+#include "core/error.hpp"
+#include "core/sequence_io.hpp"
 #include "host/acquisition.hpp"
 #include "host/capture.hpp"
+#include "host/recorder.hpp"
 
 namespace {
 
@@ -76,3 +86,51 @@ TEST(Acquisition, ConstantIntervalCaptureLeavesFramesOutAndCountsThem) {
 }
 
 }  // namespace
+
+// ---- the recorder (host/recorder.hpp) ----
+
+// A recording whose sequence cannot be finished (here its folder stops taking
+// new files, as a full or read-only disk would) fails saying where its frames
+// are kept and how to restore them, and the journal holds every frame.
+TEST(Recorder, AFailedFinishSaysWhereTheFramesAreKept) {
+  namespace fs = std::filesystem;
+  const fs::path dir = fs::temp_directory_path() / ("pp5rec-" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  const std::string seq = (dir / "rec.mha").string();
+  auto rec = std::make_unique<host::Recorder>(seq);
+  Frame f;
+  f.allocate(8, 6, PixelType::U8);
+  for (int i = 0; i < 3; ++i) {
+    f.index = static_cast<std::uint64_t>(i);
+    f.pixels.assign(f.pixels.size(), static_cast<std::uint8_t>(10 * i));
+    rec->write(f);
+  }
+  // The folder refuses new files: its mode, or for root the immutable attribute.
+  fs::permissions(dir, fs::perms::owner_read | fs::perms::owner_exec);
+  const bool readOnly = ::access(dir.c_str(), W_OK) != 0 ||
+                        std::system(("chattr +i " + dir.string() + " 2>/dev/null").c_str()) == 0;
+  std::string message;
+  if (readOnly) {
+    try {
+      rec->close();
+    } catch (const InputError& e) {
+      message = e.what();
+    }
+  }
+  [[maybe_unused]] const int undo = std::system(("chattr -i " + dir.string() + " 2>/dev/null").c_str());
+  fs::permissions(dir, fs::perms::owner_all);
+  rec.reset();
+  if (!readOnly) {
+    fs::remove_all(dir);
+    GTEST_SKIP() << "cannot make a read-only folder here";
+  }
+  EXPECT_NE(message.find("rec.mha.journal"), std::string::npos) << message;
+  EXPECT_NE(message.find("pp5echo restore"), std::string::npos) << message;
+  EXPECT_NE(message.find("3 frames"), std::string::npos) << message;
+  const auto frames = readAllFrames(seq + ".journal");
+  ASSERT_EQ(frames.size(), 3u);
+  EXPECT_EQ(frames[2].pixels[0], 20);
+  EXPECT_FALSE(fs::exists(seq));
+  fs::remove_all(dir);
+}

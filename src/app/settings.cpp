@@ -83,7 +83,8 @@ void registerAll(ConfigSchema& schema, Settings& s) {
                 "what arrived); 0 ends it at once.");
   schema.option("run.record", &s.run.record, "",
                 "Write every acquired frame, as it arrives and before any drop, to this PLUS sequence file "
-                "(`pp5echo record` sets it to OUT/recording.mha).");
+                "(`pp5echo record` sets it to OUT/recording.mha). Each frame also goes to FILE.journal until the "
+                "file is complete, so a run killed at any moment keeps every frame: `pp5echo restore FILE.journal`.");
   schema.option("run.sequence", &s.run.sequence, "", "PLUS sequence file for `run.source = \"sequence\"`.");
   schema.option("run.plus_config", &s.run.plusConfig, "",
                 "PLUS device-set XML giving the sequence's ImageToReference chain.");

@@ -4,6 +4,7 @@
 #include <unistd.h>
 #include <zlib.h>
 
+#include <algorithm>
 #include <bit>
 #include <cerrno>
 #include <chrono>
@@ -213,15 +214,9 @@ public:
 
   bool next(Frame& f) override {
     if (next_ == meta_.size()) return false;
-    const Frame& m = meta_[next_];
-    f.width = m.width;
-    f.height = m.height;
-    f.pixelType = m.pixelType;
-    f.index = m.index;
-    f.timestamp = m.timestamp;
-    f.imageValid = m.imageValid;
-    f.transforms = m.transforms;
-    f.customFields = m.customFields;
+    std::vector<std::uint8_t> buffer = std::move(f.pixels);  // reused, as the other readers do
+    f = meta_[next_];
+    f.pixels = std::move(buffer);
     f.pixels.resize(f.byteSize());
     if (std::fseek(file_.get(), static_cast<long>(pixelsAt_[next_]), SEEK_SET) != 0 ||
         std::fread(f.pixels.data(), 1, f.pixels.size(), file_.get()) != f.pixels.size())
@@ -292,9 +287,14 @@ private:
       const auto crc = static_cast<std::uint32_t>(u.u(4));
       const std::uint64_t bytes = u.u(8);
       if (bytes > kMaxBodyBytes) return stop(fmt::format("the record claims {} bytes (damaged)", bytes));
+      // Checked against the file before anything is allocated (a damaged
+      // length must not cost a gigabyte; found by fuzz_journal).
+      const std::uint64_t available = c_.fileBytes - std::min(c_.fileBytes, at + kPreludeBytes);
+      if (bytes > available)
+        return stop(fmt::format("the record is cut off ({} of its {} bytes)", available, bytes));
       body.resize(static_cast<std::size_t>(bytes));
-      const std::size_t read = std::fread(body.data(), 1, body.size(), file_.get());
-      if (read != body.size()) return stop(fmt::format("the record is cut off ({} of its {} bytes)", read, bytes));
+      if (std::fread(body.data(), 1, body.size(), file_.get()) != body.size())
+        return stop("the record could not be read (the file shrank while it was read?)");
       if (crcOf(body.data(), body.size()) != crc) return stop("the record fails its checksum (damaged)");
       Frame m;
       std::string why;

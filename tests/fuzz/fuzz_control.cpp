@@ -18,6 +18,7 @@
 #include "gp/shading.hpp"
 #include "host/live_view.hpp"
 #include "parallel/parallel_settings.hpp"
+#include "fuzz_util.hpp"
 
 namespace {
 
@@ -62,11 +63,10 @@ pp5::host::LiveView& viewer() {
 }  // namespace
 
 extern "C" int LLVMFuzzerInitialize(int*, char***) {
-  if (const char* dir = std::getenv("PP5_FUZZ_SEEDS_DIR")) {
+  pp5::fuzz::writeSeedsIfAsked([](const std::string& dir) {
     int i = 0;
-    for (const char* s : kSeeds) std::ofstream(std::string(dir) + "/seed-" + std::to_string(i++)) << s;
-    std::exit(0);
-  }
+    for (const char* s : kSeeds) std::ofstream(dir + "/seed-" + std::to_string(i++)) << s;
+  });
   return 0;
 }
 

@@ -20,6 +20,7 @@
 
 #include "core/error.hpp"
 #include "igtl/igtl_client.hpp"
+#include "fuzz_util.hpp"
 
 namespace {
 
@@ -77,10 +78,7 @@ void writeSeeds(const std::string& dir) {
 }  // namespace
 
 extern "C" int LLVMFuzzerInitialize(int*, char***) {
-  if (const char* dir = std::getenv("PP5_FUZZ_SEEDS_DIR")) {
-    writeSeeds(dir);
-    std::exit(0);
-  }
+  pp5::fuzz::writeSeedsIfAsked(writeSeeds);
   return 0;
 }
 

@@ -6,6 +6,7 @@
 // it as a crash; the sanitizers catch what does not throw at all.
 #include <cstdint>
 #include <cstdio>
+#include <cstdlib>
 #include <fstream>
 #include <string>
 #include <unistd.h>
@@ -26,6 +27,17 @@ inline std::string writeInput(const std::uint8_t* data, std::size_t size, const 
   std::ofstream out(path, std::ios::binary | std::ios::trunc);
   out.write(reinterpret_cast<const char*>(data), static_cast<std::streamsize>(size));
   return path;
+}
+
+// With PP5_FUZZ_SEEDS_DIR set, a target that makes its own seed inputs
+// (scripts/fuzz.sh asks before fuzzing) writes them there and exits; called
+// from LLVMFuzzerInitialize.
+template <class F>
+void writeSeedsIfAsked(F&& write) {
+  if (const char* dir = std::getenv("PP5_FUZZ_SEEDS_DIR")) {
+    write(std::string(dir));
+    std::exit(0);
+  }
 }
 
 template <class F>
