@@ -319,6 +319,28 @@ TEST(Cli, AReadOnlyFolderFailsBeforeAnyWork) {
   }
 }
 
+// A recording never starts over the journal of one that was cut off, nor
+// into a folder that does not exist: refused before any frame is taken,
+// saying how to restore it, and the journal is left as it was.
+TEST(Cli, ARecordingNeverStartsOverACutOffOne) {
+  const auto d = tempDir("cutoff");
+  const auto out = d / "out";
+  std::filesystem::create_directories(out);
+  writeFile(out / "recording.mha.journal", "PP5ECHO RECORDING JOURNAL 1\nSequence = recording.mha\nEnd\n");
+  const std::string cfg = std::string(PP5_SOURCE_DIR) + "/tests/configs/mpi_small.toml";
+  Result r = run("record " + cfg + " --serial -o " + out.string());
+  EXPECT_EQ(r.status, 1) << r.out;
+  EXPECT_NE(r.out.find("recording.mha.journal"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("pp5echo restore"), std::string::npos) << r.out;
+  EXPECT_EQ(r.out.find("run: frame"), std::string::npos) << "frames were taken: " << r.out;
+  EXPECT_EQ(readFile(out / "recording.mha.journal"), "PP5ECHO RECORDING JOURNAL 1\nSequence = recording.mha\nEnd\n");
+  r = run("run " + cfg + " --serial -o " + out.string() + " --set run.record=\\\"" + (d / "no/such/r.mha").string() +
+          "\\\"");
+  EXPECT_EQ(r.status, 1) << r.out;
+  EXPECT_NE(r.out.find("does not exist"), std::string::npos) << r.out;
+  std::filesystem::remove_all(d);
+}
+
 // A FIFO given as an input is refused at once, naming it (reading one with no
 // writer waited forever, issue 20 item 7): a sequence, a TOML config and a
 // PLUS device set.

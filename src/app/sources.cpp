@@ -10,6 +10,7 @@
 #include "app/sweep_cache.hpp"
 #include "core/error.hpp"
 #include "core/plus_config.hpp"
+#include "core/recording_journal.hpp"
 #include "host/sources.hpp"
 #include "sim/simulate.hpp"
 
@@ -40,6 +41,8 @@ host::LiveSetup liveSetup(const Settings& s, const std::string& what) {
 }  // namespace
 
 host::Source makeSource(const Settings& s) {
+  // A recording that could not start is found before any frame is taken.
+  if (!s.run.record.empty()) checkRecordingTarget(s.run.record);
   if (s.run.source == SourceKind::Board)
     return host::boardSource(driverOptions(s), armCalibration(s), s.board.transform, liveSetup(s, "board"));
   if (s.run.source == SourceKind::Igtl) {

@@ -324,15 +324,30 @@ private:
 
 std::string journalPathFor(const std::string& sequencePath) { return sequencePath + ".journal"; }
 
+namespace {
+[[noreturn]] void leftJournal(const std::string& journal) {
+  inputError(journal, "a recording that was cut off is still in this journal; restore it first "
+                      "(pp5echo restore {}) or move it away",
+             journal);
+}
+}  // namespace
+
+void checkRecordingTarget(const std::string& sequencePath) {
+  io::formatFromExtension(sequencePath);
+  const fs::path p(sequencePath);
+  const fs::path dir = p.has_parent_path() ? p.parent_path() : fs::path(".");
+  std::error_code ec;
+  if (!fs::is_directory(dir, ec)) inputError(sequencePath, "the recording's folder '{}' does not exist", dir.string());
+  if (fs::exists(journalPathFor(sequencePath), ec)) leftJournal(journalPathFor(sequencePath));
+}
+
 JournalWriter::JournalWriter(const std::string& sequencePath, const SequenceWriteOptions& opt)
     : path_(journalPathFor(sequencePath)) {
   io::formatFromExtension(sequencePath);
   const std::string header = optionsHeader(sequencePath, opt);
   fd_ = ::open(path_.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_APPEND | O_CLOEXEC, 0666);
   if (fd_ < 0) {
-    if (errno == EEXIST)
-      inputError(path_, "a recording that was cut off is still in this journal; restore it first "
-                        "(pp5echo restore {}) or move it away", path_);
+    if (errno == EEXIST) leftJournal(path_);
     inputError(path_, "cannot create the recording's journal ({})", std::strerror(errno));
   }
   writeAll(fd_, reinterpret_cast<const std::uint8_t*>(header.data()), header.size(), path_);

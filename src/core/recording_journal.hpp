@@ -24,6 +24,11 @@ namespace pp5 {
 // Where the journal of a sequence being written lives: SEQUENCE + ".journal".
 std::string journalPathFor(const std::string& sequencePath);
 
+// Checks, before a recording starts, that `sequencePath` can be recorded to:
+// a sequence's extension, an existing folder, and no journal left there by a
+// recording that was cut off (InputError saying how to restore it).
+void checkRecordingTarget(const std::string& sequencePath);
+
 class JournalWriter {
 public:
   // Creates the journal of `sequencePath`. One left by an earlier recording
