@@ -11,12 +11,14 @@
 
 #include <cstdlib>
 #include <filesystem>
+#include <fstream>
 #include <memory>
 
 #include "core/error.hpp"
 #include "core/sequence_io.hpp"
 #include "host/acquisition.hpp"
 #include "host/capture.hpp"
+#include "host/outputs.hpp"
 #include "host/recorder.hpp"
 
 namespace {
@@ -132,5 +134,70 @@ TEST(Recorder, AFailedFinishSaysWhereTheFramesAreKept) {
   ASSERT_EQ(frames.size(), 3u);
   EXPECT_EQ(frames[2].pixels[0], 20);
   EXPECT_FALSE(fs::exists(seq));
+  fs::remove_all(dir);
+}
+
+// A frame the sequence cannot take (a size that differs from the first's)
+// fails the recording; the sequence is abandoned and the journal kept with
+// every frame before it, never discarded as if the sequence were complete.
+TEST(Recorder, AFailedWriteKeepsTheJournal) {
+  namespace fs = std::filesystem;
+  const fs::path dir = fs::temp_directory_path() / ("pp5recw-" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  const std::string seq = (dir / "rec.mha").string();
+  {
+    host::Recorder rec(seq);
+    Frame f;
+    f.allocate(8, 6, PixelType::U8);
+    rec.write(f);
+    f.allocate(9, 6, PixelType::U8);
+    EXPECT_THROW(rec.write(f), InputError);
+    rec.close();
+  }
+  EXPECT_FALSE(fs::exists(seq));
+  ASSERT_TRUE(fs::exists(seq + ".journal"));
+  EXPECT_EQ(readAllFrames(seq + ".journal").size(), 1u);
+  fs::remove_all(dir);
+}
+
+// The run folder: an earlier run's outputs go when the run starts, the run's
+// own settings file and recordings stay, and a run refused before it started
+// leaves the folder as it found it.
+TEST(RunFolder, ClearsAnEarlierRunButNotWhatItMustKeep) {
+  namespace fs = std::filesystem;
+  const fs::path dir = fs::temp_directory_path() / ("pp5runf-" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  auto touch = [&](const char* n) { std::ofstream(dir / n) << "x"; };
+  for (const char* n : {"buildup.gif", "final_over.png", "mpr_axial.png", "settings.toml", "stats.csv",
+                        "recording.mha", "recording.mha.journal", "notes.txt"})
+    touch(n);
+  const fs::path marker = dir / host::RunFolder::kIncompleteMarker;
+  {
+    host::RunFolder refused(dir.string());
+    EXPECT_TRUE(fs::exists(marker));
+  }
+  EXPECT_FALSE(fs::exists(marker)) << "a refused run marked the earlier, complete one unfinished";
+  EXPECT_TRUE(fs::exists(dir / "buildup.gif"));
+  {
+    host::RunFolder f(dir.string());
+    f.start({(dir / "settings.toml").string()});
+    for (const char* n : {"buildup.gif", "final_over.png", "mpr_axial.png", "stats.csv"})
+      EXPECT_FALSE(fs::exists(dir / n)) << n;
+    for (const char* n : {"settings.toml", "recording.mha", "recording.mha.journal", "notes.txt"})
+      EXPECT_TRUE(fs::exists(dir / n)) << n;
+  }
+  EXPECT_TRUE(fs::exists(marker)) << "a run that never finished left no mark";
+  {
+    host::RunFolder refused(dir.string());
+  }
+  EXPECT_TRUE(fs::exists(marker)) << "a refused run removed an earlier unfinished run's mark";
+  {
+    host::RunFolder f(dir.string());
+    f.start({});
+    f.finished();
+  }
+  EXPECT_FALSE(fs::exists(marker));
   fs::remove_all(dir);
 }

@@ -167,10 +167,14 @@ TEST(Cli, SerialRunStopsOnSigintAndWritesItsOutputs) {
     const auto d = tempDir("sig" + sig);
     const std::string doll = dollConfig();
     const auto log = d / "run.log";
-    // A live simulated sweep of about 360 frames (some 10 s); the signal after 3.
+    // A live simulated sweep of about 360 frames (some 10 s); the signal once
+    // a few frames are through (stats.csv: a header, then a row per frame).
+    const std::string stats = (d / "out" / "stats.csv").string();
     const Result r = run("run " + doll + " --serial -o " + (d / "out").string() +
                          " --set run.simulate_live=true --set sim.sweep.capture_interval_mm=0.5 --set run.orbit_frames=0"
-                         " > " + log.string() + " 2>&1 & p=$!; sleep 3; kill -" + sig + " $p; wait $p; echo status=$?");
+                         " > " + log.string() + " 2>&1 & p=$!; for i in $(seq 600); do [ \"$(wc -l < " + stats +
+                         " 2>/dev/null || echo 0)\" -ge 4 ] && break; sleep 0.1; done; kill -" + sig +
+                         " $p; wait $p; echo status=$?");
     const std::string out = readFile(log);
     EXPECT_NE(r.out.find("status=0"), std::string::npos) << r.out << out;
     const auto at = out.find("interrupted; finishing the ");

@@ -539,14 +539,30 @@ TEST(RecordingJournal, RestoreWritesTheSequenceTheRecordingWouldHave) {
     EXPECT_EQ(dir.list(), want);
     for (const auto& f : expected.list()) EXPECT_EQ(test::readBytes(dir / f), test::readBytes(expected / f)) << f;
   }
-  // Restored elsewhere, the journal stays; with no complete frame there is nothing to restore.
+  // Restored elsewhere, the journal stays.
   TempDir dir;
   journal(dir / "scan.mha", frames);
   restoreJournal(dir / "scan.mha.journal", dir / "copy.mha");
   EXPECT_EQ(dir.list(), (std::vector<std::string>{"copy.mha", "scan.mha.journal"}));
   expectSameFrames(frames, readAllFrames(dir / "copy.mha"));
+  // A sequence already there is never replaced: a journal moved aside and the
+  // name recorded again. The journal belongs to the name it has now.
+  std::filesystem::rename(dir / "scan.mha.journal", dir / "old.mha.journal");
+  writeAllFrames(dir / "old.mha", {frames[0]});
+  const std::string newer = test::readBytes(dir / "old.mha");
+  EXPECT_THROW(restoreJournal(dir / "old.mha.journal"), InputError);
+  EXPECT_EQ(test::readBytes(dir / "old.mha"), newer);
+  std::filesystem::remove(dir / "old.mha");
+  EXPECT_EQ(restoreJournal(dir / "old.mha.journal").outPath, dir / "old.mha");
+  expectSameFrames(frames, readAllFrames(dir / "old.mha"));
+  EXPECT_FALSE(std::filesystem::exists(dir / "old.mha.journal"));
+  // Cut off before its first frame: nothing was recorded; the journal is
+  // removed (restoring it elsewhere is refused).
   journal(dir / "empty.mha", {});
-  EXPECT_THROW(restoreJournal(dir / "empty.mha.journal"), InputError);
+  EXPECT_THROW(restoreJournal(dir / "empty.mha.journal", dir / "x.mha"), InputError);
+  EXPECT_TRUE(restoreJournal(dir / "empty.mha.journal").outPath.empty());
+  EXPECT_FALSE(std::filesystem::exists(dir / "empty.mha.journal"));
+  EXPECT_FALSE(std::filesystem::exists(dir / "empty.mha"));
 }
 
 // A journal left by a recording that was cut off is never replaced by a new one.

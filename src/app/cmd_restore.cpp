@@ -33,6 +33,13 @@ void addRestoreCommand(CLI::App& app, int& exitCode) {
       spdlog::info("restore: {} of {} frames written", done, total);
     });
     const JournalContents& c = r.contents;
+    if (r.outPath.empty()) {
+      std::printf("restore: %s held no complete frame (the recording was cut off before its first); "
+                  "nothing was recorded, and the journal is removed\n",
+                  c.path.c_str());
+      exitCode = 0;
+      return;
+    }
     std::printf("restore: %llu complete frames from %s\n", static_cast<unsigned long long>(c.frames), c.path.c_str());
     if (!c.cut.empty())
       std::printf("  left out the last %llu bytes, cut off or damaged (%s)\n",

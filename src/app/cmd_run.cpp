@@ -199,6 +199,7 @@ int runSerial(const RunOptions& o) {
   std::signal(SIGTERM, onInterrupt);
 
   Source src = makeSource(s);
+  folder.start({o.file, o.census});
   serial::PipelineSettings ps{s.recon, s.render, s.shading, s.tf, s.cache};
   spdlog::info("run: {}; grid {}x{}x{} of {} mm; {}x{} image, {} composition", src.description, src.grid.dims.x,
                src.grid.dims.y, src.grid.dims.z, src.grid.spacing.x, s.render.width, s.render.height,
@@ -461,6 +462,7 @@ int runDistributed(const RunOptions& o) {
     if (rank == 0) {
       folder.emplace(dir);
       src = makeSource(s);
+      folder->start({o.file});
       for (int a = 0; a < 3; ++a) {
         gm.dims[a] = src.grid.dims[a];
         gm.origin[a] = src.grid.origin[a];

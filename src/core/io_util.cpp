@@ -216,6 +216,16 @@ bool syncFile(const std::string& path) {
   return ok;
 }
 
+bool syncFolderOf(const std::string& path) {
+  const std::filesystem::path p(path);
+  const std::filesystem::path dir = p.has_parent_path() ? p.parent_path() : std::filesystem::path(".");
+  const int fd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (fd < 0) return false;
+  const bool ok = ::fsync(fd) == 0;
+  ::close(fd);
+  return ok;
+}
+
 void AtomicFile::commit() {
   PP5_CHECK(file_ != nullptr);
   const bool flushed = std::fflush(file_) == 0 && ::fsync(::fileno(file_)) == 0;
@@ -231,6 +241,10 @@ void AtomicFile::commit() {
     std::remove(tempPath_.c_str());
     inputError(finalPath_, "cannot move the finished file into place ({})", std::strerror(renameErr));
   }
+  // The new name on disk too, before anything that counts on it (a recording's
+  // journal is removed after this); best effort, as not every file system
+  // syncs a folder.
+  syncFolderOf(finalPath_);
 }
 
 }  // namespace pp5::io

@@ -56,6 +56,9 @@ bool readLine(std::FILE* f, std::string& line, const std::string& path, long lin
 // fsync of a file written by someone else (a library that closed it): false
 // when it cannot be opened or synced.
 bool syncFile(const std::string& path);
+// fsync of the folder holding `path`, so that a file's new name (a rename, a
+// creation) survives a power loss; false when it cannot be done.
+bool syncFolderOf(const std::string& path);
 
 // A file written under a temporary name in the folder of its final path.
 // commit() renames it into place; destroyed without commit() it removes the

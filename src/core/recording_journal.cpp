@@ -28,6 +28,8 @@ constexpr std::size_t kPreludeBytes = 16;  // magic, CRC-32 of the body, body le
 // A body larger than this is damage, not a frame (frames are at most 1 GiB).
 constexpr std::uint64_t kMaxBodyBytes = (std::uint64_t{1} << 30) + (std::uint64_t{1} << 24);
 constexpr double kSyncIntervalS = 1.0;
+constexpr std::uint64_t kMaxTransforms = 256;
+constexpr std::uint64_t kMaxCustomFields = 4096;
 
 double nowS() {
   return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
@@ -85,6 +87,8 @@ private:
 
 // The body: the frame's tracking data, then its pixels (the rest of the body).
 void packFrame(const Frame& f, std::vector<std::uint8_t>& b) {
+  PP5_CHECK_LE(f.transforms.size(), kMaxTransforms);
+  PP5_CHECK_LE(f.customFields.size(), kMaxCustomFields);
   putU64(b, f.index);
   putF64(b, f.timestamp);
   b.push_back(f.imageValid ? 1 : 0);
@@ -113,7 +117,13 @@ std::optional<std::size_t> unpackFrameMeta(const std::uint8_t* p, std::size_t n,
   f.timestamp = u.f64();
   f.imageValid = u.u(1) != 0;
   const std::uint64_t w = u.u(4), h = u.u(4), type = u.u(1);
+  // Bounded, so that a record of tiny entries cannot cost memory many times
+  // its size (a PLUS frame has a handful of each).
   const std::uint64_t nt = u.u(4);
+  if (nt > kMaxTransforms) {
+    why = fmt::format("it claims {} transforms (at most {})", nt, kMaxTransforms);
+    return std::nullopt;
+  }
   f.transforms.clear();
   for (std::uint64_t i = 0; u.ok() && i < nt; ++i) {
     FrameTransform t;
@@ -125,6 +135,10 @@ std::optional<std::size_t> unpackFrameMeta(const std::uint8_t* p, std::size_t n,
     f.transforms.push_back(std::move(t));
   }
   const std::uint64_t nc = u.u(4);
+  if (nc > kMaxCustomFields) {
+    why = fmt::format("it claims {} custom fields (at most {})", nc, kMaxCustomFields);
+    return std::nullopt;
+  }
   f.customFields.clear();
   for (std::uint64_t i = 0; u.ok() && i < nc; ++i) {
     std::string k = u.text();
@@ -269,6 +283,18 @@ private:
     }
     if (c_.sequencePath.empty()) inputError(c_.path, "the journal's header names no Sequence");
     io::formatFromExtension(c_.sequencePath);  // a name the writer could have had
+    // A journal belongs to the sequence its own name says (it may have been
+    // moved away from the one it was written for, and that one recorded again).
+    const std::string own = c_.path.substr(0, c_.path.size() - std::string_view(".journal").size());
+    if (io::endsWith(c_.path, ".journal") && !own.empty() && io::extensionOf(own) != "" && [&] {
+          try {
+            io::formatFromExtension(own);
+            return true;
+          } catch (const InputError&) {
+            return false;
+          }
+        }())
+      c_.sequencePath = own;
     const long at = std::ftell(file_.get());
     c_.keptBytes = at < 0 ? 0 : static_cast<std::uint64_t>(at);
   }
@@ -350,15 +376,16 @@ JournalWriter::JournalWriter(const std::string& sequencePath, const SequenceWrit
     if (errno == EEXIST) leftJournal(path_);
     inputError(path_, "cannot create the recording's journal ({})", std::strerror(errno));
   }
-  writeAll(fd_, reinterpret_cast<const std::uint8_t*>(header.data()), header.size(), path_);
-  ::fdatasync(fd_);
-  // The journal's name must survive too: sync the folder that holds it.
-  const fs::path dir = fs::path(path_).has_parent_path() ? fs::path(path_).parent_path() : fs::path(".");
-  if (const int dfd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC); dfd >= 0) {
-    ::fsync(dfd);
-    ::close(dfd);
+  try {
+    writeAll(fd_, reinterpret_cast<const std::uint8_t*>(header.data()), header.size(), path_);
+    sync();
+  } catch (const InputError&) {
+    ::close(fd_);  // a journal without its header would only be in the next recording's way
+    fd_ = -1;
+    std::remove(path_.c_str());
+    throw;
   }
-  lastSyncS_ = nowS();
+  io::syncFolderOf(path_);  // the journal's name must survive too
 }
 
 JournalWriter::~JournalWriter() {
@@ -379,10 +406,13 @@ void JournalWriter::append(const Frame& f) {
   std::memcpy(rec.data() + 4, prelude.data(), prelude.size());
   writeAll(fd_, rec.data(), rec.size(), path_);  // one write(2) for the whole record
   ++frames_;
-  if (const double t = nowS(); t - lastSyncS_ >= kSyncIntervalS) {
-    ::fdatasync(fd_);
-    lastSyncS_ = t;
-  }
+  if (nowS() - lastSyncS_ >= kSyncIntervalS) sync();
+}
+
+void JournalWriter::sync() {
+  if (::fdatasync(fd_) != 0)
+    inputError(path_, "cannot make the journal safe on disk (fdatasync: {})", std::strerror(errno));
+  lastSyncS_ = nowS();
 }
 
 void JournalWriter::discard() {
@@ -404,12 +434,23 @@ RestoreResult restoreJournal(const std::string& journalPath, std::string outPath
   RestoreResult res;
   auto reader = openJournal(journalPath, &res.contents);
   const JournalContents& c = res.contents;
-  if (c.frames == 0)
-    inputError(journalPath, "holds no complete frame{}; there is nothing to restore",
-               c.cut.empty() ? std::string() : " (" + c.cut + ")");
   const bool toItsSequence = outPath.empty() || fs::absolute(outPath).lexically_normal() ==
                                                     fs::absolute(c.sequencePath).lexically_normal();
   res.outPath = outPath.empty() ? c.sequencePath : outPath;
+  if (c.frames == 0) {
+    // Cut off before its first frame was whole: nothing was recorded.
+    if (!toItsSequence)
+      inputError(journalPath, "holds no complete frame{}; there is nothing to restore",
+                 c.cut.empty() ? std::string() : " (" + c.cut + ")");
+    reader.reset();
+    fs::remove(journalPath);
+    res.outPath.clear();
+    return res;
+  }
+  std::error_code ec;
+  if (toItsSequence && fs::exists(res.outPath, ec))
+    inputError(res.outPath, "exists already; restore {} elsewhere with -o, or move {} away first", journalPath,
+               res.outPath);
   auto writer = SequenceWriter::create(res.outPath, c.options);
   Frame f;
   std::uint64_t done = 0;
@@ -420,15 +461,15 @@ RestoreResult restoreJournal(const std::string& journalPath, std::string outPath
   writer->close();
   reader.reset();
   if (!toItsSequence) return res;
-  // The sequence is whole again: the journal and what the killed writer left
-  // half-written beside it (its temporaries, never under a final name) go.
+  // The sequence is whole again (its name on disk: AtomicFile synced the
+  // folder): the journal and what the killed writer left half-written beside
+  // it (its temporaries, never under a final name) go.
   fs::remove(journalPath);
   const fs::path seq(c.sequencePath);
   const fs::path dir = seq.has_parent_path() ? seq.parent_path() : fs::path(".");
   const std::string stem = seq.stem().string();
   const std::vector<std::string> prefixes = {"." + seq.filename().string() + ".tmp-", "." + stem + ".raw.tmp-",
                                              "." + stem + ".zraw.tmp-"};
-  std::error_code ec;
   for (const auto& e : fs::directory_iterator(dir, ec)) {
     const std::string name = e.path().filename().string();
     for (const auto& p : prefixes)

@@ -39,14 +39,16 @@ public:
   JournalWriter& operator=(const JournalWriter&) = delete;
 
   // Appends one frame as one record; a failed or short write is an InputError
-  // naming the journal. The data reaches the disk (fdatasync) at most a
-  // second after its frame.
+  // naming the journal. The journal is synced to the disk (fdatasync, checked)
+  // when it is created and then with the first frame a second or more after
+  // the last sync; a kill of the process loses nothing written, sync or not.
   void append(const Frame& f);
   // The sequence is complete: the journal is closed and removed.
   void discard();
   const std::string& path() const { return path_; }
 
 private:
+  void sync();
   std::string path_;
   int fd_ = -1;
   std::uint64_t frames_ = 0;
@@ -56,7 +58,7 @@ private:
 // A journal's complete records, read through once (checking every CRC).
 struct JournalContents {
   std::string path;
-  std::string sequencePath;  // the sequence it belongs to (beside the journal)
+  std::string sequencePath;  // the sequence it belongs to: its own name without .journal
   SequenceWriteOptions options;
   std::uint64_t frames = 0;     // complete records
   std::uint64_t keptBytes = 0;  // up to the end of the last complete record
@@ -69,10 +71,11 @@ struct JournalContents {
 std::unique_ptr<SequenceReader> openJournal(const std::string& path, JournalContents* contents = nullptr);
 
 // Writes the journal's complete frames to `outPath` (default: the sequence it
-// belongs to) as a PLUS sequence with the options the recording had, then
-// removes the journal when `outPath` is that sequence, along with the
-// temporary files the cut-off writer left beside it. `progress(done, total)`
-// is called as frames are written.
+// belongs to, which must not exist) as a PLUS sequence with the options the
+// recording had, then removes the journal when `outPath` is that sequence,
+// along with the temporary files the cut-off writer left beside it. A journal
+// with no complete frame is only removed (outPath comes back empty).
+// `progress(done, total)` is called as frames are written.
 struct RestoreResult {
   JournalContents contents;
   std::string outPath;

@@ -31,6 +31,7 @@ RunFolder::RunFolder(const std::string& dir) : dir_(dir) {
   if (ec || !fs::is_directory(dir))
     inputError(dir, "cannot create the output folder{}", ec ? " (" + ec.message() + ")" : std::string());
   // The marker goes first: written, it also shows that the folder takes files.
+  markedBefore_ = fs::exists(fs::path(dir) / kIncompleteMarker, ec);  // an earlier run was cut off
   try {
     io::AtomicFile marker((fs::path(dir) / kIncompleteMarker).string());
     const std::time_t now = std::chrono::system_clock::to_time_t(std::chrono::system_clock::now());
@@ -46,19 +47,36 @@ RunFolder::RunFolder(const std::string& dir) : dir_(dir) {
   } catch (const InputError& e) {
     inputError(dir, "cannot write in the output folder: {}", e.what());
   }
+}
+
+void RunFolder::start(const std::vector<std::string>& keep) {
+  started_ = true;
+  std::error_code ec;
+  auto kept = [&](const fs::path& p) {
+    for (const auto& k : keep)
+      if (!k.empty() && fs::exists(k, ec) && fs::equivalent(p, k, ec)) return true;
+    return false;
+  };
   std::vector<fs::path> earlier;
-  for (const auto& e : fs::directory_iterator(dir, ec))
+  for (const auto& e : fs::directory_iterator(dir_, ec))
     if (e.is_regular_file(ec) && isRunOutput(e.path().filename().string()) &&
-        e.path().filename() != kIncompleteMarker)
+        e.path().filename() != kIncompleteMarker && !kept(e.path()))
       earlier.push_back(e.path());
   for (const auto& p : earlier)
     if (!fs::remove(p, ec) && ec) inputError(p.string(), "cannot remove an earlier run's output ({})", ec.message());
   if (!earlier.empty())
     spdlog::info("run: removed {} output{} an earlier run left in {}", earlier.size(), earlier.size() == 1 ? "" : "s",
-                 dir);
+                 dir_);
+}
+
+RunFolder::~RunFolder() {
+  if (started_ || finished_ || markedBefore_) return;
+  std::error_code ec;
+  fs::remove(fs::path(dir_) / kIncompleteMarker, ec);  // refused before it changed anything
 }
 
 void RunFolder::finished() {
+  finished_ = true;
   std::error_code ec;
   fs::remove(fs::path(dir_) / kIncompleteMarker, ec);
   if (ec) inputError(dir_, "cannot remove {} after the run ({})", kIncompleteMarker, ec.message());

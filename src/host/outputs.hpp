@@ -25,22 +25,31 @@ private:
 };
 
 // The folder a run writes its outputs to, from the start of the run to its
-// end. Opening it creates it and checks that a file can be written there (a
-// read-only folder fails before any work), removes what an earlier run left
-// there (its images, volume, statistics and settings; never a recording or a
-// recording's journal), and marks the folder unfinished with kIncompleteMarker.
-// finished() removes the marker once every output is in place, so a run that
-// failed or was killed never leaves a folder that looks complete, nor old
-// images beside new statistics.
+// end. Opening it creates it and marks it unfinished with kIncompleteMarker,
+// which also shows that it takes files (a read-only folder fails here, before
+// any work). start() then removes what an earlier run left there (its images,
+// volume, statistics and settings; never a recording, a recording's journal,
+// or a file in `keep`, such as the run's own settings file), and finished()
+// removes the marker once every output is in place; destroyed before start()
+// (the run was refused), it removes the marker again and has changed nothing.
+// So a run that failed or was killed never leaves a folder that looks
+// complete, nor old images beside new statistics.
 class RunFolder {
 public:
   static constexpr const char* kIncompleteMarker = "RUN_INCOMPLETE.txt";
   explicit RunFolder(const std::string& dir);
+  ~RunFolder();
+  RunFolder(const RunFolder&) = delete;
+  RunFolder& operator=(const RunFolder&) = delete;
+  void start(const std::vector<std::string>& keep);
   void finished();
   const std::string& dir() const { return dir_; }
 
 private:
   std::string dir_;
+  bool markedBefore_ = false;  // an earlier run in this folder had not finished
+  bool started_ = false;
+  bool finished_ = false;
 };
 
 // True for a file an earlier run wrote and RunFolder clears: buildup.gif,

@@ -18,12 +18,22 @@ Recorder::~Recorder() {
 
 void Recorder::write(const Frame& f) {
   if (path_.empty()) return;
+  if (failed_) return;  // the journal keeps what came before; the run is failing
   if (!w_) {
+    // The sequence first: a journal is only made for a recording that can start.
+    auto w = SequenceWriter::create(path_);
     journal_ = std::make_unique<JournalWriter>(path_, SequenceWriteOptions{});
-    w_ = SequenceWriter::create(path_);
+    w_ = std::move(w);
   }
   journal_->append(f);
-  w_->write(f);
+  try {
+    w_->write(f);
+  } catch (...) {
+    // The sequence may be half-written: abandoned, and the journal kept.
+    failed_ = true;
+    w_.reset();
+    throw;
+  }
   ++frames_;
 }
 
@@ -36,6 +46,12 @@ void Recorder::writePlaced(const Frame& f, const Mat4& imageToReference, double 
 }
 
 void Recorder::close() {
+  if (failed_ && journal_) {
+    spdlog::error("run.record: {} could not be written; every frame recorded is kept in {} (pp5echo restore {})",
+                  path_, journal_->path(), journal_->path());
+    journal_.reset();
+    return;
+  }
   if (!w_) return;
   auto w = std::move(w_);
   try {

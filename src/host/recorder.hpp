@@ -37,6 +37,7 @@ private:
   std::unique_ptr<JournalWriter> journal_;
   std::unique_ptr<SequenceWriter> w_;
   std::uint64_t frames_ = 0;
+  bool failed_ = false;  // a frame could not be written to the sequence
 };
 
 // Places a live frame: ImageToReference through the configuration's chain, or
