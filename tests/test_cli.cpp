@@ -345,6 +345,44 @@ TEST(Cli, ARecordingNeverStartsOverACutOffOne) {
   std::filesystem::remove_all(d);
 }
 
+// A run refused by its settings (here a bad run.script, found on every rank
+// under mpirun) leaves the folder it was given as it found it: an earlier
+// run's outputs, and no mark. A run started from the settings.toml of its own
+// output folder leaves that file as it is, and with --set overrides, which it
+// would write over the user's file, it is refused.
+TEST(Cli, ARefusedRunLeavesTheFolderAsItFoundIt) {
+  for (const std::string mode : kRunModes) {
+    SCOPED_TRACE(mode);
+    const auto d = tempDir("refused-" + mode);
+    const auto out = d / "out";
+    std::filesystem::create_directories(out);
+    for (const char* n : {"buildup.gif", "final_over.png", "stats.csv"}) writeFile(out / n, "earlier");
+    const std::string cfg = std::string(PP5_SOURCE_DIR) + "/tests/configs/mpi_small.toml";
+    const std::string o = shell(runIn(mode, cfg + " -o " + out.string() + " --set 'run.script=[\"soon render.azimuth_deg = 5\"]'"));
+    EXPECT_EQ(o.find("status=0"), std::string::npos) << o;
+    EXPECT_NE(o.find("run.script"), std::string::npos) << o;
+    for (const char* n : {"buildup.gif", "final_over.png", "stats.csv"}) EXPECT_EQ(readFile(out / n), "earlier") << n;
+    EXPECT_FALSE(std::filesystem::exists(out / "RUN_INCOMPLETE.txt"));
+    std::filesystem::remove_all(d);
+  }
+  const auto d = tempDir("ownsettings");
+  const auto out = d / "out";
+  const std::string cfg = std::string(PP5_SOURCE_DIR) + "/tests/configs/mpi_small.toml";
+  ASSERT_EQ(run("run " + cfg + " --serial -o " + out.string() + " --set run.orbit_frames=0").status, 0);
+  const auto saved = out / "settings.toml";
+  writeFile(saved, readFile(saved) + "# the user's note\n");
+  const std::string before = readFile(saved);
+  Result r = run("run " + saved.string() + " --serial -o " + out.string() + " --set run.volume=false");
+  EXPECT_EQ(r.status, 1) << r.out;
+  EXPECT_NE(r.out.find("another output folder"), std::string::npos) << r.out;
+  EXPECT_EQ(readFile(saved), before);
+  r = run("run " + saved.string() + " --serial -o " + out.string());
+  EXPECT_EQ(r.status, 0) << r.out;
+  EXPECT_EQ(readFile(saved), before) << "the run's own configuration was rewritten";
+  EXPECT_TRUE(std::filesystem::exists(out / "final_over.png"));
+  std::filesystem::remove_all(d);
+}
+
 // A FIFO given as an input is refused at once, naming it (reading one with no
 // writer waited forever, issue 20 item 7): a sequence, a TOML config and a
 // PLUS device set.

@@ -556,6 +556,16 @@ TEST(RecordingJournal, RestoreWritesTheSequenceTheRecordingWouldHave) {
   EXPECT_EQ(restoreJournal(dir / "old.mha.journal").outPath, dir / "old.mha");
   expectSameFrames(frames, readAllFrames(dir / "old.mha"));
   EXPECT_FALSE(std::filesystem::exists(dir / "old.mha.journal"));
+  // A first record that is damaged (not cut short) may hide whole frames
+  // after it: refused, and the journal kept.
+  journal(dir / "torn.mha", frames);
+  std::string torn = test::readBytes(dir / "torn.mha.journal");
+  TempDir headerOnly;
+  journal(headerOnly / "torn.mha", {});
+  torn[test::readBytes(headerOnly / "torn.mha.journal").size() + 20] ^= 0x01;  // inside frame 0's body
+  test::writeBytes(dir / "torn.mha.journal", torn);
+  EXPECT_THROW(restoreJournal(dir / "torn.mha.journal"), InputError);
+  EXPECT_EQ(test::readBytes(dir / "torn.mha.journal"), torn);
   // Cut off before its first frame: nothing was recorded; the journal is
   // removed (restoring it elsewhere is refused).
   journal(dir / "empty.mha", {});
@@ -580,6 +590,10 @@ TEST(RecordingJournal, ALeftJournalIsNeverReplaced) {
   EXPECT_EQ(test::readBytes(dir / "scan.mha.journal"), before);
   JournalWriter done(dir / "next.mha", {});
   done.append(frames[0]);
+  // A frame a reader would refuse (a live source may send anything) is not written.
+  Frame many = frames[1];
+  for (int i = 0; i < 300; ++i) many.setTransform("Device" + std::to_string(i) + "ToTracker", Mat4(1.0), true);
+  EXPECT_THROW(done.append(many), InputError);
   done.discard();
   EXPECT_EQ(dir.list(), std::vector<std::string>{"scan.mha.journal"});
 }

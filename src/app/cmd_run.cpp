@@ -187,6 +187,22 @@ double median(std::vector<double> v) {
 
 std::vector<host::ScriptedControl> parseScript(const Settings& base);
 
+// A run writes its settings to DIR/settings.toml. Started from that very file
+// (re-running a saved run in its own folder), it leaves the file as it is,
+// which already says everything; with overrides it would replace the user's
+// file, comments and all, so it is refused before anything is touched.
+// Returns whether the run writes DIR/settings.toml.
+bool checkSettingsFileTarget(const std::vector<std::string>& overrides, const std::string& file, const std::string& dir) {
+  std::error_code ec;
+  const fs::path out = fs::path(dir) / "settings.toml";
+  if (file.empty() || !fs::exists(out, ec) || !fs::equivalent(file, out, ec)) return true;
+  if (!overrides.empty())
+    throw InputError(fmt::format("{}: the run would write its settings, with the --set overrides, over this "
+                                 "configuration file; give another output folder (-o)",
+                                 file));
+  return false;
+}
+
 int runSerial(const RunOptions& o) {
   Settings s;
   ConfigSchema schema;
@@ -194,12 +210,12 @@ int runSerial(const RunOptions& o) {
   loadSettings(schema, o.file, o.overrides);
   checkSettings(s);
   const std::string dir = o.outDir.empty() ? s.output.dir : o.outDir;
+  const bool writeSettings = checkSettingsFileTarget(o.overrides, o.file, dir);
   host::RunFolder folder(dir);
   std::signal(SIGINT, onInterrupt);
   std::signal(SIGTERM, onInterrupt);
 
   Source src = makeSource(s);
-  folder.start({o.file, o.census});
   serial::PipelineSettings ps{s.recon, s.render, s.shading, s.tf, s.cache};
   spdlog::info("run: {}; grid {}x{}x{} of {} mm; {}x{} image, {} composition", src.description, src.grid.dims.x,
                src.grid.dims.y, src.grid.dims.z, src.grid.spacing.x, s.render.width, s.render.height,
@@ -209,12 +225,6 @@ int runSerial(const RunOptions& o) {
                static_cast<double>(pipe.cache().memoryBytes()) / (1 << 20), pipe.cache().sampleCount(),
                pp::sampleFormatName(pipe.cache().format()),
                static_cast<double>(pipe.shadeBuffer().memoryBytes()) / (1 << 20));
-  {
-    io::AtomicFile settingsFile((fs::path(dir) / "settings.toml").string());
-    settingsFile.write(schema.toToml());
-    settingsFile.commit();
-  }
-
   std::unique_ptr<serial::WorkCensus> census;
   if (!o.census.empty()) {
     census = std::make_unique<serial::WorkCensus>(src.grid, s.render.width, s.render.height);
@@ -225,6 +235,13 @@ int runSerial(const RunOptions& o) {
   std::vector<host::ScriptedControl> script = parseScript(s);
   std::stable_sort(script.begin(), script.end(),
                    [](const host::ScriptedControl& a, const host::ScriptedControl& b) { return a.afterFrame < b.afterFrame; });
+  // Everything that could refuse the run has passed: the folder is the run's now.
+  folder.start({o.file, o.census});
+  if (writeSettings) {
+    io::AtomicFile settingsFile((fs::path(dir) / "settings.toml").string());
+    settingsFile.write(schema.toToml());
+    settingsFile.commit();
+  }
   std::size_t nextScript = 0;
   const int w = s.render.width, h = s.render.height;
   host::StatsCsv stats((fs::path(dir) / "stats.csv").string(),
@@ -430,6 +447,7 @@ int runDistributed(const RunOptions& o) {
   Settings s;
   ConfigSchema schema;
   parallel::RankLayout layout;
+  bool writeSettings = true;
   try {
     registerAll(schema, s);
     std::vector<std::string> overrides = o.overrides;
@@ -444,6 +462,8 @@ int runDistributed(const RunOptions& o) {
     layout = parallel::RankLayout::choose(size, s.parallel.gps, s.parallel.pps);
     if (s.parallel.tileSize % 8 != 0)
       throw InputError(fmt::format("parallel.tile_size = {}: use a multiple of 8", s.parallel.tileSize));
+    (void)parseScript(s);  // a bad run.script is refused here, before the output folder is touched
+    writeSettings = checkSettingsFileTarget(overrides, o.file, o.outDir.empty() ? s.output.dir : o.outDir);
   } catch (const std::exception& e) {
     // Every rank reads the same configuration and fails the same way: one message.
     if (rank == 0) comm::abortJob(rank, role, e.what());
@@ -462,7 +482,6 @@ int runDistributed(const RunOptions& o) {
     if (rank == 0) {
       folder.emplace(dir);
       src = makeSource(s);
-      folder->start({o.file});
       for (int a = 0; a < 3; ++a) {
         gm.dims[a] = src.grid.dims[a];
         gm.origin[a] = src.grid.origin[a];
@@ -507,7 +526,8 @@ int runDistributed(const RunOptions& o) {
                      j.source.description, grid.dims.x, grid.dims.y, grid.dims.z, grid.spacing.x, s.render.width,
                      s.render.height, size, layout.gps, enumName(s.parallel.gpPartition), layout.pps,
                      enumName(s.parallel.tileOwner), s.parallel.tileSize, enumName(s.parallel.compositeOn));
-        {
+        folder->start({o.file});  // the settings and the source have passed: the folder is the run's now
+        if (writeSettings) {
           io::AtomicFile settingsFile((fs::path(dir) / "settings.toml").string());
           settingsFile.write(schema.toToml());
           settingsFile.commit();

@@ -87,8 +87,6 @@ private:
 
 // The body: the frame's tracking data, then its pixels (the rest of the body).
 void packFrame(const Frame& f, std::vector<std::uint8_t>& b) {
-  PP5_CHECK_LE(f.transforms.size(), kMaxTransforms);
-  PP5_CHECK_LE(f.customFields.size(), kMaxCustomFields);
   putU64(b, f.index);
   putF64(b, f.timestamp);
   b.push_back(f.imageValid ? 1 : 0);
@@ -307,7 +305,10 @@ private:
       const std::size_t got = std::fread(prelude, 1, kPreludeBytes, file_.get());
       if (got == 0) return;  // the end of the last complete record
       auto stop = [&](std::string why) { c_.cut = fmt::format("frame {}: {}", n, why); };
-      if (got < kPreludeBytes) return stop("the record is cut off in its first bytes");
+      if (got < kPreludeBytes) {
+        c_.truncated = true;
+        return stop("the record is cut off in its first bytes");
+      }
       if (std::memcmp(prelude, kMagic, 4) != 0) return stop("the record does not start as one (damaged)");
       Unpacker u(prelude + 4, kPreludeBytes - 4);
       const auto crc = static_cast<std::uint32_t>(u.u(4));
@@ -316,8 +317,10 @@ private:
       // Checked against the file before anything is allocated (a damaged
       // length must not cost a gigabyte; found by fuzz_journal).
       const std::uint64_t available = c_.fileBytes - std::min(c_.fileBytes, at + kPreludeBytes);
-      if (bytes > available)
+      if (bytes > available) {
+        c_.truncated = true;
         return stop(fmt::format("the record is cut off ({} of its {} bytes)", available, bytes));
+      }
       body.resize(static_cast<std::size_t>(bytes));
       if (std::fread(body.data(), 1, body.size(), file_.get()) != body.size())
         return stop("the record could not be read (the file shrank while it was read?)");
@@ -395,6 +398,10 @@ JournalWriter::~JournalWriter() {
 void JournalWriter::append(const Frame& f) {
   PP5_CHECK(fd_ >= 0);
   PP5_CHECK_EQ(f.pixels.size(), f.byteSize());
+  // What a reader would refuse is not written (a live source may send anything).
+  if (f.transforms.size() > kMaxTransforms || f.customFields.size() > kMaxCustomFields)
+    inputError(path_, "frame {}: {} transforms and {} custom fields; a recording holds at most {} and {} per frame",
+               f.index, f.transforms.size(), f.customFields.size(), kMaxTransforms, kMaxCustomFields);
   std::vector<std::uint8_t> rec(kPreludeBytes);
   rec.reserve(kPreludeBytes + f.pixels.size() + 1024);
   packFrame(f, rec);
@@ -438,10 +445,12 @@ RestoreResult restoreJournal(const std::string& journalPath, std::string outPath
                                                     fs::absolute(c.sequencePath).lexically_normal();
   res.outPath = outPath.empty() ? c.sequencePath : outPath;
   if (c.frames == 0) {
-    // Cut off before its first frame was whole: nothing was recorded.
-    if (!toItsSequence)
-      inputError(journalPath, "holds no complete frame{}; there is nothing to restore",
-                 c.cut.empty() ? std::string() : " (" + c.cut + ")");
+    // Cut off before its first frame was whole: nothing was recorded. A first
+    // record that is damaged (not cut) may hide whole ones after it: kept.
+    if (!toItsSequence || !(c.cut.empty() || c.truncated))
+      inputError(journalPath, "holds no complete frame{}; there is nothing to restore{}",
+                 c.cut.empty() ? std::string() : " (" + c.cut + ")",
+                 c.cut.empty() || c.truncated ? "" : ", and the journal is kept as it is");
     reader.reset();
     fs::remove(journalPath);
     res.outPath.clear();

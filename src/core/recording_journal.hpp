@@ -64,6 +64,7 @@ struct JournalContents {
   std::uint64_t keptBytes = 0;  // up to the end of the last complete record
   std::uint64_t fileBytes = 0;
   std::string cut;  // why reading stopped before the end of the file ("" = it did not)
+  bool truncated = false;  // ... because the file ended inside a record (not damage)
 };
 
 // Opens a journal as a sequence of its complete frames (SequenceReader::open
@@ -74,7 +75,8 @@ std::unique_ptr<SequenceReader> openJournal(const std::string& path, JournalCont
 // belongs to, which must not exist) as a PLUS sequence with the options the
 // recording had, then removes the journal when `outPath` is that sequence,
 // along with the temporary files the cut-off writer left beside it. A journal
-// with no complete frame is only removed (outPath comes back empty).
+// cut off inside its first record is only removed (outPath comes back empty);
+// one whose first record is damaged is an InputError and is kept.
 // `progress(done, total)` is called as frames are written.
 struct RestoreResult {
   JournalContents contents;
