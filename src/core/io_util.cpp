@@ -162,11 +162,24 @@ bool readLine(std::FILE* f, std::string& line, const std::string& path, long lin
   return c == '\n' || !line.empty();
 }
 
+namespace {
+// Hidden and in the same folder, so the final rename is atomic (same file
+// system); mkstemp replaces the six X.
+constexpr std::string_view kTempSuffix = ".tmp-XXXXXX";
+std::string temporaryStem(const std::filesystem::path& finalPath) { return "." + finalPath.filename().string(); }
+}  // namespace
+
+bool AtomicFile::isTemporaryOf(const std::string& finalPath, const std::string& fileName) {
+  const std::string stem = temporaryStem(finalPath);
+  const std::string_view tmp = kTempSuffix.substr(0, kTempSuffix.size() - 6);
+  return fileName.size() == stem.size() + kTempSuffix.size() && startsWith(fileName, stem) &&
+         std::string_view(fileName).substr(stem.size(), tmp.size()) == tmp;
+}
+
 AtomicFile::AtomicFile(std::string finalPath) : finalPath_(std::move(finalPath)) {
   const std::filesystem::path p(finalPath_);
   const std::filesystem::path dir = p.has_parent_path() ? p.parent_path() : std::filesystem::path(".");
-  // Hidden and in the same folder, so the final rename is atomic (same file system).
-  std::string pattern = (dir / ("." + p.filename().string() + ".tmp-XXXXXX")).string();
+  std::string pattern = (dir / (temporaryStem(p) + std::string(kTempSuffix))).string();
   std::vector<char> name(pattern.begin(), pattern.end());
   name.push_back('\0');
   const int fd = ::mkstemp(name.data());

@@ -79,6 +79,9 @@ public:
   void appendContentsOf(AtomicFile& other);
   void commit();
   const std::string& finalPath() const { return finalPath_; }
+  // Whether `fileName` (in the folder of `finalPath`) is the name of a
+  // temporary an AtomicFile for `finalPath` makes: what a killed writer leaves.
+  static bool isTemporaryOf(const std::string& finalPath, const std::string& fileName);
 
 private:
   std::string finalPath_;

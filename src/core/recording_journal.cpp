@@ -37,12 +37,15 @@ double nowS() {
 
 // ---- little-endian packing of a record's body ----
 
-void putU32(std::vector<std::uint8_t>& b, std::uint32_t v) {
-  for (int i = 0; i < 4; ++i) b.push_back(static_cast<std::uint8_t>(v >> (8 * i)));
+void storeLE(std::uint8_t* p, std::uint64_t v, int bytes) {
+  for (int i = 0; i < bytes; ++i) p[i] = static_cast<std::uint8_t>(v >> (8 * i));
 }
-void putU64(std::vector<std::uint8_t>& b, std::uint64_t v) {
-  for (int i = 0; i < 8; ++i) b.push_back(static_cast<std::uint8_t>(v >> (8 * i)));
+void putLE(std::vector<std::uint8_t>& b, std::uint64_t v, int bytes) {
+  b.resize(b.size() + static_cast<std::size_t>(bytes));
+  storeLE(b.data() + b.size() - static_cast<std::size_t>(bytes), v, bytes);
 }
+void putU32(std::vector<std::uint8_t>& b, std::uint32_t v) { putLE(b, v, 4); }
+void putU64(std::vector<std::uint8_t>& b, std::uint64_t v) { putLE(b, v, 8); }
 void putF64(std::vector<std::uint8_t>& b, double v) { putU64(b, std::bit_cast<std::uint64_t>(v)); }
 void putText(std::vector<std::uint8_t>& b, const std::string& s) {
   putU32(b, static_cast<std::uint32_t>(s.size()));
@@ -402,15 +405,13 @@ void JournalWriter::append(const Frame& f) {
   if (f.transforms.size() > kMaxTransforms || f.customFields.size() > kMaxCustomFields)
     inputError(path_, "frame {}: {} transforms and {} custom fields; a recording holds at most {} and {} per frame",
                f.index, f.transforms.size(), f.customFields.size(), kMaxTransforms, kMaxCustomFields);
-  std::vector<std::uint8_t> rec(kPreludeBytes);
-  rec.reserve(kPreludeBytes + f.pixels.size() + 1024);
+  std::vector<std::uint8_t>& rec = record_;  // reused: a frame's worth, every frame
+  rec.assign(kPreludeBytes, 0);
   packFrame(f, rec);
   const std::uint64_t bodyBytes = rec.size() - kPreludeBytes;
   std::memcpy(rec.data(), kMagic, 4);
-  std::vector<std::uint8_t> prelude;
-  putU32(prelude, crcOf(rec.data() + kPreludeBytes, bodyBytes));
-  putU64(prelude, bodyBytes);
-  std::memcpy(rec.data() + 4, prelude.data(), prelude.size());
+  storeLE(rec.data() + 4, crcOf(rec.data() + kPreludeBytes, bodyBytes), 4);
+  storeLE(rec.data() + 8, bodyBytes, 8);
   writeAll(fd_, rec.data(), rec.size(), path_);  // one write(2) for the whole record
   ++frames_;
   if (nowS() - lastSyncS_ >= kSyncIntervalS) sync();
@@ -476,13 +477,13 @@ RestoreResult restoreJournal(const std::string& journalPath, std::string outPath
   fs::remove(journalPath);
   const fs::path seq(c.sequencePath);
   const fs::path dir = seq.has_parent_path() ? seq.parent_path() : fs::path(".");
-  const std::string stem = seq.stem().string();
-  const std::vector<std::string> prefixes = {"." + seq.filename().string() + ".tmp-", "." + stem + ".raw.tmp-",
-                                             "." + stem + ".zraw.tmp-"};
+  // The header's file, and a .mhd's data file beside it.
+  const std::string stem = (dir / seq.stem()).string();
+  const std::vector<std::string> finals = {c.sequencePath, stem + ".raw", stem + ".zraw"};
   for (const auto& e : fs::directory_iterator(dir, ec)) {
     const std::string name = e.path().filename().string();
-    for (const auto& p : prefixes)
-      if (io::startsWith(name, p) && name.size() == p.size() + 6 && e.is_regular_file(ec)) {
+    for (const auto& f : finals)
+      if (io::AtomicFile::isTemporaryOf(f, name) && e.is_regular_file(ec)) {
         fs::remove(e.path(), ec);
         ++res.leftoverTemporaries;
       }

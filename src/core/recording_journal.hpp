@@ -15,6 +15,7 @@
 #include <functional>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "core/frame.hpp"
 #include "core/sequence_io.hpp"
@@ -53,6 +54,7 @@ private:
   int fd_ = -1;
   std::uint64_t frames_ = 0;
   double lastSyncS_ = 0.0;
+  std::vector<std::uint8_t> record_;  // the record being written
 };
 
 // A journal's complete records, read through once (checking every CRC).
