@@ -3,6 +3,7 @@
 // scan coverage and the gap warning, and slices at display resolution.
 #include <gtest/gtest.h>
 
+#include <chrono>
 #include <cmath>
 
 #include "core/error.hpp"
@@ -10,6 +11,7 @@
 #include "host/live_view.hpp"
 #include "host/slices.hpp"
 #include "parallel/parallel_settings.hpp"
+#include "viewer/rate_limit.hpp"
 
 namespace {
 
@@ -262,3 +264,37 @@ TEST(Slices, DisplayResolutionWindowLevelAndOblique) {
 }
 
 }  // namespace
+
+// The viewer's image rate: images that come at the rate, jittered, go at once
+// (fixed slots would lock in a delay once one slot is missed); faster ones are
+// held to the rate on average, with at most a burst of two.
+TEST(ImageRate, JitteredImagesAtTheRateGoAtOnceAndFasterOnesAreHeld) {
+  using viewer::RateLimit;
+  using namespace std::chrono;
+  const auto t0 = RateLimit::Clock::now();
+  RateLimit r(30, 2, t0);
+  const auto at = [&](double ms) { return t0 + duration_cast<RateLimit::Clock::duration>(duration<double, std::milli>(ms)); };
+  // 300 images a period apart, each up to 10 ms early or late: none waits.
+  for (int i = 0; i < 300; ++i) {
+    const double jitter = (i % 3 == 0) ? -10 : (i % 3 == 1) ? 10 : 0;
+    const auto t = at(1000.0 / 30 * i + jitter);
+    EXPECT_EQ(r.wait(t), RateLimit::Clock::duration::zero()) << i;
+    EXPECT_TRUE(r.take(t)) << i;
+  }
+  // Images every millisecond for a second: 30 go, plus the burst.
+  RateLimit fast(30, 2, t0);
+  int sent = 0;
+  for (int i = 0; i <= 1000; ++i)
+    if (fast.take(at(i))) ++sent;
+  EXPECT_GE(sent, 31);
+  EXPECT_LE(sent, 32);
+  // After a burst, the wait is until the next credit.
+  RateLimit b(10, 2, t0);
+  EXPECT_TRUE(b.take(t0));
+  EXPECT_TRUE(b.take(t0));
+  EXPECT_FALSE(b.take(t0));
+  const double waitMs = duration<double, std::milli>(b.wait(t0)).count();
+  EXPECT_NEAR(waitMs, 100.0, 0.1);
+  b.force(t0);  // a new view's image goes anyway, spending nothing it does not have
+  EXPECT_TRUE(b.take(at(100)));
+}

@@ -26,6 +26,7 @@
 #include "parallel/parallel_settings.hpp"
 #include "pp/ray_cache.hpp"
 #include "viewer/jpeg.hpp"
+#include "viewer/rate_limit.hpp"
 #include "viewer/viewer_server.hpp"
 
 #ifndef PP5_WEB_ROOT
@@ -46,7 +47,7 @@ void registerOptions(ConfigSchema& c, ViewSettings& s) {
            "printed with the URL.");
   c.option("view.serve", &s.serve, false,
            "Keep the final volume interactive after the input ends, until Ctrl-C (`run --serve`).");
-  c.option("view.image_hz", &s.imageHz, 30.0, 1.0, 240.0, "At most this many 3D images per second to the browsers.");
+  c.option("view.image_hz", &s.imageHz, 30.0, 1.0, 240.0, "At most this many 3D images per second to the browsers, on average (two may go back to back, so that an image that comes a little early is not held back).");
   c.option("view.jpeg_quality", &s.jpegQuality, 85, 10, 100, "JPEG quality of the streamed images.");
   c.option("view.bmode_hz", &s.bmodeHz, 15.0, 0.5, 240.0, "B-mode frames per second shown beside the 3D view.");
   c.option("view.slice_hz", &s.sliceHz, 2.0, 0.1, 30.0,
@@ -202,6 +203,7 @@ struct LiveView::Impl {
   int imageW = 0, imageH = 0;
   std::uint32_t imageEpoch = 0;
   std::int64_t imageFrame = -1;
+  std::int64_t imageAssembledMs = 0;  // unix ms when the pipeline handed it over
   bool imagePending = false;
   bool needImage = false;  // a new browser: the host's current image, please
   Frame pendingBmode;
@@ -218,8 +220,10 @@ struct LiveView::Impl {
   std::string recording;  // the page's recording: its file, "" = none (guarded by m)
   std::string recordDir;
   int recordings = 0;
-  // The open recording; the caller's thread only (frame(), inputEnded()).
-  std::unique_ptr<Recorder> recorder;
+  // The page's recordings, written on their own thread (opening, syncing and
+  // closing one must not hold up the pipeline); recorderPath: the caller's
+  // thread only (frame(), inputEnded()).
+  BackgroundRecorder recorder;
   std::string recorderPath;
   bool statsDirty = true;
 
@@ -410,6 +414,7 @@ struct LiveView::Impl {
             {"gap_warning", coverage.gapWarning()},
             {"paused", want.paused},
             {"recording", recording},
+            {"recording_error", recorder.error()},
             {"ended", ended}};
   }
 
@@ -417,19 +422,24 @@ struct LiveView::Impl {
     viewer::JpegEncoder jpeg;
     std::string lastImage, lastBmodeMsg, lastSlices[3];
     std::size_t clients = 0;
-    Clock::time_point lastStats{}, lastEncoded{};
-    const auto period = std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(1.0 / s.imageHz));
+    Clock::time_point lastStats{};
+    viewer::RateLimit rate(s.imageHz, 2, Clock::now());  // a burst of 2 passes: see rate_limit.hpp
     std::uint32_t lastEpoch = UINT32_MAX;  // of the last image encoded
+    // The slices being made (axis 3: none), from a copy of the volume.
+    int sliceAxis = 3;
+    Volume sliceVolume;
+    SlicePlane slicePlanes[3];
+    SliceLook sliceLookNow;
+    bool sliceWithCoverage = false;
     std::unique_lock lock(m);
+    Coverage sliceCoverage = coverage;
     while (!quit) {
-      // Wake for work, but encode images no faster than view.image_hz; the
-      // first image of a new view (a drag's answer) goes out at once.
+      // Wake for work; the first image of a new view (a drag's answer) goes
+      // out at once, whatever the rate.
       const bool newView = imagePending && imageEpoch != lastEpoch;
-      const auto untilImage = lastEncoded + period - Clock::now();
-      if (!newView)
-        cv.wait_for(lock, imagePending && untilImage > Clock::duration::zero()
-                              ? std::min<Clock::duration>(untilImage, std::chrono::milliseconds(100))
-                              : std::chrono::milliseconds(100));
+      const Clock::duration untilImage = imagePending ? rate.wait(Clock::now()) : std::chrono::milliseconds(100);
+      if (!newView && sliceAxis == 3 && untilImage > Clock::duration::zero())
+        cv.wait_for(lock, std::min<Clock::duration>(untilImage, std::chrono::milliseconds(100)));
       if (quit) break;
       const std::size_t nowClients = server->clients();
       const bool newClient = nowClients > clients;
@@ -446,12 +456,19 @@ struct LiveView::Impl {
                                              *msg);
         statsDirty = true;
       }
-      if (imagePending && (imageEpoch != lastEpoch || Clock::now() - lastEncoded >= period)) {
+      bool sendImage = false;
+      if (imagePending && imageEpoch != lastEpoch) {
+        rate.force(Clock::now());
+        sendImage = true;
+      } else if (imagePending) {
+        sendImage = rate.take(Clock::now());
+      }
+      if (sendImage) {
         imagePending = false;
-        lastEncoded = Clock::now();
         lastEpoch = imageEpoch;
         pp::TileImage im{imageW, imageH, std::move(pendingImage)};
-        json h = {{"type", "image"}, {"epoch", imageEpoch}, {"frame", imageFrame}, {"width", imageW}, {"height", imageH}};
+        json h = {{"type", "image"}, {"epoch", imageEpoch}, {"frame", imageFrame}, {"width", imageW}, {"height", imageH},
+                  {"assembled_ms", imageAssembledMs}};
         int stride = 1;
         for (const EpochView& e : epochs)
           if (e.epoch == imageEpoch) {
@@ -484,7 +501,9 @@ struct LiveView::Impl {
                           &rgb[(static_cast<std::size_t>(y) * stride * im.width + static_cast<std::size_t>(x) * stride) * 3], 3);
           h["stride"] = stride;
         }
-        std::string msg = pack(h, jpeg.encode(rgb.data(), jw, jh, s.jpegQuality));
+        const std::string jpegBytes = jpeg.encode(rgb.data(), jw, jh, s.jpegQuality);
+        h["sent_ms"] = unixMs(std::chrono::system_clock::now());
+        std::string msg = pack(h, jpegBytes);
         lock.lock();
         if (!imagePending) pendingImage = std::move(im.rgba);  // reuse the storage
         lastImage = msg;
@@ -508,31 +527,36 @@ struct LiveView::Impl {
         lastBmodeMsg = msg;
         server->publish(kBmode, std::move(msg));
       }
-      if ((volumePending || slicesDirty) && !pendingVolume.bytes.empty()) {
+      // The slices, one per pass, so that an image that comes meanwhile waits
+      // for one slice at most, not for all three.
+      if (sliceAxis == 3 && (volumePending || slicesDirty) && !pendingVolume.bytes.empty()) {
         volumePending = false;
         slicesDirty = false;
-        const Volume v = pendingVolume;  // a copy: the host may hand over the next one meanwhile
-        const Coverage cov = coverage;
-        const SlicePlane planesNow[3] = {planes[0], planes[1], planes[2]};
-        SliceLook look = sliceLook;
-        look.longSide = s.sliceSize;
-        const bool withCoverage = coverageMap;
+        sliceVolume = pendingVolume;  // a copy: the host may hand over the next one meanwhile
+        sliceCoverage = coverage;
+        for (int a = 0; a < 3; ++a) slicePlanes[a] = planes[a];
+        sliceLookNow = sliceLook;
+        sliceLookNow.longSide = s.sliceSize;
+        sliceWithCoverage = coverageMap;
+        sliceAxis = 0;
+      }
+      if (sliceAxis < 3) {
+        const int a = sliceAxis++;
         lock.unlock();
-        std::string msgs[3];
-        for (int a = 0; a < 3; ++a) {
-          const SliceImage im = slice(v, planesNow[a], look, withCoverage ? &cov : nullptr);
-          const json h = {{"type", "mpr"},          {"axis", a},
-                          {"name", sliceName(planesNow[a].axis)}, {"position", planesNow[a].position},
-                          {"tilt_deg", planesNow[a].tiltDeg},       {"window", look.window},
-                          {"level", look.level},    {"width", im.width},
-                          {"height", im.height}};
-          msgs[a] = pack(h, jpeg.encode(im.rgb.data(), im.width, im.height, s.jpegQuality));
-        }
+        const SliceImage im = slice(sliceVolume, slicePlanes[a], sliceLookNow, sliceWithCoverage ? &sliceCoverage : nullptr);
+        const json h = {{"type", "mpr"},
+                        {"axis", a},
+                        {"name", sliceName(slicePlanes[a].axis)},
+                        {"position", slicePlanes[a].position},
+                        {"tilt_deg", slicePlanes[a].tiltDeg},
+                        {"window", sliceLookNow.window},
+                        {"level", sliceLookNow.level},
+                        {"width", im.width},
+                        {"height", im.height}};
+        std::string msg = pack(h, jpeg.encode(im.rgb.data(), im.width, im.height, s.jpegQuality));
         lock.lock();
-        for (int a = 0; a < 3; ++a) {
-          lastSlices[a] = msgs[a];
-          server->publish(kSlice0 + a, std::move(msgs[a]));
-        }
+        lastSlices[a] = msg;
+        server->publish(kSlice0 + a, std::move(msg));
       }
       const auto now = Clock::now();
       if (statsDirty || now - lastStats > std::chrono::milliseconds(500)) {
@@ -595,14 +619,15 @@ void LiveView::frame(const Frame& f, const Mat4& pose, std::uint64_t k, double t
     recording = I.recording;
   }
   if (recording != I.recorderPath) {  // the page started or stopped a recording
-    I.recorder.reset();
-    if (!recording.empty()) {
-      I.recorder = std::make_unique<Recorder>(recording);
+    if (recording.empty()) {
+      I.recorder.stop();
+    } else {
+      I.recorder.start(recording);
       spdlog::info("viewer: recording the frames that go into the pipeline to {}", recording);
     }
     I.recorderPath = recording;
   }
-  if (I.recorder) I.recorder->writePlaced(f, pose, timeS);
+  if (!I.recorderPath.empty()) I.recorder.writePlaced(f, pose, timeS);
   const std::lock_guard lock(I.m);
   I.coverage.add(pose, f.width, f.height);
   I.lastCorners = frameCorners(pose, f.width, f.height);
@@ -654,6 +679,7 @@ void LiveView::image(const std::vector<float>& rgba, int width, int height, std:
   I.imageH = height;
   I.imageEpoch = epoch;
   I.imageFrame = frame;
+  I.imageAssembledMs = unixMs(std::chrono::system_clock::now());
   I.imagePending = true;
   I.cv.notify_one();
 }
@@ -688,7 +714,9 @@ void LiveView::figures(const LiveFigures& f) {
 }
 
 void LiveView::inputEnded() {
-  impl_->recorder.reset();
+  impl_->recorder.stop();
+  impl_->recorder.drain();
+  impl_->recorderPath.clear();
   const std::lock_guard lock(impl_->m);
   impl_->recording.clear();
   impl_->want.recording = false;

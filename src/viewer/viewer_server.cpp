@@ -240,6 +240,11 @@ struct Server::Impl {
   void accept() {
     acceptor.async_accept(net::make_strand(ioc), [this](beast::error_code ec, tcp::socket socket) {
       if (ec) return;  // closed: the server is stopping
+      // An image goes out in several segments; with Nagle's algorithm the
+      // last one would wait for the browser's delayed acknowledgement (tens
+      // of milliseconds on every image).
+      beast::error_code nec;
+      socket.set_option(tcp::no_delay(true), nec);
       std::make_shared<HttpSession>(*this, std::move(socket))->start();
       accept();
     });

@@ -60,10 +60,11 @@ const runArgs = [ranks, bin, 'run', path.join(repo, 'configs/doll.toml'), '-o', 
                  '--set', 'sim.sweep.capture_interval_mm=1.5', ...sets];
 console.log('run: scripts/mpirun.sh ' + runArgs.join(' '));
 const run = spawn('bash', [path.join(repo, 'scripts/mpirun.sh'), ...runArgs], {stdio: ['ignore', 'pipe', 'pipe']});
-let runLog = '';
+let runLog = '', timedLog = '';
 const urlPromise = new Promise((resolve, reject) => {
   const onData = (d) => {
     runLog += d.toString();
+    timedLog += `[${Date.now()}] ${d.toString()}`;  // when each piece came (run.log, for a person)
     const m = runLog.match(/viewer: open (http:\/\/\S+)/);
     if (m) resolve(m[1]);
   };
@@ -77,12 +78,15 @@ const url = await urlPromise;
 console.log('viewer: ' + url);
 
 const figures = {};
+const events = [];  // what the test did when (with --measure, beside the latencies)
+const mark = (what) => events.push({what, at: Date.now()});
 try {
   await page.goto(url);
 
   // 1. The image builds up while frames arrive.
   check(await until(page, () => window.pp5.images > 0, null, 30000, 'a first image'), 'the page shows an image');
   // Recording from the page, while the sweep goes on (checked in the file after the run).
+  mark('record');
   await page.locator('#record').click();
   check(await until(page, () => window.pp5.stats && window.pp5.stats.recording !== '', null, 10000, 'recording'),
         'the record button starts a recording');
@@ -93,12 +97,64 @@ try {
   const sweep = await page.evaluate(() => ({images: window.pp5.images, distinct: window.pp5.distinct.size,
                                             stats: window.pp5.stats, outlines: window.pp5.outlines}));
   figures.sweep_images_per_s = (sweep.images - n0) / ((Date.now() - t0) / 1000);
+  mark('screenshot');
   await page.screenshot({path: path.join(out, 'screenshot.png')});  // the doll building up (docs/viewer.md)
+  mark('screenshot done');
   check(sweep.outlines > 0, 'the newest frame\'s outline is drawn over the 3D view');
+  mark('record stop');
   await page.locator('#record').click();
   check(await until(page, () => window.pp5.stats.recording === '', null, 10000, 'recording to stop'),
         'the record button stops it');
+  // 2. A drag during the sweep rotates the view; the pipeline records the new
+  // epoch. What a person feels: how soon the view first follows the mouse
+  // (from the drag's first view message) and how many views a second it then
+  // shows (images answering the drag's view messages, not the frames' images
+  // in between).
+  const snap = () => page.evaluate(() => ({images: window.pp5.images, epoch: window.pp5.epoch,
+                                           last: window.pp5.lastImage, distinct: window.pp5.distinct.size}));
+  await page.locator('#render').scrollIntoViewIfNeeded();  // clicks elsewhere may have scrolled the page
+  const box = await page.locator('#render').boundingBox();
+  const cx = box.x + box.width / 2, cy = box.y + box.height / 2;
+  if (process.env.PP5_DEBUG) await page.screenshot({path: path.join(out, 'before-drag.png')});
+  const before = await snap();
+  const seq0 = await page.evaluate(() => window.pp5.viewSent());
+  mark('drag');
+  const dragStart = Date.now();
+  await page.mouse.move(cx, cy);
+  await page.mouse.down();
+  // A mouse reports its moves at 60 Hz or more: a move every 16 ms (the page
+  // sends one view message per animation frame), 120 pixels in all.
+  for (let i = 1; i <= 60; ++i) {
+    await page.mouse.move(cx + 2 * i, cy + (2 * i) / 3);
+    await sleep(16);
+  }
+  const dragEnd = Date.now();
+  const dragSeconds = (dragEnd - dragStart) / 1000;
+  figures.drag_during_sweep = !(await page.evaluate(() => window.pp5.stats.ended));
+  // The coarse image a drag shows, before the mouse is let go (docs/viewer.md).
+  await page.locator('#render').screenshot({path: path.join(out, 'during-a-drag.png')});
+  await page.mouse.up();
+  // The drag's own images: those answering its view messages (the run may open
+  // epochs of its own meanwhile, e.g. at the end of the sweep).
+  const dragged = await until(page, (s) => window.pp5.viewResponses.some((r) => r.seq > s), seq0, 60000,
+                              'the dragged view');
+  const responses = (await page.evaluate(() => window.pp5.viewResponses)).filter((r) => r.seq > seq0);
+  const firstSentAt = await page.evaluate((s) => window.pp5.viewSentAt(s), seq0 + 1);
+  check(dragged && responses.length > 0, `a drag changes the view (epoch ${before.epoch} -> ${(await snap()).epoch})`);
+  if (!dragged) {  // what the page knew, to tell a lost message from a lost image
+    console.log('  diagnostics: ' + JSON.stringify(await page.evaluate(() => ({
+      sent: window.pp5.viewSent(), last: window.pp5.lastImage && {...window.pp5.lastImage, arrivals: undefined},
+      state: window.pp5.state && {azimuth: window.pp5.state.azimuth, elevation: window.pp5.state.elevation},
+      stats: window.pp5.stats, errors: window.pp5.errors}))));
+  }
+  figures.drag_images_per_s = responses.filter((r) => r.at <= dragEnd).length / dragSeconds;
+  figures.drag_first_response_ms = responses.length && firstSentAt ? responses[0].at - firstSentAt : null;
+  figures.drag_responses = responses.length;
+  if (measure) figures.drag_first_response = responses[0];
+  const dragEpoch = (await snap()).epoch;
+
   // Pause: no frame goes into the pipeline until resume.
+  mark('pause');
   await page.locator('#pause').click();
   check(await until(page, () => window.pp5.stats.paused, null, 10000, 'the pause'), 'pause is acknowledged');
   await sleep(600);
@@ -106,6 +162,7 @@ try {
   await sleep(1200);
   const f2 = await page.evaluate(() => window.pp5.stats.frames);
   check(f2 === f1, `no frame goes in while paused (${f1} then ${f2})`);
+  mark('resume');
   await page.locator('#pause').click();
   if (!(await page.evaluate(() => window.pp5.stats.ended)))
     check(await until(page, (f) => window.pp5.stats.frames > f || window.pp5.stats.ended, f2, 10000, 'frames again'),
@@ -114,47 +171,6 @@ try {
         `the coverage fraction rises during the sweep (from ${cov0})`);
   check(await until(page, () => window.pp5.bmodes > 0, null, 10000, 'a B-mode frame'), 'the B-mode frame is shown');
 
-  const snap = () => page.evaluate(() => ({images: window.pp5.images, epoch: window.pp5.epoch,
-                                           last: window.pp5.lastImage, distinct: window.pp5.distinct.size}));
-  // Waits for an image of a newer epoch than `e`, then for it to settle.
-  const newEpochImage = async (e, what) => until(page, (x) => window.pp5.epoch > x, e, 20000, what);
-
-  // 2. A drag rotates the view; the pipeline records the new epoch.
-  await page.locator('#render').scrollIntoViewIfNeeded();  // clicks elsewhere may have scrolled the page
-  const box = await page.locator('#render').boundingBox();
-  const cx = box.x + box.width / 2, cy = box.y + box.height / 2;
-  if (process.env.PP5_DEBUG) await page.screenshot({path: path.join(out, 'before-drag.png')});
-  let before = await snap();
-  const dragStart = Date.now();
-  await page.mouse.move(cx, cy);
-  await page.mouse.down();
-  const dragImages0 = (await snap()).images;
-  // A mouse reports its moves at 60 Hz or more: a move every 16 ms (the page
-  // sends one view message per animation frame), 120 pixels in all.
-  for (let i = 1; i <= 120; ++i) {
-    await page.mouse.move(cx + i, cy + i / 3);
-    await sleep(16);
-  }
-  const dragSeconds = (Date.now() - dragStart) / 1000;
-  const dragImages = (await snap()).images - dragImages0;
-  // The coarse image a drag shows, before the mouse is let go (docs/viewer.md).
-  await page.locator('#render').screenshot({path: path.join(out, 'during-a-drag.png')});
-  await page.mouse.up();
-  // The drag's own image: one answering its view messages (the run may open
-  // epochs of its own meanwhile, e.g. at the end of the sweep).
-  const dragged = await until(page, () => window.pp5.viewResponses.length > 0, null, 60000, 'the dragged view');
-  const responses = await page.evaluate(() => window.pp5.viewResponses);
-  check(dragged && responses.length > 0, `a drag changes the view (epoch ${before.epoch} -> ${(await snap()).epoch})`);
-  if (!dragged) {  // what the page knew, to tell a lost message from a lost image
-    console.log('  diagnostics: ' + JSON.stringify(await page.evaluate(() => ({
-      sent: window.pp5.viewSent(), last: window.pp5.lastImage && {...window.pp5.lastImage, arrivals: undefined},
-      state: window.pp5.state && {azimuth: window.pp5.state.azimuth, elevation: window.pp5.state.elevation},
-      stats: window.pp5.stats, errors: window.pp5.errors}))));
-  }
-  figures.drag_images_per_s = dragImages / dragSeconds;
-  figures.drag_first_response_ms = responses.length ? responses[0].ms : null;
-  figures.drag_responses = responses.length;
-  const dragEpoch = (await snap()).epoch;
 
   // 3. The transfer function, the MIP switch and a slice slider each change what is shown.
   // An image of a newer epoch whose header says `key` is `value`.
@@ -184,6 +200,10 @@ try {
 
   // 4. A bad control message gets an error reply and the run goes on.
   figures.latency_ms = await page.evaluate(() => window.pp5.latencies);
+  if (measure) {
+    figures.latency_parts = await page.evaluate(() => window.pp5.latencyParts);
+    figures.events = events;
+  }
   const errs = await page.evaluate(() => window.pp5.errors.length);
   await page.evaluate(() => window.pp5.send({type: 'tf', level: 999, window: 1, opacity: 1}));
   await page.evaluate(() => window.pp5.send({type: 'no such thing'}));
@@ -283,7 +303,8 @@ const q = (p) => (lat.length ? lat[Math.min(lat.length - 1, Math.ceil(p * lat.le
 figures.latency_ms_median = q(0.5);
 figures.latency_ms_p95 = q(0.95);
 figures.latency_frames = lat.length;
-delete figures.latency_ms;
+if (!measure) delete figures.latency_ms;
+fs.writeFileSync(path.join(out, 'run.log'), timedLog);
 fs.writeFileSync(path.join(out, 'figures.json'), JSON.stringify(figures, null, 2) + '\n');
 console.log('figures: ' + JSON.stringify(figures));
 if (measure) console.log('(measured: the checks above are what the test asserts; the figures go to docs/benchmarks.md)');

@@ -9,7 +9,7 @@ const $ = (id) => document.getElementById(id);
 // What the page has seen, for people (the figures) and for the browser test.
 const pp5 = window.pp5 = {
   connected: false, images: 0, distinct: new Set(), lastImage: null, epoch: -1,
-  latencies: [], shownTimes: [], viewResponses: [], errors: [], outlines: 0,
+  latencies: [], latencyParts: [], shownTimes: [], viewResponses: [], errors: [], outlines: 0,
   coverage: 0, coverageHistory: [], state: null, bmodes: 0, mprs: [0, 0, 0], stats: null, reconnects: 0,
 };
 
@@ -47,6 +47,7 @@ function connect() {
     const n = dv.getUint32(0, true);
     const header = JSON.parse(new TextDecoder().decode(new Uint8Array(ev.data, 4, n)));
     const payload = new Uint8Array(ev.data, 4 + n);
+    header.received_ms = Date.now();
     onMessage(header, payload);
   };
 }
@@ -118,11 +119,22 @@ async function onImage(h, payload) {
   while (pp5.shownTimes.length && now - pp5.shownTimes[0] > 1000) pp5.shownTimes.shift();
   if (h.frame >= 0 && h.arrivals) {
     for (const [f, t] of h.arrivals)
-      if (f > lastFrameShown && t >= connectedAt) pp5.latencies.push(now - t);
+      if (f > lastFrameShown && t >= connectedAt) {
+        pp5.latencies.push(now - t);
+        // Where it went: the pipeline (arrival to the image on the host), the
+        // host's encoder, the socket, and this page's decoding and drawing.
+        if (h.assembled_ms && h.sent_ms)
+          pp5.latencyParts.push({frame: f, at: now, total: now - t, pipeline: h.assembled_ms - t,
+                                 encoder: h.sent_ms - h.assembled_ms, socket: h.received_ms - h.sent_ms,
+                                 page: now - h.received_ms});
+      }
     lastFrameShown = Math.max(lastFrameShown, h.frame);
   }
   if (h.view_seq > respondedSeq && viewSent.has(h.view_seq)) {
-    pp5.viewResponses.push({seq: h.view_seq, ms: now - viewSent.get(h.view_seq), interactive: !!h.interactive});
+    const sent = viewSent.get(h.view_seq);
+    pp5.viewResponses.push({seq: h.view_seq, at: now, ms: now - sent, interactive: !!h.interactive,
+                            pipeline: h.assembled_ms - sent, encoder: h.sent_ms - h.assembled_ms,
+                            socket: h.received_ms - h.sent_ms, page: now - h.received_ms});
     respondedSeq = h.view_seq;
   }
   drawOutline(h);
@@ -169,6 +181,10 @@ function onStats(h) {
   $('acq-state').textContent = (h.paused ? 'paused' : h.ended ? 'input ended' : 'acquiring') +
       (h.recording ? ' · recording to ' + h.recording.split('/').pop() : '');
   $('acq-state').title = h.recording || '';
+  if (h.recording_error && h.recording_error !== pp5.recordingError) {  // shown once, as a control's error is
+    pp5.recordingError = h.recording_error;
+    onText(JSON.stringify({error: h.recording_error}));
+  }
   $('pause').textContent = h.paused ? 'resume' : 'pause';
   $('record').textContent = h.recording ? 'stop recording' : 'start recording';
 }
@@ -221,6 +237,7 @@ function sendView(interactive) {
   if (!view) return;
   viewSeq++;
   viewSent.set(viewSeq, Date.now());
+  if (viewSent.size > 4096) viewSent.delete(viewSent.keys().next().value);  // the oldest
   send({type: 'view', seq: viewSeq, azimuth: view.azimuth, elevation: view.elevation, distance: view.distance,
         pan: view.pan, interactive});
 }
@@ -296,4 +313,5 @@ $('record').addEventListener('click', () => send({type: 'record', on: !(pp5.stat
 
 pp5.send = send;  // for the browser test's bad message
 pp5.viewSent = () => viewSeq;  // view messages sent so far (the test's diagnostics)
+pp5.viewSentAt = (seq) => viewSent.get(seq);  // when view message `seq` was sent (ms)
 connect();
