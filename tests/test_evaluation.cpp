@@ -179,6 +179,37 @@ TEST(Evaluation, LeaveOutSamplesThroughThePoseAndOnlyInsideTheMask) {
   EXPECT_EQ(h.pixelsCompared + h.pixelsSkipped, 20u);
 }
 
+// PLUS's reading of a held-out pixel: the trilinear value rounded to a grey
+// level, and a pixel whose value rounds to 0 not compared.
+TEST(Evaluation, LeaveOutPlusReadingRoundsAndSkipsZero) {
+  const Grid g = smallGrid(Index3(8, 8, 8));
+  Volume v;
+  v.allocate(g, ScalarType::F32);
+  // x < 4: 0.4 (rounds to 0); x >= 4: 7.4 (rounds to 7).
+  for (int z = 0; z < 8; ++z)
+    for (int y = 0; y < 8; ++y)
+      for (int x = 0; x < 8; ++x) v.setValue(g.linear(x, y, z), x < 4 ? 0.4f : 7.4f);
+  // A 7 x 1 frame along x at voxel rows y = z = 3, pixel x at voxel x: all 8
+  // neighbours of pixel x lie in columns x and x + 1.
+  const Mat4 pose = translation(g.voxelToWorld(Vec3(0, 3, 3))) * scaling(Vec3(g.spacing.x, 1.0, 1.0));
+  Frame f;
+  f.allocate(7, 1, PixelType::U8);
+  for (int x = 0; x < 7; ++x) f.u8()[x] = 5;
+  const std::vector<PixelRun> runs = {{0, 0, 6}};
+  auto all = [](std::size_t) { return true; };
+  LeaveOutMetrics tri, plus;
+  compareHeldOutFrame(v, all, f, pose, runs, tri, LeaveOutReading::Trilinear);
+  compareHeldOutFrame(v, all, f, pose, runs, plus, LeaveOutReading::PlusGreyLevels);
+  tri.finish();
+  plus.finish();
+  EXPECT_EQ(tri.pixelsCompared, 7u);  // every pixel has its 8 neighbours
+  // Pixels 0..3 read 0.4 (0 once rounded): skipped; 4..6 read 7.4, rounded to 7.
+  EXPECT_EQ(plus.pixelsCompared, 3u);
+  EXPECT_EQ(plus.pixelsSkipped, 4u);
+  EXPECT_DOUBLE_EQ(plus.bias, 2.0);
+  EXPECT_NEAR(tri.bias, (4 * (0.4 - 5) + 3 * (7.4 - 5)) / 7.0, 1e-6);  // float voxels
+}
+
 // Two frames 6 mm apart into a 1 mm grid: nearest neighbour leaves the voxels
 // between them empty; hole filling gives them values, and hasValue says so.
 TEST(Evaluation, HoleFilledVoxelsHaveAValueButAreNotCovered) {

@@ -170,6 +170,7 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
   // --- leave-out ---
   struct LeaveOpts : CommonOpts {
     int keepEvery = 2;
+    std::string reading = "trilinear";
   };
   auto l = std::make_shared<LeaveOpts>();
   auto* leave = eval->add_subcommand(
@@ -177,7 +178,14 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
   addCommon(leave, *l);
   leave->add_option("--keep-every", l->keepEvery, "Keep every k-th frame: 2 removes 50%, 4 removes 75%")
       ->check(CLI::Range(2, 1000));
+  leave->add_option("--reading", l->reading,
+                    "How a held-out pixel is read from the volume: trilinear (where all 8 neighbours hold a value) or "
+                    "plus (as PLUS's volume is read: the trilinear value rounded to a grey level, and a pixel whose "
+                    "value is 0 not compared; docs/quality.md)")
+      ->check(CLI::IsMember({"trilinear", "plus"}));
   leave->callback([l, &exitCode] {
+    const gp::LeaveOutReading reading =
+        l->reading == "plus" ? gp::LeaveOutReading::PlusGreyLevels : gp::LeaveOutReading::Trilinear;
     PosedSequence seq = openPosedSequence(l->sequence, l->plusConfig);
     Settings s;
     Vec3 spacing;
@@ -204,7 +212,7 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
         runsW = f.width;
         runsH = f.height;
       }
-      gp::compareHeldOutFrame(recon->output(), cov, f, *seq.poses[i], runs, m);
+      gp::compareHeldOutFrame(recon->output(), cov, f, *seq.poses[i], runs, m, reading);
     }
     m.finish();
     if (m.framesHeldOut == 0) inputError(l->sequence, "has no placeable frame to hold out with --keep-every {}", k);
@@ -216,6 +224,7 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     std::printf("leave-out: %s, keep every %llu%s frame (%.0f%% removed)\n", l->sequence.c_str(),
                 static_cast<unsigned long long>(k), k == 2 ? "nd" : "th", 100.0 * (1.0 - 1.0 / static_cast<double>(k)));
     std::printf("  method            %s\n", describe(rs).c_str());
+    std::printf("  reading           %s\n", l->reading.c_str());
     std::printf("  frames            %llu kept, %llu held out, %llu skipped\n",
                 static_cast<unsigned long long>(st.inserted), static_cast<unsigned long long>(m.framesHeldOut),
                 static_cast<unsigned long long>(st.skipped));
@@ -226,13 +235,15 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     std::printf("  RMSE              %.3f grey levels (%.1f%% of pixels compared)\n", m.rmse, 100.0 * compared);
     std::printf("  pixels compared   %llu (%.1f%%)\n", static_cast<unsigned long long>(m.pixelsCompared),
                 100.0 * compared);
-    std::printf("  pixels skipped    %llu (no value in the volume there)\n",
-                static_cast<unsigned long long>(m.pixelsSkipped));
+    std::printf("  pixels skipped    %llu (no value in the volume there%s)\n",
+                static_cast<unsigned long long>(m.pixelsSkipped),
+                reading == gp::LeaveOutReading::PlusGreyLevels ? ", or a value that rounds to 0" : "");
     std::printf("  (pixels inside the clip rectangle and fan only)\n");
     nlohmann::ordered_json j;
     j["protocol"] = "leave-out";
     j["sequence"] = l->sequence;
     j["method"] = describe(rs);
+    j["reading"] = l->reading;
     j["keep_every"] = k;
     j["frames_kept"] = st.inserted;
     j["frames_held_out"] = m.framesHeldOut;

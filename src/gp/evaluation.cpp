@@ -188,7 +188,7 @@ void LeaveOutMetrics::finish() {
 }
 
 void compareHeldOutFrame(const Volume& v, const CoveredFn& covered, const Frame& f, const Mat4& m,
-                         const std::vector<PixelRun>& runs, LeaveOutMetrics& out) {
+                         const std::vector<PixelRun>& runs, LeaveOutMetrics& out, LeaveOutReading reading) {
   ++out.framesHeldOut;
   const Vec3 o = transformPoint(m, Vec3(0.0));
   const Vec3 du = transformVector(m, Vec3(1, 0, 0)), dv = transformVector(m, Vec3(0, 1, 0));
@@ -196,11 +196,12 @@ void compareHeldOutFrame(const Volume& v, const CoveredFn& covered, const Frame&
     for (int x = r.x0; x <= r.x1; ++x) {
       const int y = r.y;
       const auto s = sampleCovered(v, covered, o + du * static_cast<double>(x) + dv * static_cast<double>(y));
-      if (!s) {
+      const double value = !s || reading == LeaveOutReading::Trilinear ? s.value_or(0.0) : std::floor(*s + 0.5);
+      if (!s || (reading == LeaveOutReading::PlusGreyLevels && value == 0.0)) {
         ++out.pixelsSkipped;
         continue;
       }
-      out.add(*s - f.value(x, y));
+      out.add(value - f.value(x, y));
     }
 }
 

@@ -91,10 +91,23 @@ private:
   double sum_ = 0.0, sumAbs_ = 0.0, sumSq_ = 0.0;
 };
 
+// How a held-out pixel is read from the volume.
+enum class LeaveOutReading {
+  // The trilinear value where all 8 neighbours hold a value (pp5echo's).
+  Trilinear,
+  // As PLUS's volume is read through a trilinear reslice into its own type:
+  // the trilinear value rounded to the nearest grey level, and a pixel whose
+  // rounded value is 0 not compared ("value != 0 as coverage"); all 8
+  // neighbours must still hold a value. It gives PLUS's leave-out errors
+  // (docs/quality.md).
+  PlusGreyLevels,
+};
+
 // Compares every pixel of a held-out frame inside `runs` (the clip rectangle
 // and fan the reconstruction used, fan_mask.hpp) with the volume sampled at
 // its position; pixels outside them are neither compared nor counted.
 void compareHeldOutFrame(const Volume& v, const CoveredFn& covered, const Frame& f, const Mat4& imageToReference,
-                         const std::vector<PixelRun>& runs, LeaveOutMetrics& m);
+                         const std::vector<PixelRun>& runs, LeaveOutMetrics& m,
+                         LeaveOutReading reading = LeaveOutReading::Trilinear);
 
 }  // namespace pp5::gp
