@@ -117,23 +117,43 @@ PY
   esac
 }
 
+# One target: its corpus, then libFuzzer for $secs seconds; the exit status in $out/$t.rc.
+fuzz_one() {
+  local t=$1 work=$out/corpus-$1 art=$out/artifacts-$1 rc
+  make_corpus "$t" "$work"
+  rm -rf "$art"
+  mkdir -p "$art"
+  set +e
+  ASAN_OPTIONS=detect_leaks=1 "$bindir/$t" "${opts[@]}" -artifact_prefix="$art/" -max_total_time="$secs" \
+    -print_final_stats=1 "$work" >"$out/$t.log" 2>&1
+  rc=$?
+  set -e
+  echo "$rc" >"$out/$t.rc"
+}
+opts=(-rss_limit_mb=1024 -malloc_limit_mb=512 -timeout=10 -max_len=65536 -error_exitcode=1 -timeout_exitcode=1)
+
+# The targets run side by side, one per core (each is one thread): the same
+# seconds of fuzzing each, in less wall time.
+jobs=$(nproc 2>/dev/null || echo 1)
+echo "fuzz.sh: ${#targets[@]} targets for ${secs}s each, $jobs at a time"
+running=0
+for t in "${targets[@]}"; do
+  rm -f "$out/$t.rc"
+  fuzz_one "$t" &
+  running=$((running + 1))
+  if [ "$running" -ge "$jobs" ]; then
+    wait -n || true
+    running=$((running - 1))
+  fi
+done
+wait || true
+
 status=0
 for t in "${targets[@]}"; do
   work=$out/corpus-$t
   art=$out/artifacts-$t
-  make_corpus "$t" "$work"
-  rm -rf "$art"
-  mkdir -p "$art"
-  opts=(-rss_limit_mb=1024 -malloc_limit_mb=512 -timeout=10 -max_len=65536 -error_exitcode=1 -timeout_exitcode=1
-        -artifact_prefix="$art/")
-  echo "fuzz.sh: $t for ${secs}s from $(ls "$work" | wc -l) inputs"
-  set +e
-  ASAN_OPTIONS=detect_leaks=1 "$bindir/$t" "${opts[@]}" -max_total_time="$secs" -print_final_stats=1 "$work" \
-    >"$out/$t.log" 2>&1
-  rc=$?
-  set -e
-  grep -E "^stat::number_of_executed_runs|^stat::peak_rss_mb|^#[0-9]+ +DONE" "$out/$t.log" | tr '\n' ' ' || true
-  echo
+  rc=$(cat "$out/$t.rc" 2>/dev/null || echo 1)
+  echo "fuzz.sh: $t for ${secs}s from $(ls "$work" 2>/dev/null | wc -l) inputs at the end: $(grep -E "^stat::number_of_executed_runs|^stat::peak_rss_mb|^#[0-9]+ +DONE" "$out/$t.log" | tr '\n' ' ' || true)"
   if [ "$rc" != 0 ]; then
     tail -n 40 "$out/$t.log" >&2
     echo "fuzz.sh: $t failed (exit $rc); inputs in $art/, log in $out/$t.log" >&2
@@ -148,7 +168,7 @@ for t in "${targets[@]}"; do
     mkdir -p "$merged" "$out/rest"
     cp "$corpus"/seed-* "$merged"/
     find "$corpus" -maxdepth 1 -type f ! -name 'seed-*' -exec cp {} "$out/rest"/ \;
-    if ! "$bindir/$t" "${opts[@]}" -merge=1 "$merged" "$out/rest" "$work" >"$out/merge.log" 2>&1; then
+    if ! "$bindir/$t" "${opts[@]}" -artifact_prefix="$art/" -merge=1 "$merged" "$out/rest" "$work" >"$out/merge.log" 2>&1; then
       echo "fuzz.sh: merging failed; see $out/merge.log" >&2
       exit 1
     fi

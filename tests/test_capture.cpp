@@ -161,59 +161,6 @@ TEST(Recorder, AFailedWriteKeepsTheJournal) {
   fs::remove_all(dir);
 }
 
-// The viewer's recordings, written on a thread of their own: every frame
-// handed over is in the file, in order, with its pose, even when the disk is
-// behind (a queue of one frame here); a start and a stop make one file each;
-// a recording that fails says so in error() and the next one starts clean.
-TEST(BackgroundRecorder, KeepsEveryFrameInOrderAndReportsAFailure) {
-  namespace fs = std::filesystem;
-  const fs::path dir = fs::temp_directory_path() / ("pp5bgrec-" + std::to_string(::getpid()));
-  fs::remove_all(dir);
-  fs::create_directories(dir);
-  const std::string a = (dir / "a.mha").string(), b = (dir / "b.mha").string();
-  const std::string bad = (dir / "no such folder" / "c.mha").string();
-  Frame f;
-  f.allocate(8, 6, PixelType::U8);
-  {
-    host::BackgroundRecorder rec(1);  // at most one frame's bytes wait: the caller waits for the disk
-    rec.start(a);
-    for (int i = 0; i < 20; ++i) {
-      f.index = static_cast<std::uint64_t>(i);
-      f.pixels.assign(f.pixels.size(), static_cast<std::uint8_t>(i));
-      rec.writePlaced(f, translation({double(i), 0, 0}), 0.1 * i);
-    }
-    rec.start(b);  // closes a
-    f.pixels.assign(f.pixels.size(), 99);
-    rec.writePlaced(f, Mat4(1.0), 5);
-    rec.stop();
-    rec.drain();
-    EXPECT_EQ(rec.error(), "");
-    EXPECT_FALSE(fs::exists(a + ".journal"));
-    rec.start(bad);
-    rec.writePlaced(f, Mat4(1.0), 6);
-    rec.drain();
-    EXPECT_NE(rec.error().find("c.mha"), std::string::npos) << rec.error();
-    rec.writePlaced(f, Mat4(1.0), 7);  // after a failure: nothing until the next start, and no throw
-    rec.start((dir / "d.mha").string());
-    rec.writePlaced(f, Mat4(1.0), 8);
-    rec.drain();
-    EXPECT_EQ(rec.error(), "");
-  }  // the destructor finishes d.mha
-  const auto fa = readAllFrames(a);
-  ASSERT_EQ(fa.size(), 20u);
-  for (int i = 0; i < 20; ++i) {
-    EXPECT_EQ(fa[static_cast<std::size_t>(i)].pixels[0], i);
-    EXPECT_NEAR(fa[static_cast<std::size_t>(i)].timestamp, 0.1 * i, 1e-9);
-    const FrameTransform* pose = fa[static_cast<std::size_t>(i)].findTransform("ImageToReference");
-    ASSERT_NE(pose, nullptr);
-    EXPECT_DOUBLE_EQ(pose->matrix[3][0], double(i));
-  }
-  ASSERT_EQ(readAllFrames(b).size(), 1u);
-  EXPECT_EQ(readAllFrames(b)[0].pixels[0], 99);
-  ASSERT_EQ(readAllFrames((dir / "d.mha").string()).size(), 1u);
-  fs::remove_all(dir);
-}
-
 // The run folder: an earlier run's outputs go when the run starts, the run's
 // own settings file and recordings stay, and a run refused before it started
 // leaves the folder as it found it.

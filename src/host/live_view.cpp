@@ -220,10 +220,8 @@ struct LiveView::Impl {
   std::string recording;  // the page's recording: its file, "" = none (guarded by m)
   std::string recordDir;
   int recordings = 0;
-  // The page's recordings, written on their own thread (opening, syncing and
-  // closing one must not hold up the pipeline); recorderPath: the caller's
-  // thread only (frame(), inputEnded()).
-  BackgroundRecorder recorder;
+  // The open recording; the caller's thread only (frame(), inputEnded()).
+  std::unique_ptr<Recorder> recorder;
   std::string recorderPath;
   bool statsDirty = true;
 
@@ -414,7 +412,6 @@ struct LiveView::Impl {
             {"gap_warning", coverage.gapWarning()},
             {"paused", want.paused},
             {"recording", recording},
-            {"recording_error", recorder.error()},
             {"ended", ended}};
   }
 
@@ -445,7 +442,14 @@ struct LiveView::Impl {
       const bool newClient = nowClients > clients;
       clients = nowClients;
       if (!clients) {
-        imagePending = false;  // nobody to send it to (a new client asks anew: needImage)
+        // Nobody to send it to (a new client asks anew: needImage); slices
+        // being made are given up, to be made again for the next client.
+        imagePending = false;
+        if (sliceAxis < 3) {
+          sliceAxis = 3;
+          sliceVolume = {};
+          slicesDirty = true;
+        }
         continue;
       }
       if (newClient) {  // what it missed: the newest of each
@@ -555,6 +559,7 @@ struct LiveView::Impl {
                         {"height", im.height}};
         std::string msg = pack(h, jpeg.encode(im.rgb.data(), im.width, im.height, s.jpegQuality));
         lock.lock();
+        if (sliceAxis == 3) sliceVolume = {};  // the batch is done: no copy kept
         lastSlices[a] = msg;
         server->publish(kSlice0 + a, std::move(msg));
       }
@@ -619,15 +624,14 @@ void LiveView::frame(const Frame& f, const Mat4& pose, std::uint64_t k, double t
     recording = I.recording;
   }
   if (recording != I.recorderPath) {  // the page started or stopped a recording
-    if (recording.empty()) {
-      I.recorder.stop();
-    } else {
-      I.recorder.start(recording);
+    I.recorder.reset();
+    if (!recording.empty()) {
+      I.recorder = std::make_unique<Recorder>(recording);
       spdlog::info("viewer: recording the frames that go into the pipeline to {}", recording);
     }
     I.recorderPath = recording;
   }
-  if (!I.recorderPath.empty()) I.recorder.writePlaced(f, pose, timeS);
+  if (I.recorder) I.recorder->writePlaced(f, pose, timeS);
   const std::lock_guard lock(I.m);
   I.coverage.add(pose, f.width, f.height);
   I.lastCorners = frameCorners(pose, f.width, f.height);
@@ -714,9 +718,7 @@ void LiveView::figures(const LiveFigures& f) {
 }
 
 void LiveView::inputEnded() {
-  impl_->recorder.stop();
-  impl_->recorder.drain();
-  impl_->recorderPath.clear();
+  impl_->recorder.reset();
   const std::lock_guard lock(impl_->m);
   impl_->recording.clear();
   impl_->want.recording = false;

@@ -2,14 +2,10 @@
 // What the sources share: writing every frame to a PLUS sequence as it
 // arrives, and placing a live frame through a device set's chain.
 #include <atomic>
-#include <condition_variable>
 #include <cstdint>
-#include <deque>
 #include <memory>
-#include <mutex>
 #include <optional>
 #include <string>
-#include <thread>
 
 #include "core/frame.hpp"
 #include "core/plus_config.hpp"
@@ -42,44 +38,6 @@ private:
   std::unique_ptr<SequenceWriter> w_;
   std::uint64_t frames_ = 0;
   bool failed_ = false;  // a frame could not be written to the sequence
-};
-
-// Records on a thread of its own, so that opening, syncing and closing a
-// recording never hold up the caller (the host's pipeline, which hands each
-// frame over and goes on). Frames wait in order; once `maxQueuedBytes` of them
-// wait, the caller waits for the disk: a frame is never dropped. A recording
-// that fails is logged (with where its frames are kept) and its failure is
-// `error()`; the frames after it are not written until the next start().
-class BackgroundRecorder {
-public:
-  explicit BackgroundRecorder(std::size_t maxQueuedBytes = std::size_t{64} << 20);
-  ~BackgroundRecorder();  // finishes every recording handed to it
-  BackgroundRecorder(const BackgroundRecorder&) = delete;
-  BackgroundRecorder& operator=(const BackgroundRecorder&) = delete;
-  void start(const std::string& path);  // the open recording, if any, is closed first
-  void writePlaced(const Frame& f, const Mat4& imageToReference, double timeS);
-  void stop();
-  // Waits until everything handed over is on disk (and every recording stopped
-  // is complete).
-  void drain();
-  std::string error() const;
-
-private:
-  struct Item {
-    enum Kind { Start, Write, Stop } kind;
-    std::string path;
-    Frame frame;
-    Mat4 pose{};
-    double timeS = 0;
-  };
-  void run();
-  mutable std::mutex m_;
-  std::condition_variable cv_;
-  std::deque<Item> queue_;
-  std::size_t queuedBytes_ = 0, maxQueuedBytes_;
-  bool busy_ = false, quit_ = false;
-  std::string error_;
-  std::thread thread_;
 };
 
 // Places a live frame: ImageToReference through the configuration's chain, or

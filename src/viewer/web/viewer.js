@@ -127,6 +127,10 @@ async function onImage(h, payload) {
           pp5.latencyParts.push({frame: f, at: now, total: now - t, pipeline: h.assembled_ms - t,
                                  encoder: h.sent_ms - h.assembled_ms, socket: h.received_ms - h.sent_ms,
                                  page: now - h.received_ms});
+        if (pp5.latencies.length > 20000) {  // a long session: the latest only
+          pp5.latencies.splice(0, 10000);
+          pp5.latencyParts.splice(0, Math.max(0, pp5.latencyParts.length - 10000));
+        }
       }
     lastFrameShown = Math.max(lastFrameShown, h.frame);
   }
@@ -181,10 +185,6 @@ function onStats(h) {
   $('acq-state').textContent = (h.paused ? 'paused' : h.ended ? 'input ended' : 'acquiring') +
       (h.recording ? ' · recording to ' + h.recording.split('/').pop() : '');
   $('acq-state').title = h.recording || '';
-  if (h.recording_error && h.recording_error !== pp5.recordingError) {  // shown once, as a control's error is
-    pp5.recordingError = h.recording_error;
-    onText(JSON.stringify({error: h.recording_error}));
-  }
   $('pause').textContent = h.paused ? 'resume' : 'pause';
   $('record').textContent = h.recording ? 'stop recording' : 'start recording';
 }
