@@ -57,7 +57,7 @@ page.on('pageerror', (e) => failures.push('page error: ' + e.message));
 // ---- the run ------------------------------------------------------------------
 const runArgs = [ranks, bin, 'run', path.join(repo, 'configs/doll.toml'), '-o', path.join(out, 'run'), '--view', '127.0.0.1:0',
                  '--serve', '--set', `run.pace_fps=${pace}`, '--set', 'run.orbit_frames=0',
-                 '--set', 'sim.sweep.capture_interval_mm=1', ...sets];
+                 '--set', 'sim.sweep.capture_interval_mm=0.75', ...sets];
 console.log('run: scripts/mpirun.sh ' + runArgs.join(' '));
 const run = spawn('bash', [path.join(repo, 'scripts/mpirun.sh'), ...runArgs], {stdio: ['ignore', 'pipe', 'pipe']});
 let runLog = '', timedLog = '';
