@@ -120,12 +120,17 @@ PY
 # One target: its corpus, then libFuzzer for $secs seconds; the exit status in $out/$t.rc.
 fuzz_one() {
   local t=$1 work=$out/corpus-$1 art=$out/artifacts-$1 rc
-  make_corpus "$t" "$work"
+  rm -f "$out/$t.log"
+  if ! make_corpus "$t" "$work" >"$out/$t.log" 2>&1; then
+    echo "fuzz.sh: making $t's starting inputs failed" >>"$out/$t.log"
+    echo 1 >"$out/$t.rc"
+    return 0
+  fi
   rm -rf "$art"
   mkdir -p "$art"
   set +e
   ASAN_OPTIONS=detect_leaks=1 "$bindir/$t" "${opts[@]}" -artifact_prefix="$art/" -max_total_time="$secs" \
-    -print_final_stats=1 "$work" >"$out/$t.log" 2>&1
+    -print_final_stats=1 "$work" >>"$out/$t.log" 2>&1
   rc=$?
   set -e
   echo "$rc" >"$out/$t.rc"
@@ -155,7 +160,7 @@ for t in "${targets[@]}"; do
   rc=$(cat "$out/$t.rc" 2>/dev/null || echo 1)
   echo "fuzz.sh: $t for ${secs}s from $(ls "$work" 2>/dev/null | wc -l) inputs at the end: $(grep -E "^stat::number_of_executed_runs|^stat::peak_rss_mb|^#[0-9]+ +DONE" "$out/$t.log" | tr '\n' ' ' || true)"
   if [ "$rc" != 0 ]; then
-    tail -n 40 "$out/$t.log" >&2
+    tail -n 40 "$out/$t.log" >&2 || true
     echo "fuzz.sh: $t failed (exit $rc); inputs in $art/, log in $out/$t.log" >&2
     status=1
     continue

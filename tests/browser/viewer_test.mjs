@@ -57,7 +57,7 @@ page.on('pageerror', (e) => failures.push('page error: ' + e.message));
 // ---- the run ------------------------------------------------------------------
 const runArgs = [ranks, bin, 'run', path.join(repo, 'configs/doll.toml'), '-o', path.join(out, 'run'), '--view', '127.0.0.1:0',
                  '--serve', '--set', `run.pace_fps=${pace}`, '--set', 'run.orbit_frames=0',
-                 '--set', 'sim.sweep.capture_interval_mm=0.75', ...sets];
+                 '--set', 'sim.sweep.capture_interval_mm=1', ...sets];
 console.log('run: scripts/mpirun.sh ' + runArgs.join(' '));
 const run = spawn('bash', [path.join(repo, 'scripts/mpirun.sh'), ...runArgs], {stdio: ['ignore', 'pipe', 'pipe']});
 let runLog = '', timedLog = '';
@@ -78,6 +78,7 @@ const url = await urlPromise;
 console.log('viewer: ' + url);
 
 const figures = {};
+let recordingFile = '';  // the page's recording, as the host named it
 const events = [];  // what the test did when (with --measure, beside the latencies)
 const mark = (what) => events.push({what, at: Date.now()});
 try {
@@ -90,6 +91,8 @@ try {
   await page.locator('#record').click();
   check(await until(page, () => window.pp5.stats && window.pp5.stats.recording !== '', null, 10000, 'recording'),
         'the record button starts a recording');
+  // The file this recording writes (earlier runs in the same folder left others).
+  recordingFile = await page.evaluate(() => window.pp5.stats.recording);
   const cov0 = await page.evaluate(() => window.pp5.coverage);
   const t0 = Date.now(), n0 = await page.evaluate(() => window.pp5.images);
   check(await until(page, () => window.pp5.distinct.size >= 20, null, 60000, '20 distinct images'),
@@ -174,6 +177,10 @@ try {
   check(await until(page, (c) => window.pp5.coverage > c, cov0, 20000, 'coverage to rise'),
         `the coverage fraction rises during the sweep (from ${cov0})`);
   check(await until(page, () => window.pp5.bmodes > 0, null, 10000, 'a B-mode frame'), 'the B-mode frame is shown');
+  // The rest steers the final volume the run serves (--serve): no new frame
+  // changes the image meanwhile, so each change below is the control's own.
+  check(await until(page, () => window.pp5.stats.ended, null, 60000, 'the end of the sweep'),
+        'the sweep ends and the final volume is served');
 
 
   // 3. The transfer function, the MIP switch and a slice slider each change what is shown.
@@ -253,7 +260,7 @@ try {
 // The page's recording: a PLUS sequence of the frames sent while it was on.
 try {
   const info = JSON.parse(await new Promise((resolve, reject) => {
-    const p = spawn(bin, ['info', path.join(out, 'run', 'recording-1.mha')]);
+    const p = spawn(bin, ['info', recordingFile]);
     let o = '';
     p.stdout.on('data', (d) => (o += d));
     p.on('exit', (c) => (c === 0 ? resolve(o) : reject(new Error('pp5echo info exit ' + c))));
