@@ -196,10 +196,17 @@ void compareHeldOutFrame(const Volume& v, const CoveredFn& covered, const Frame&
     for (int x = r.x0; x <= r.x1; ++x) {
       const int y = r.y;
       const auto s = sampleCovered(v, covered, o + du * static_cast<double>(x) + dv * static_cast<double>(y));
-      const double value = !s || reading == LeaveOutReading::Trilinear ? s.value_or(0.0) : std::floor(*s + 0.5);
-      if (!s || (reading == LeaveOutReading::PlusGreyLevels && value == 0.0)) {
+      if (!s) {
         ++out.pixelsSkipped;
         continue;
+      }
+      double value = *s;
+      if (reading == LeaveOutReading::PlusGreyLevels) {
+        value = std::floor(value + 0.5);  // the grey level PLUS's volume holds
+        if (value == 0.0) {               // "value != 0 as coverage"
+          ++out.pixelsSkipped;
+          continue;
+        }
       }
       out.add(value - f.value(x, y));
     }
