@@ -160,6 +160,7 @@ public:
     if (!live_ || !live_->serve()) return;
     std::printf("viewer: the final volume stays live at %s until Ctrl-C\n", live_->url().c_str());
     std::fflush(stdout);
+    live_->servingFinal();
     while (!gInterrupted) {
       serve();
       std::this_thread::sleep_for(std::chrono::milliseconds(5));

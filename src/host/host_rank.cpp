@@ -518,6 +518,7 @@ private:
   void serveFinal() {
     std::printf("viewer: the final volume stays live at %s until Ctrl-C\n", live_->url().c_str());
     std::fflush(stdout);
+    live_->servingFinal();
     while (!(j_.interrupt && j_.interrupt->load())) {
       pump();
       heartbeat();

@@ -217,6 +217,7 @@ struct LiveView::Impl {
   std::uint64_t framesAtVolume = 0, frames = 0;
   LiveFigures fig;
   bool ended = false;
+  bool serving = false;  // the final volume, steered by the page
   std::string recording;  // the page's recording: its file, "" = none (guarded by m)
   std::string recordDir;
   int recordings = 0;
@@ -412,7 +413,8 @@ struct LiveView::Impl {
             {"gap_warning", coverage.gapWarning()},
             {"paused", want.paused},
             {"recording", recording},
-            {"ended", ended}};
+            {"ended", ended},
+            {"serving", serving}};
   }
 
   void run() {
@@ -724,6 +726,13 @@ void LiveView::inputEnded() {
   impl_->want.recording = false;
   ++impl_->version;
   impl_->ended = true;
+  impl_->statsDirty = true;
+  impl_->cv.notify_one();
+}
+
+void LiveView::servingFinal() {
+  const std::lock_guard lock(impl_->m);
+  impl_->serving = true;
   impl_->statsDirty = true;
   impl_->cv.notify_one();
 }

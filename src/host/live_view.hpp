@@ -106,6 +106,9 @@ public:
   void volume(const Volume& v);
   void figures(const LiveFigures& f);
   void inputEnded();  // also closes a recording
+  // The run's own work after the input (final passes and images, the orbit)
+  // is done: from now on the page steers the final volume.
+  void servingFinal();
 
   // ---- to the pipeline ----
   LiveWanted wanted() const;

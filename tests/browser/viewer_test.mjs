@@ -179,21 +179,31 @@ try {
   check(await until(page, () => window.pp5.bmodes > 0, null, 10000, 'a B-mode frame'), 'the B-mode frame is shown');
   // The rest steers the final volume the run serves (--serve): no new frame
   // changes the image meanwhile, so each change below is the control's own.
-  check(await until(page, () => window.pp5.stats.ended, null, 60000, 'the end of the sweep'),
+  // (`ended` comes first, when the input ends; `serving` once the run's own
+  // final images, which show other modes, are done.)
+  check(await until(page, () => window.pp5.stats.ended && window.pp5.stats.serving, null, 60000, 'the final volume'),
         'the sweep ends and the final volume is served');
 
 
   // 3. The transfer function, the MIP switch and a slice slider each change what is shown.
-  // An image of a newer epoch whose header says `key` is `value`.
+  // An image of a newer epoch whose header says `key` is `value`, and whose
+  // pixels differ from the image shown when the control was changed. (Not
+  // "never seen before": the run's own final images, before it serves the
+  // volume, include MIP in the same view, which ignores the transfer function.)
   const changes = async (what, key, value, act) => {
     const b = await snap();
+    const shown = await page.evaluate(() => window.pp5.recentImages.at(-1).hash);
     await act();
-    const ok = await until(page, ([e, k, v]) => window.pp5.epoch > e && window.pp5.lastImage[k] === v,
-                           [b.epoch, key, value], 60000, what);
+    const ok = await until(page, ([e, k, v, h]) => window.pp5.recentImages.some(
+                             (i) => i.epoch > e && i[k] === v && i.hash !== h),
+                           [b.epoch, key, value, shown], 60000, what);
     await sleep(300);
     const a = await snap();
     await page.screenshot({path: path.join(out, `after-${what.replace(/\W+/g, '-')}.png`)});
-    check(ok && a.distinct > b.distinct, `${what} changes the image (epoch ${b.epoch} -> ${a.epoch})`);
+    if (!ok)  // what came after the change
+      console.log(`  images after ${what} (${shown} shown before): ` +
+                  JSON.stringify((await page.evaluate(() => window.pp5.recentImages)).filter((i) => i.epoch > b.epoch)));
+    check(ok, `${what} changes the image (epoch ${b.epoch} -> ${a.epoch})`);
   };
   await changes('the transfer function', 'preset', 'strong echoes',
                 () => page.locator('#tf-preset').selectOption('strong echoes'));
@@ -296,9 +306,13 @@ try {
       await p.goto(viewUrl);
       check(await until(p, () => window.pp5.images > 0 && window.pp5.mprs[1] > 0, null, 30000, 'the volume'),
             'pp5echo view shows the volume and its slices');
+      const over = await p.evaluate(() => window.pp5.recentImages.at(-1).hash);
       await p.locator('input[name=composite][value=mip]').check();
-      check(await until(p, () => window.pp5.lastImage && window.pp5.lastImage.composite === 'mip', null, 30000, 'MIP'),
+      check(await until(p, (h) => window.pp5.lastImage && window.pp5.lastImage.composite === 'mip' &&
+                                  window.pp5.recentImages.at(-1).hash !== h, over, 30000, 'MIP'),
             'pp5echo view steers like a run (MIP)');
+      check(await p.evaluate(() => window.pp5.stats && window.pp5.stats.serving),
+            'pp5echo view says the page steers the volume');
     } finally {
       await b.close();
     }

@@ -8,9 +8,10 @@ const $ = (id) => document.getElementById(id);
 
 // What the page has seen, for people (the figures) and for the browser test.
 const pp5 = window.pp5 = {
-  connected: false, images: 0, distinct: new Set(), lastImage: null, epoch: -1,
+  connected: false, images: 0, distinct: new Set() /* hashes of the last 4096 different images */, lastImage: null, epoch: -1,
   latencies: [], latencyParts: [], shownTimes: [], viewResponses: [], errors: [], outlines: 0,
   coverage: 0, coverageHistory: [], state: null, bmodes: 0, mprs: [0, 0, 0], stats: null, reconnects: 0,
+  recentImages: [],  // the last 64 images: {epoch, composite, preset, stride, frame, hash, at}
 };
 
 let ws = null;
@@ -112,7 +113,12 @@ async function onImage(h, payload) {
   await drawJpeg(canvas, payload, h.width, h.height);
   const now = Date.now();
   pp5.images++;
-  pp5.distinct.add(hash(payload));
+  const hashed = hash(payload);
+  pp5.distinct.add(hashed);
+  if (pp5.distinct.size > 4096) pp5.distinct.delete(pp5.distinct.values().next().value);  // bounded: the oldest goes
+  pp5.recentImages.push({epoch: h.epoch, composite: h.composite, preset: h.preset, stride: h.stride || 1,
+                         frame: h.frame, hash: hashed, at: now});
+  if (pp5.recentImages.length > 64) pp5.recentImages.shift();
   pp5.lastImage = h;
   pp5.epoch = h.epoch;
   pp5.shownTimes.push(now);
@@ -182,7 +188,10 @@ function onStats(h) {
   } else {
     w.hidden = true;
   }
-  $('acq-state').textContent = (h.paused ? 'paused' : h.ended ? 'input ended' : 'acquiring') +
+  const phase = h.paused ? 'paused'
+      : h.serving ? 'input ended · steer the final volume'
+      : h.ended ? 'input ended · making the final images' : 'acquiring';
+  $('acq-state').textContent = phase +
       (h.recording ? ' · recording to ' + h.recording.split('/').pop() : '');
   $('acq-state').title = h.recording || '';
   $('pause').textContent = h.paused ? 'resume' : 'pause';
