@@ -151,6 +151,7 @@ public:
 
   void ended() {
     if (!live_) return;
+    lastFigures_ = {};  // every frame counted at once
     live_->inputEnded();
     serve();
   }

@@ -485,30 +485,32 @@ private:
       volumeOutstanding_ = true;
       for (int g = 0; g < L_.gps; ++g) t_.send(L_.gpRank(g), rq);
     }
-    const auto now = Clock::now();
-    if (now - lastFigures_ > std::chrono::milliseconds(250)) {
-      lastFigures_ = now;
-      window_.push_back({now, sent_, images_, gpBusyMs_, ppBusyMs_});
-      while (window_.size() > 9) window_.pop_front();
-      const Sample& first = window_.front();
-      LiveFigures f;
-      const double span = std::chrono::duration<double>(now - first.t).count();
-      if (span > 0) {
-        f.framesPerS = static_cast<double>(sent_ - first.frames) / span;
-        f.imagesPerS = static_cast<double>(images_ - first.images) / span;
-        f.gpLoad = (gpBusyMs_ - first.gpBusyMs) / (1e3 * span * L_.gps);
-        f.ppLoad = (ppBusyMs_ - first.ppBusyMs) / (1e3 * span * L_.pps);
-      }
-      std::vector<double> lat;
-      for (std::size_t i = latencyMs_.size(); i-- > 0 && lat.size() < 90;)
-        if (latencyMs_[i] >= 0.0) lat.push_back(latencyMs_[i]);
-      f.latencyMedianMs = percentile(lat, 0.5);
-      f.latencyP95Ms = percentile(lat, 0.95);
-      f.frames = sent_;
-      f.dropped = dropped_ ? dropped_() : 0;
-      live_->figures(f);
-    }
+    if (Clock::now() - lastFigures_ > std::chrono::milliseconds(250)) publishFigures();
     return w.paused;
+  }
+  // The page's figures (frames in, images out, the ranks' loads, latency).
+  void publishFigures() {
+    const auto now = Clock::now();
+    lastFigures_ = now;
+    window_.push_back({now, sent_, images_, gpBusyMs_, ppBusyMs_});
+    while (window_.size() > 9) window_.pop_front();
+    const Sample& first = window_.front();
+    LiveFigures f;
+    const double span = std::chrono::duration<double>(now - first.t).count();
+    if (span > 0) {
+      f.framesPerS = static_cast<double>(sent_ - first.frames) / span;
+      f.imagesPerS = static_cast<double>(images_ - first.images) / span;
+      f.gpLoad = (gpBusyMs_ - first.gpBusyMs) / (1e3 * span * L_.gps);
+      f.ppLoad = (ppBusyMs_ - first.ppBusyMs) / (1e3 * span * L_.pps);
+    }
+    std::vector<double> lat;
+    for (std::size_t i = latencyMs_.size(); i-- > 0 && lat.size() < 90;)
+      if (latencyMs_[i] >= 0.0) lat.push_back(latencyMs_[i]);
+    f.latencyMedianMs = percentile(lat, 0.5);
+    f.latencyP95Ms = percentile(lat, 0.95);
+    f.frames = sent_;
+    f.dropped = dropped_ ? dropped_() : 0;
+    live_->figures(f);
   }
   std::function<std::uint64_t()> dropped_;
   LiveWanted wanted_;
@@ -645,6 +647,7 @@ int HostRank::run() {
   waitImage(static_cast<std::int64_t>(sent_) - 1);
   const double streamS = std::chrono::duration<double>(Clock::now() - firstSent).count();
   if (live_) {
+    publishFigures();  // every frame counted before the final images, which take a while
     live_->inputEnded();
     waitUntil([&] { return !volumeOutstanding_; }, "the volume for the viewer's slices");
   }
