@@ -5,6 +5,11 @@
 
 #include <chrono>
 #include <cmath>
+#include <mutex>
+#include <thread>
+#include <vector>
+
+#include <nlohmann/json.hpp>
 
 #include "core/error.hpp"
 #include "host/coverage.hpp"
@@ -12,6 +17,7 @@
 #include "host/slices.hpp"
 #include "parallel/parallel_settings.hpp"
 #include "viewer/rate_limit.hpp"
+#include "ws_client.hpp"
 
 namespace {
 
@@ -297,4 +303,93 @@ TEST(ImageRate, JitteredImagesAtTheRateGoAtOnceAndFasterOnesAreHeld) {
   EXPECT_NEAR(waitMs, 100.0, 0.1);
   b.force(t0);  // a new view's image goes anyway, spending nothing it does not have
   EXPECT_TRUE(b.take(at(100)));
+}
+
+namespace {
+
+// The headers of the images a WebSocket client gets from a LiveView, read on
+// a thread of their own.
+struct ImageWatcher {
+  test::Client c;
+  std::mutex m;
+  std::vector<nlohmann::json> images;
+  std::thread reader;
+  explicit ImageWatcher(const std::string& url) {
+    c.connect(std::stoi(url.substr(url.rfind(':') + 1)), "");
+    reader = std::thread([this] {
+      try {
+        for (;;) {
+          const std::string msg = c.read();
+          std::uint32_t n = 0;
+          for (int i = 0; i < 4; ++i) n |= static_cast<std::uint32_t>(static_cast<std::uint8_t>(msg[i])) << (8 * i);
+          nlohmann::json h = nlohmann::json::parse(msg.substr(4, n));
+          if (h["type"] == "image") {
+            const std::lock_guard lock(m);
+            images.push_back(std::move(h));
+          }
+        }
+      } catch (...) {  // closed
+      }
+    });
+  }
+  ~ImageWatcher() {
+    boost::system::error_code ec;
+    c.ws.next_layer().shutdown(boost::asio::ip::tcp::socket::shutdown_both, ec);
+    reader.join();
+  }
+  std::vector<nlohmann::json> got() {
+    const std::lock_guard lock(m);
+    return images;
+  }
+  bool waitForImages(std::size_t n) {
+    for (int i = 0; i < 500; ++i) {
+      if (got().size() >= n) return true;
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
+    return false;
+  }
+};
+
+}  // namespace
+
+// In a drag, once the page has asked for a newer view, the images of new
+// frames in the view it left are not sent (they would take the CPU from
+// making the views it asked for); the new view's first image goes at once;
+// and should the pipeline never make the asked view, frames' images go again
+// after a while.
+TEST(LiveImages, AViewThePageLeftGetsNoImagesOfNewFrames) {
+  Viewer v;
+  ImageWatcher w(v.live->url());
+  for (int i = 0; i < 500 && !v.live->watched(); ++i) std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  ASSERT_TRUE(v.live->watched());
+  const std::vector<float> rgba(64 * 64 * 4, 0.5f);
+  v.live->epochStarted(1, v.initial);
+  v.live->image(rgba, 64, 64, 1, 0);
+  ASSERT_TRUE(w.waitForImages(1));
+  EXPECT_EQ(w.got().back()["epoch"], 1);
+
+  // The page drags; the pipeline hands over a new frame's image in the old view.
+  ASSERT_EQ(v.live->control(R"({"type": "view", "seq": 1, "azimuth": 10, "elevation": 5, "distance": 2.5,
+                                "pan": [0, 0], "interactive": true})"),
+            "");
+  v.live->image(rgba, 64, 64, 1, 1);
+  std::this_thread::sleep_for(std::chrono::milliseconds(120));
+  EXPECT_EQ(w.got().size(), 1u) << "an image of frame 1 in the view the page left";
+  // The asked view: its first image goes at once.
+  v.live->epochStarted(2, v.live->wanted().state);
+  v.live->image(rgba, 64, 64, 2, 1);
+  ASSERT_TRUE(w.waitForImages(2));
+  EXPECT_EQ(w.got().back()["epoch"], 2);
+  EXPECT_EQ(w.got().back()["view_seq"], 1);
+
+  // The page asks again, and the pipeline does not make that view: new
+  // frames' images in the old one go once the page has been still a while.
+  ASSERT_EQ(v.live->control(R"({"type": "view", "seq": 2, "azimuth": 20, "elevation": 5, "distance": 2.5,
+                                "pan": [0, 0], "interactive": true})"),
+            "");
+  const auto asked = std::chrono::steady_clock::now();
+  v.live->image(rgba, 64, 64, 2, 2);
+  ASSERT_TRUE(w.waitForImages(3));
+  EXPECT_EQ(w.got().back()["frame"], 2);
+  EXPECT_GE(std::chrono::steady_clock::now() - asked, std::chrono::milliseconds(200));
 }

@@ -13,20 +13,12 @@
 #include <string>
 #include <thread>
 
-// Boost 1.74's asio uses std::exchange without including <utility> (C++20, GCC 12).
-#include <utility>
-
-#include <boost/asio.hpp>
-#include <boost/beast/core.hpp>
-#include <boost/beast/http.hpp>
-#include <boost/beast/websocket.hpp>
-#include <sys/socket.h>
-#include <sys/time.h>
 #include <unistd.h>
 
 #include "core/error.hpp"
 #include "viewer/jpeg.hpp"
 #include "viewer/viewer_server.hpp"
+#include "ws_client.hpp"
 
 namespace {
 
@@ -34,8 +26,8 @@ namespace fs = std::filesystem;
 namespace net = boost::asio;
 namespace beast = boost::beast;
 namespace http = beast::http;
-namespace websocket = beast::websocket;
 using tcp = net::ip::tcp;
+using pp5::test::Client;
 using pp5::viewer::Server;
 using pp5::viewer::ServerOptions;
 
@@ -68,28 +60,6 @@ std::pair<int, std::string> get(int port, const std::string& target) {
   http::read(stream, buffer, res);
   return {static_cast<int>(res.result_int()), res.body()};
 }
-
-struct Client {
-  net::io_context ioc;
-  websocket::stream<tcp::socket> ws{ioc};
-  // Connects and upgrades; `origin` empty: none sent (not a browser).
-  void connect(int port, const std::string& origin, const std::string& target = "/ws") {
-    tcp::resolver resolver(ioc);
-    net::connect(ws.next_layer(), resolver.resolve("127.0.0.1", std::to_string(port)));
-    ws.set_option(websocket::stream_base::decorator([origin](websocket::request_type& r) {
-      if (!origin.empty()) r.set(http::field::origin, origin);
-    }));
-    ws.handshake("127.0.0.1:" + std::to_string(port), target);
-    // A read that waits too long fails instead of hanging the test.
-    timeval tv{10, 0};
-    ::setsockopt(ws.next_layer().native_handle(), SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof tv);
-  }
-  std::string read() {
-    beast::flat_buffer b;
-    ws.read(b);
-    return beast::buffers_to_string(b.data());
-  }
-};
 
 bool waitFor(const std::function<bool()>& f) {
   for (int i = 0; i < 500 && !f(); ++i) std::this_thread::sleep_for(std::chrono::milliseconds(10));

@@ -119,6 +119,10 @@ struct Preset {
   double level, window, opacity;
 };
 // Ramps over the grey levels of B-mode echoes; "run" is the run's own transfer function.
+// How long after the page's last change a view it left gets no images of
+// new frames (see the encoder's loop): longer than a drag's moves are apart.
+constexpr std::chrono::milliseconds kLeftViewHold{250};
+
 constexpr Preset kPresets[] = {{"soft tissue", 70.0, 90.0, 0.35}, {"strong echoes", 150.0, 80.0, 0.9},
                                {"all echoes", 40.0, 60.0, 0.15}};
 
@@ -174,6 +178,7 @@ struct LiveView::Impl {
   std::uint64_t wantSeq = 0;  // the newest view message's seq
   bool wantInteractive = false;
   bool pageChange = false;  // the page changed `want` and the pipeline has not caught up
+  Clock::time_point pageChangeAt{};  // when it last did
   std::atomic<std::uint64_t> version{1};  // bumped with every change of `want`
   std::string preset = "run";
   double tfLevel = 128, tfWindow = 128, tfOpacity = 1;
@@ -358,7 +363,10 @@ struct LiveView::Impl {
     } catch (const InputError& e) {
       return fmt::format("{}: {}", type, e.what());
     }
-    if (parallel::controlChanges(want.state, next.state)) pageChange = true;
+    if (parallel::controlChanges(want.state, next.state)) {
+      pageChange = true;
+      pageChangeAt = Clock::now();
+    }
     want = next;
     ++version;
     statsDirty = true;
@@ -434,9 +442,19 @@ struct LiveView::Impl {
     Coverage sliceCoverage = coverage;
     while (!quit) {
       // Wake for work; the first image of a new view (a drag's answer) goes
-      // out at once, whatever the rate.
+      // out at once, whatever the rate. A view the page has already left (it
+      // asked for a newer one that the pipeline has not made yet) gets no
+      // more images: in a drag they would take the CPU (the JPEG here, the
+      // decoding in the browser) from making the views asked for. Only for
+      // a while after the page's change, should the pipeline never match it.
+      const Clock::time_point now = Clock::now();
+      const Clock::duration leftFor =
+          pageChange ? pageChangeAt + kLeftViewHold - now : Clock::duration::zero();
       const bool newView = imagePending && imageEpoch != lastEpoch;
-      const Clock::duration untilImage = imagePending ? rate.wait(Clock::now()) : std::chrono::milliseconds(100);
+      const bool left = imagePending && !newView && leftFor > Clock::duration::zero();
+      const Clock::duration untilImage = !imagePending ? std::chrono::milliseconds(100)
+                                         : left        ? leftFor
+                                                       : rate.wait(now);
       if (!newView && sliceAxis == 3 && untilImage > Clock::duration::zero())
         cv.wait_for(lock, std::min<Clock::duration>(untilImage, std::chrono::milliseconds(100)));
       if (quit) break;
@@ -463,11 +481,12 @@ struct LiveView::Impl {
         statsDirty = true;
       }
       bool sendImage = false;
+      const Clock::time_point at = Clock::now();
       if (imagePending && imageEpoch != lastEpoch) {
-        rate.force(Clock::now());
+        rate.force(at);
         sendImage = true;
-      } else if (imagePending) {
-        sendImage = rate.take(Clock::now());
+      } else if (imagePending && !(pageChange && at < pageChangeAt + kLeftViewHold)) {
+        sendImage = rate.take(at);
       }
       if (sendImage) {
         imagePending = false;
@@ -565,10 +584,10 @@ struct LiveView::Impl {
         lastSlices[a] = msg;
         server->publish(kSlice0 + a, std::move(msg));
       }
-      const auto now = Clock::now();
-      if (statsDirty || now - lastStats > std::chrono::milliseconds(500)) {
+      const auto statsAt = Clock::now();
+      if (statsDirty || statsAt - lastStats > std::chrono::milliseconds(500)) {
         statsDirty = false;
-        lastStats = now;
+        lastStats = statsAt;
         server->publish(kStats, pack(statsJson()));
         server->publish(kState, pack(stateJson()));
       }
