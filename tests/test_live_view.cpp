@@ -352,17 +352,17 @@ struct ImageWatcher {
 
 }  // namespace
 
-// In a drag, once the page has asked for a newer view, the images of new
-// frames in the view it left are not sent (they would take the CPU from
-// making the views it asked for); the new view's first image goes at once;
-// and should the pipeline never make the asked view, frames' images go again
-// after a while.
-TEST(LiveImages, AViewThePageLeftGetsNoImagesOfNewFrames) {
+// In a drag, once the page has asked for a newer view, images of new frames
+// in the view it left are held (they would take the CPU from making the views
+// it asked for), though never more than 100 ms after the last image, so that
+// a slow pipeline's frames still show; the new view's first image goes at once.
+TEST(LiveImages, AViewThePageLeftGetsFewerImagesOfNewFrames) {
   Viewer v;
   ImageWatcher w(v.live->url());
   for (int i = 0; i < 500 && !v.live->watched(); ++i) std::this_thread::sleep_for(std::chrono::milliseconds(10));
   ASSERT_TRUE(v.live->watched());
   const std::vector<float> rgba(64 * 64 * 4, 0.5f);
+  const auto sentMs = [&](std::size_t i) { return w.got().at(i)["sent_ms"].get<std::int64_t>(); };
   v.live->epochStarted(1, v.initial);
   v.live->image(rgba, 64, 64, 1, 0);
   ASSERT_TRUE(w.waitForImages(1));
@@ -373,23 +373,19 @@ TEST(LiveImages, AViewThePageLeftGetsNoImagesOfNewFrames) {
                                 "pan": [0, 0], "interactive": true})"),
             "");
   v.live->image(rgba, 64, 64, 1, 1);
-  std::this_thread::sleep_for(std::chrono::milliseconds(120));
-  EXPECT_EQ(w.got().size(), 1u) << "an image of frame 1 in the view the page left";
+  ASSERT_TRUE(w.waitForImages(2));
+  EXPECT_EQ(w.got().back()["frame"], 1);
+  EXPECT_GE(sentMs(1) - sentMs(0), 95) << "frame 1's image in the view the page left went at once";
   // The asked view: its first image goes at once.
   v.live->epochStarted(2, v.live->wanted().state);
   v.live->image(rgba, 64, 64, 2, 1);
-  ASSERT_TRUE(w.waitForImages(2));
+  ASSERT_TRUE(w.waitForImages(3));
   EXPECT_EQ(w.got().back()["epoch"], 2);
   EXPECT_EQ(w.got().back()["view_seq"], 1);
-
-  // The page asks again, and the pipeline does not make that view: new
-  // frames' images in the old one go once the page has been still a while.
-  ASSERT_EQ(v.live->control(R"({"type": "view", "seq": 2, "azimuth": 20, "elevation": 5, "distance": 2.5,
-                                "pan": [0, 0], "interactive": true})"),
-            "");
-  const auto asked = std::chrono::steady_clock::now();
+  // The page is where the pipeline is: a new frame's image goes too. (How
+  // soon is the rate's matter, ImageRate; no upper bound on time here, where
+  // a busy machine may stall any thread.)
   v.live->image(rgba, 64, 64, 2, 2);
-  ASSERT_TRUE(w.waitForImages(3));
+  ASSERT_TRUE(w.waitForImages(4));
   EXPECT_EQ(w.got().back()["frame"], 2);
-  EXPECT_GE(std::chrono::steady_clock::now() - asked, std::chrono::milliseconds(200));
 }

@@ -118,11 +118,13 @@ struct Preset {
   const char* name;
   double level, window, opacity;
 };
-// Ramps over the grey levels of B-mode echoes; "run" is the run's own transfer function.
-// How long after the page's last change a view it left gets no images of
-// new frames (see the encoder's loop): longer than a drag's moves are apart.
+// A view the page has left gets no images of new frames (see the encoder's
+// loop) for this long after the page's last change (longer than a drag's
+// moves are apart), and for no longer than this after the last image sent.
 constexpr std::chrono::milliseconds kLeftViewHold{250};
+constexpr std::chrono::milliseconds kLeftViewGap{100};
 
+// Ramps over the grey levels of B-mode echoes; "run" is the run's own transfer function.
 constexpr Preset kPresets[] = {{"soft tissue", 70.0, 90.0, 0.35}, {"strong echoes", 150.0, 80.0, 0.9},
                                {"all echoes", 40.0, 60.0, 0.15}};
 
@@ -432,6 +434,7 @@ struct LiveView::Impl {
     Clock::time_point lastStats{};
     viewer::RateLimit rate(s.imageHz, 2, Clock::now());  // a burst of 2 passes: see rate_limit.hpp
     std::uint32_t lastEpoch = UINT32_MAX;  // of the last image encoded
+    Clock::time_point lastSentAt{};  // when it went
     // The slices being made (axis 3: none), from a copy of the volume.
     int sliceAxis = 3;
     Volume sliceVolume;
@@ -443,13 +446,16 @@ struct LiveView::Impl {
     while (!quit) {
       // Wake for work; the first image of a new view (a drag's answer) goes
       // out at once, whatever the rate. A view the page has already left (it
-      // asked for a newer one that the pipeline has not made yet) gets no
-      // more images: in a drag they would take the CPU (the JPEG here, the
-      // decoding in the browser) from making the views asked for. Only for
-      // a while after the page's change, should the pipeline never match it.
+      // asked for a newer one that the pipeline has not made yet) gets fewer
+      // images of new frames: in a drag they take the CPU (the JPEG here, the
+      // decoding in the browser) from making the views asked for. Held only
+      // a while after the page's change (should the pipeline never match it)
+      // and after the last image (a slow pipeline's frames still show).
+      const auto heldUntil = [&] {
+        return pageChange ? std::min(pageChangeAt + kLeftViewHold, lastSentAt + kLeftViewGap) : Clock::time_point{};
+      };
       const Clock::time_point now = Clock::now();
-      const Clock::duration leftFor =
-          pageChange ? pageChangeAt + kLeftViewHold - now : Clock::duration::zero();
+      const Clock::duration leftFor = heldUntil() - now;
       const bool newView = imagePending && imageEpoch != lastEpoch;
       const bool left = imagePending && !newView && leftFor > Clock::duration::zero();
       const Clock::duration untilImage = !imagePending ? std::chrono::milliseconds(100)
@@ -485,12 +491,13 @@ struct LiveView::Impl {
       if (imagePending && imageEpoch != lastEpoch) {
         rate.force(at);
         sendImage = true;
-      } else if (imagePending && !(pageChange && at < pageChangeAt + kLeftViewHold)) {
+      } else if (imagePending && at >= heldUntil()) {
         sendImage = rate.take(at);
       }
       if (sendImage) {
         imagePending = false;
         lastEpoch = imageEpoch;
+        lastSentAt = at;
         pp::TileImage im{imageW, imageH, std::move(pendingImage)};
         json h = {{"type", "image"}, {"epoch", imageEpoch}, {"frame", imageFrame}, {"width", imageW}, {"height", imageH},
                   {"assembled_ms", imageAssembledMs}};
