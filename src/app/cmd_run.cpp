@@ -159,9 +159,9 @@ public:
   // After the input: the page steers the final volume until Ctrl-C.
   void serveFinal() {
     if (!live_ || !live_->serve()) return;
+    live_->servingFinal();
     std::printf("viewer: the final volume stays live at %s until Ctrl-C\n", live_->url().c_str());
     std::fflush(stdout);
-    live_->servingFinal();
     while (!gInterrupted) {
       serve();
       std::this_thread::sleep_for(std::chrono::milliseconds(5));

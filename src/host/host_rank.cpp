@@ -518,9 +518,9 @@ private:
 
   // After the input: the page steers the final volume until Ctrl-C.
   void serveFinal() {
+    live_->servingFinal();
     std::printf("viewer: the final volume stays live at %s until Ctrl-C\n", live_->url().c_str());
     std::fflush(stdout);
-    live_->servingFinal();
     while (!(j_.interrupt && j_.interrupt->load())) {
       pump();
       heartbeat();

@@ -128,6 +128,11 @@ constexpr std::chrono::milliseconds kLeftViewGap{100};
 constexpr Preset kPresets[] = {{"soft tissue", 70.0, 90.0, 0.35}, {"strong echoes", 150.0, 80.0, 0.9},
                                {"all echoes", 40.0, 60.0, 0.15}};
 
+std::vector<double> opacityOf(const comm::ControlState& c) {
+  const int n = std::clamp(c.opacityPoints, 0, comm::ControlState::kMaxPoints);
+  return {&c.opacity[0][0], &c.opacity[0][0] + 2 * n};
+}
+
 // The range check every number in a control message passes.
 double number(const json& m, const char* key, double lo, double hi) {
   const auto it = m.find(key);
@@ -198,6 +203,7 @@ struct LiveView::Impl {
     bool interactive;
     int stride;                     // the lattice's pixel stride
     std::string composite, preset;  // what the page may wait for
+    std::vector<double> opacity;    // the epoch's opacity points, flat (which preset it shows)
   };
   std::deque<EpochView> epochs;
 
@@ -623,7 +629,7 @@ LiveView::LiveView(const ViewSettings& settings, const Grid& grid, const RenderS
     I.tfOpacity = t.opacity.back().y;
   }
   I.epochs.push_back({0, parallel::controlCamera(initial, base, grid), 0, false, 1,
-                      std::string(enumName(parallel::liveMode(initial))), I.preset});
+                      std::string(enumName(parallel::liveMode(initial))), I.preset, opacityOf(initial)});
   I.server->onMessage([&I](const std::string& m) { return I.control(m); });
   I.encoder = std::thread([&I] { I.run(); });
 }
@@ -695,9 +701,22 @@ void LiveView::epochStarted(std::uint32_t epoch, const comm::ControlState& state
     I.want.state = state;
     ++I.version;
   }
+  // The preset it shows: the page's newest, unless the run made this epoch
+  // with another opacity (the page's choice not yet applied): then that of
+  // the last epoch with this one's, or the run's own.
+  std::vector<double> opacity = opacityOf(state);
+  std::string preset = I.preset;
+  if (opacity != opacityOf(I.want.state)) {
+    preset = "run";
+    for (auto e = I.epochs.rbegin(); e != I.epochs.rend(); ++e)
+      if (e->opacity == opacity) {
+        preset = e->preset;
+        break;
+      }
+  }
   I.epochs.push_back({epoch, parallel::controlCamera(state, I.base, I.grid), seq, interactive,
                       std::max(1, static_cast<int>(state.pixelStride)), std::string(enumName(parallel::liveMode(state))),
-                      I.preset});
+                      std::move(preset), std::move(opacity)});
   while (I.epochs.size() > 8) I.epochs.pop_front();
 }
 
@@ -743,6 +762,7 @@ void LiveView::volume(const Volume& v) {
 void LiveView::figures(const LiveFigures& f) {
   const std::lock_guard lock(impl_->m);
   impl_->fig = f;
+  impl_->statsDirty = true;  // sent with the encoder's next pass
 }
 
 void LiveView::inputEnded() {

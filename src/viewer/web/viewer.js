@@ -8,7 +8,7 @@ const $ = (id) => document.getElementById(id);
 
 // What the page has seen, for people (the figures) and for the browser test.
 const pp5 = window.pp5 = {
-  connected: false, images: 0, distinct: new Set() /* hashes of the last 4096 different images */, lastImage: null, epoch: -1,
+  connected: false, images: 0, distinct: new Set() /* hashes of different images, at most 4096: the first seen goes first */, lastImage: null, epoch: -1,
   latencies: [], latencyParts: [], shownTimes: [], viewResponses: [], errors: [], outlines: 0,
   coverage: 0, coverageHistory: [], state: null, bmodes: 0, mprs: [0, 0, 0], stats: null, reconnects: 0,
   recentImages: [],  // the last 64 images: {epoch, composite, preset, stride, frame, hash, at}
