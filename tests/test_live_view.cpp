@@ -314,8 +314,12 @@ struct ImageWatcher {
   std::mutex m;
   std::vector<nlohmann::json> images;
   std::thread reader;
-  explicit ImageWatcher(const std::string& url) {
+  bool watched = false;  // the viewer counts this client
+  explicit ImageWatcher(const LiveView& live) {
+    const std::string url = live.url();
     c.connect(std::stoi(url.substr(url.rfind(':') + 1)), "");
+    for (int i = 0; i < 500 && !live.watched(); ++i) std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    watched = live.watched();
     reader = std::thread([this] {
       try {
         for (;;) {
@@ -358,9 +362,8 @@ struct ImageWatcher {
 // a slow pipeline's frames still show; the new view's first image goes at once.
 TEST(LiveImages, AViewThePageLeftGetsFewerImagesOfNewFrames) {
   Viewer v;
-  ImageWatcher w(v.live->url());
-  for (int i = 0; i < 500 && !v.live->watched(); ++i) std::this_thread::sleep_for(std::chrono::milliseconds(10));
-  ASSERT_TRUE(v.live->watched());
+  ImageWatcher w(*v.live);
+  ASSERT_TRUE(w.watched);
   const std::vector<float> rgba(64 * 64 * 4, 0.5f);
   const auto sentMs = [&](std::size_t i) { return w.got().at(i)["sent_ms"].get<std::int64_t>(); };
   v.live->epochStarted(1, v.initial);
@@ -395,9 +398,8 @@ TEST(LiveImages, AViewThePageLeftGetsFewerImagesOfNewFrames) {
 // with the page's.
 TEST(LiveImages, AnEpochIsLabelledWithThePresetItShows) {
   Viewer v;
-  ImageWatcher w(v.live->url());
-  for (int i = 0; i < 500 && !v.live->watched(); ++i) std::this_thread::sleep_for(std::chrono::milliseconds(10));
-  ASSERT_TRUE(v.live->watched());
+  ImageWatcher w(*v.live);
+  ASSERT_TRUE(w.watched);
   const std::vector<float> rgba(64 * 64 * 4, 0.5f);
   ASSERT_EQ(v.live->control(R"({"type": "tf", "preset": "strong echoes"})"), "");
   comm::ControlState orbit = v.initial;  // the run's own view change, its opacity the run's
