@@ -460,13 +460,11 @@ struct LiveView::Impl {
       const auto heldUntil = [&] {
         return pageChange ? std::min(pageChangeAt + kLeftViewHold, lastSentAt + kLeftViewGap) : Clock::time_point{};
       };
-      const Clock::time_point now = Clock::now();
-      const Clock::duration leftFor = heldUntil() - now;
+      const Clock::time_point now = Clock::now(), held = heldUntil();
       const bool newView = imagePending && imageEpoch != lastEpoch;
-      const bool left = imagePending && !newView && leftFor > Clock::duration::zero();
-      const Clock::duration untilImage = !imagePending ? std::chrono::milliseconds(100)
-                                         : left        ? leftFor
-                                                       : rate.wait(now);
+      const Clock::duration untilImage = !imagePending          ? std::chrono::milliseconds(100)
+                                         : !newView && held > now ? held - now
+                                                                  : rate.wait(now);
       if (!newView && sliceAxis == 3 && untilImage > Clock::duration::zero())
         cv.wait_for(lock, std::min<Clock::duration>(untilImage, std::chrono::milliseconds(100)));
       if (quit) break;

@@ -184,7 +184,6 @@ try {
   check(await until(page, () => window.pp5.stats.ended && window.pp5.stats.serving, null, 60000, 'the final volume'),
         'the sweep ends and the final volume is served');
 
-
   // 3. The transfer function, the MIP switch and a slice slider each change what is shown.
   // An image of a newer epoch whose header says `key` is `value`, and whose
   // pixels differ from the image shown when the control was changed. (Not
