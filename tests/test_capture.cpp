@@ -2,7 +2,8 @@
 // a frame is taken once some image corner has moved the interval from the
 // last frame taken, in translation and in rotation, and the Acquisition
 // thread leaves the others out and counts them. Also the recorder that
-// writes a live source's frames (host/recorder.hpp).
+// writes a live source's frames, and the viewer's on a thread of its own
+// (host/recorder.hpp).
 #include <gtest/gtest.h>
 
 #include <glm/gtc/matrix_transform.hpp>
@@ -154,6 +155,71 @@ TEST(Recorder, AFailedWriteKeepsTheJournal) {
     f.allocate(9, 6, PixelType::U8);
     EXPECT_THROW(rec.write(f), InputError);
     rec.close();
+  }
+  EXPECT_FALSE(fs::exists(seq));
+  ASSERT_TRUE(fs::exists(seq + ".journal"));
+  EXPECT_EQ(readAllFrames(seq + ".journal").size(), 1u);
+  fs::remove_all(dir);
+}
+
+// The viewer's recordings on their own thread: every frame, in order, with
+// its ImageToReference, in the file asked for when it came; a recording
+// stopped and another started goes on in a new file; finish() returns with
+// the files complete.
+TEST(RecorderThread, WritesEveryFrameInOrderInTheFileAskedFor) {
+  namespace fs = std::filesystem;
+  const fs::path dir = fs::temp_directory_path() / ("pp5rect-" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  const std::string a = (dir / "a.mha").string(), b = (dir / "b.mha").string();
+  {
+    host::RecorderThread rec;
+    Frame f;
+    f.allocate(64, 48, PixelType::U8);
+    for (int i = 0; i < 40; ++i) {
+      rec.record(i < 5 ? "" : i < 25 ? a : i < 30 ? "" : b);  // none, a, none, b
+      f.index = static_cast<std::uint64_t>(i);
+      f.pixels.assign(f.pixels.size(), static_cast<std::uint8_t>(i));
+      rec.writePlaced(f, slid(0.5 * i), 0.1 * i);
+    }
+    rec.finish();
+    EXPECT_EQ(rec.path(), "");
+    const auto fa = readAllFrames(a), fb = readAllFrames(b);
+    ASSERT_EQ(fa.size(), 20u);
+    ASSERT_EQ(fb.size(), 10u);
+    for (std::size_t k = 0; k < fa.size(); ++k) {
+      EXPECT_EQ(static_cast<std::size_t>(fa[k].pixels[0]), 5 + k);
+      EXPECT_DOUBLE_EQ(fa[k].timestamp, 0.1 * static_cast<double>(5 + k));
+      const FrameTransform* t = fa[k].findTransform("ImageToReference");
+      ASSERT_NE(t, nullptr);
+      EXPECT_NEAR(t->matrix[3][2], 0.5 * static_cast<double>(5 + k), 1e-9);
+    }
+    EXPECT_EQ(fb.front().pixels[0], 30);
+    EXPECT_EQ(fb.back().pixels[0], 39);
+  }
+  EXPECT_FALSE(fs::exists(a + ".journal"));  // complete: the journals discarded
+  EXPECT_FALSE(fs::exists(b + ".journal"));
+  fs::remove_all(dir);
+}
+
+// A frame the recording cannot take fails it on the writing thread; the
+// caller hears it at its next call, and the journal keeps the frames before.
+TEST(RecorderThread, AFailureReachesTheCaller) {
+  namespace fs = std::filesystem;
+  const fs::path dir = fs::temp_directory_path() / ("pp5recf-" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  const std::string seq = (dir / "rec.mha").string();
+  {
+    host::RecorderThread rec;
+    rec.record(seq);
+    Frame f;
+    f.allocate(8, 6, PixelType::U8);
+    rec.writePlaced(f, slid(0.0), 0.0);
+    f.allocate(9, 6, PixelType::U8);  // another size: the sequence refuses it
+    rec.writePlaced(f, slid(1.0), 0.1);
+    EXPECT_THROW(rec.finish(), InputError);
+    EXPECT_NO_THROW(rec.finish());  // said once
   }
   EXPECT_FALSE(fs::exists(seq));
   ASSERT_TRUE(fs::exists(seq + ".journal"));

@@ -234,9 +234,10 @@ struct LiveView::Impl {
   std::string recording;  // the page's recording: its file, "" = none (guarded by m)
   std::string recordDir;
   int recordings = 0;
-  // The open recording; the caller's thread only (frame(), inputEnded()).
-  std::unique_ptr<Recorder> recorder;
-  std::string recorderPath;
+  // The page's recording, written on its own thread so that the host's loop
+  // never waits for the disk; asked for on the caller's thread only (frame(),
+  // inputEnded()).
+  RecorderThread recorder;
   bool statsDirty = true;
 
   std::thread encoder;
@@ -655,15 +656,8 @@ void LiveView::frame(const Frame& f, const Mat4& pose, std::uint64_t k, double t
     const std::lock_guard lock(I.m);
     recording = I.recording;
   }
-  if (recording != I.recorderPath) {  // the page started or stopped a recording
-    I.recorder.reset();
-    if (!recording.empty()) {
-      I.recorder = std::make_unique<Recorder>(recording);
-      spdlog::info("viewer: recording the frames that go into the pipeline to {}", recording);
-    }
-    I.recorderPath = recording;
-  }
-  if (I.recorder) I.recorder->writePlaced(f, pose, timeS);
+  I.recorder.record(recording);  // the page started or stopped a recording, or neither
+  I.recorder.writePlaced(f, pose, timeS);
   const std::lock_guard lock(I.m);
   I.coverage.add(pose, f.width, f.height);
   I.lastCorners = frameCorners(pose, f.width, f.height);
@@ -764,7 +758,12 @@ void LiveView::figures(const LiveFigures& f) {
 }
 
 void LiveView::inputEnded() {
-  impl_->recorder.reset();
+  try {
+    impl_->recorder.finish();  // the recording complete on disk before the run goes on
+  } catch (const std::exception& e) {
+    // As a recording's close always was: said, and the frames left in its journal.
+    spdlog::error("viewer: the page's recording: {}", e.what());
+  }
   const std::lock_guard lock(impl_->m);
   impl_->recording.clear();
   impl_->want.recording = false;

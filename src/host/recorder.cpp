@@ -64,6 +64,102 @@ void Recorder::close() {
   spdlog::info("run.record: {} frames written to {}", frames_, path_);
 }
 
+RecorderThread::RecorderThread() : thread_([this] { run(); }) {}
+
+RecorderThread::~RecorderThread() {
+  try {
+    finish();
+  } catch (const std::exception& e) {
+    spdlog::error("viewer: recording {}: {}", path_, e.what());
+  }
+  {
+    const std::lock_guard lock(m_);
+    quit_ = true;
+  }
+  cv_.notify_one();
+  thread_.join();
+}
+
+void RecorderThread::rethrow() {
+  std::exception_ptr e;
+  {
+    const std::lock_guard lock(m_);
+    std::swap(e, error_);
+  }
+  if (e) std::rethrow_exception(e);
+}
+
+void RecorderThread::push(Job&& j) {
+  rethrow();
+  {
+    const std::lock_guard lock(m_);
+    jobs_.push_back(std::move(j));
+  }
+  cv_.notify_one();
+}
+
+void RecorderThread::record(const std::string& path) {
+  if (path == path_) return rethrow();
+  path_ = path;
+  Job j;
+  j.isOpen = true;
+  j.open = path;
+  push(std::move(j));
+}
+
+void RecorderThread::writePlaced(const Frame& f, const Mat4& imageToReference, double timeS) {
+  if (path_.empty()) return rethrow();
+  Job j;
+  j.frame = f;
+  j.pose = imageToReference;
+  j.timeS = timeS;
+  push(std::move(j));
+}
+
+void RecorderThread::finish() {
+  record("");
+  std::unique_lock lock(m_);
+  idle_.wait(lock, [&] { return jobs_.empty() && !busy_; });
+  lock.unlock();
+  rethrow();
+}
+
+void RecorderThread::run() {
+  std::unique_ptr<Recorder> rec;
+  std::unique_lock lock(m_);
+  for (;;) {
+    cv_.wait(lock, [&] { return quit_ || !jobs_.empty(); });
+    if (jobs_.empty()) return;  // quit, with nothing left to write
+    Job j = std::move(jobs_.front());
+    jobs_.pop_front();
+    busy_ = true;
+    lock.unlock();
+    try {
+      if (j.isOpen) {
+        std::unique_ptr<Recorder> old = std::move(rec);
+        if (old) old->close();
+        if (!j.open.empty()) {
+          rec = std::make_unique<Recorder>(j.open);
+          spdlog::info("viewer: recording the frames that go into the pipeline to {}", j.open);
+        }
+      } else if (rec) {
+        rec->writePlaced(j.frame, j.pose, j.timeS);
+      }
+    } catch (...) {
+      // The recording is abandoned (its journal keeps what it had); the
+      // frames queued for it are dropped with it, and the caller hears why.
+      rec.reset();
+      lock.lock();
+      error_ = std::current_exception();
+      while (!jobs_.empty() && !jobs_.front().isOpen) jobs_.pop_front();
+      lock.unlock();
+    }
+    lock.lock();
+    busy_ = false;
+    if (jobs_.empty()) idle_.notify_all();
+  }
+}
+
 std::optional<Mat4> Placer::place(const Frame& f) {
   auto pose = f.imageValid ? imageToReference(cfg, f) : std::nullopt;
   if (pose && !isFinite(*pose)) pose.reset();

@@ -2,10 +2,15 @@
 // What the sources share: writing every frame to a PLUS sequence as it
 // arrives, and placing a live frame through a device set's chain.
 #include <atomic>
+#include <condition_variable>
 #include <cstdint>
+#include <deque>
+#include <exception>
 #include <memory>
+#include <mutex>
 #include <optional>
 #include <string>
+#include <thread>
 
 #include "core/frame.hpp"
 #include "core/plus_config.hpp"
@@ -38,6 +43,46 @@ private:
   std::unique_ptr<SequenceWriter> w_;
   std::uint64_t frames_ = 0;
   bool failed_ = false;  // a frame could not be written to the sequence
+};
+
+// Recordings written on a thread of their own, for a caller whose thread
+// must not wait for the disk (the host's loop, recording what the viewer's
+// page asks for): compressing each frame, the journal's periodic sync and the
+// file's close happen there. Frames queue until written, without bound, so
+// nothing recorded is lost. A failure is rethrown on the caller's thread at
+// its next call (and by finish()); what was recorded stays in the journal.
+class RecorderThread {
+public:
+  RecorderThread();
+  ~RecorderThread();  // finishes, logging a failure
+  RecorderThread(const RecorderThread&) = delete;
+  RecorderThread& operator=(const RecorderThread&) = delete;
+  // Closes the recording open (if any) and opens `path` ("" = none).
+  void record(const std::string& path);
+  // Recorder::writePlaced, once the frames before it are written.
+  void writePlaced(const Frame& f, const Mat4& imageToReference, double timeS);
+  // Closes the recording and waits until everything queued is on disk.
+  void finish();
+  const std::string& path() const { return path_; }
+
+private:
+  struct Job {
+    std::string open;  // a recording to open ("" = none); set only on an open's job
+    bool isOpen = false;
+    Frame frame;
+    Mat4 pose{1.0};
+    double timeS = 0.0;
+  };
+  std::string path_;  // the caller's view: the recording last asked for
+  std::mutex m_;
+  std::condition_variable cv_, idle_;
+  std::deque<Job> jobs_;
+  bool busy_ = false, quit_ = false;
+  std::exception_ptr error_;
+  std::thread thread_;
+  void push(Job&& j);
+  void rethrow();
+  void run();
 };
 
 // Places a live frame: ImageToReference through the configuration's chain, or
