@@ -10,10 +10,12 @@
 
 #include <unistd.h>
 
+#include <chrono>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <memory>
+#include <thread>
 
 #include "core/error.hpp"
 #include "core/sequence_io.hpp"
@@ -203,8 +205,9 @@ TEST(RecorderThread, WritesEveryFrameInOrderInTheFileAskedFor) {
 }
 
 // A frame the recording cannot take fails it on the writing thread; the
-// caller hears it at its next call, and the journal keeps the frames before.
-TEST(RecorderThread, AFailureReachesTheCaller) {
+// caller hears it once, at its next call, the recording is over (later
+// frames go nowhere) and the journal keeps the frames before.
+TEST(RecorderThread, AFailedWriteReachesTheCallerOnce) {
   namespace fs = std::filesystem;
   const fs::path dir = fs::temp_directory_path() / ("pp5recf-" + std::to_string(::getpid()));
   fs::remove_all(dir);
@@ -213,17 +216,68 @@ TEST(RecorderThread, AFailureReachesTheCaller) {
   {
     host::RecorderThread rec;
     rec.record(seq);
-    Frame f;
-    f.allocate(8, 6, PixelType::U8);
-    rec.writePlaced(f, slid(0.0), 0.0);
-    f.allocate(9, 6, PixelType::U8);  // another size: the sequence refuses it
-    rec.writePlaced(f, slid(1.0), 0.1);
-    EXPECT_THROW(rec.finish(), InputError);
-    EXPECT_NO_THROW(rec.finish());  // said once
+    Frame good, bad;
+    good.allocate(8, 6, PixelType::U8);
+    bad.allocate(9, 6, PixelType::U8);  // another size: the sequence refuses it
+    rec.writePlaced(good, slid(0.0), 0.0);
+    rec.writePlaced(bad, slid(1.0), 0.1);
+    bool thrown = false;
+    for (int i = 0; i < 400 && !thrown; ++i) {  // the writer's thread gets to it soon
+      try {
+        rec.writePlaced(good, slid(2.0), 0.2);
+      } catch (const InputError&) {
+        thrown = true;
+      }
+      if (!thrown) std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    }
+    EXPECT_TRUE(thrown);
+    EXPECT_EQ(rec.path(), "");
+    EXPECT_NO_THROW(rec.writePlaced(good, slid(3.0), 0.3));  // said once; nothing open
+    EXPECT_NO_THROW(rec.finish());
   }
   EXPECT_FALSE(fs::exists(seq));
   ASSERT_TRUE(fs::exists(seq + ".journal"));
   EXPECT_EQ(readAllFrames(seq + ".journal").size(), 1u);
+  fs::remove_all(dir);
+}
+
+// A recording that cannot be closed (its folder stopped taking files) is
+// said in the log, its frames stay in its journal, and the recording asked
+// for next is written all the same.
+TEST(RecorderThread, AFailedCloseLeavesTheNextRecordingWhole) {
+  namespace fs = std::filesystem;
+  const fs::path dir = fs::temp_directory_path() / ("pp5recc-" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir / "a");
+  fs::create_directories(dir / "b");
+  const std::string a = (dir / "a" / "rec.mha").string(), b = (dir / "b" / "rec.mha").string();
+  host::RecorderThread rec;
+  rec.record(a);
+  Frame f;
+  f.allocate(8, 6, PixelType::U8);
+  for (int i = 0; i < 3; ++i) rec.writePlaced(f, slid(i), 0.1 * i);
+  // Once the writer has journalled them, folder a stops taking files.
+  for (int i = 0; i < 400; ++i) {
+    if (fs::exists(a + ".journal") && readAllFrames(a + ".journal").size() == 3) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
+  const fs::path da = dir / "a";
+  fs::permissions(da, fs::perms::owner_read | fs::perms::owner_exec);
+  const bool readOnly = ::access(da.c_str(), W_OK) != 0 ||
+                        std::system(("chattr +i " + da.string() + " 2>/dev/null").c_str()) == 0;
+  rec.record(b);
+  for (int i = 0; i < 2; ++i) rec.writePlaced(f, slid(i), 0.1 * i);
+  EXPECT_NO_THROW(rec.finish());
+  [[maybe_unused]] const int undo = std::system(("chattr -i " + da.string() + " 2>/dev/null").c_str());
+  fs::permissions(da, fs::perms::owner_all);
+  if (!readOnly) {
+    fs::remove_all(dir);
+    GTEST_SKIP() << "cannot make a read-only folder here";
+  }
+  EXPECT_FALSE(fs::exists(a));
+  EXPECT_EQ(readAllFrames(a + ".journal").size(), 3u);
+  EXPECT_EQ(readAllFrames(b).size(), 2u);
+  EXPECT_FALSE(fs::exists(b + ".journal"));
   fs::remove_all(dir);
 }
 

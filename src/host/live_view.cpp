@@ -758,12 +758,9 @@ void LiveView::figures(const LiveFigures& f) {
 }
 
 void LiveView::inputEnded() {
-  try {
-    impl_->recorder.finish();  // the recording complete on disk before the run goes on
-  } catch (const std::exception& e) {
-    // As a recording's close always was: said, and the frames left in its journal.
-    spdlog::error("viewer: the page's recording: {}", e.what());
-  }
+  // The recording complete on disk before the run goes on; a frame that could
+  // not be written fails the run, as it would have at frame().
+  impl_->recorder.finish();
   const std::lock_guard lock(impl_->m);
   impl_->recording.clear();
   impl_->want.recording = false;

@@ -70,7 +70,7 @@ RecorderThread::~RecorderThread() {
   try {
     finish();
   } catch (const std::exception& e) {
-    spdlog::error("viewer: recording {}: {}", path_, e.what());
+    spdlog::error("viewer: recording: {}", e.what());
   }
   {
     const std::lock_guard lock(m_);
@@ -82,24 +82,32 @@ RecorderThread::~RecorderThread() {
 
 void RecorderThread::rethrow() {
   std::exception_ptr e;
+  std::string failed;
   {
     const std::lock_guard lock(m_);
     std::swap(e, error_);
+    std::swap(failed, errorPath_);
   }
-  if (e) std::rethrow_exception(e);
+  if (!e) return;
+  if (failed == path_) path_.clear();  // that recording is over; its frames are in its journal
+  std::rethrow_exception(e);
 }
 
 void RecorderThread::push(Job&& j) {
-  rethrow();
-  {
-    const std::lock_guard lock(m_);
-    jobs_.push_back(std::move(j));
-  }
+  const std::size_t bytes = j.frame.pixels.size();
+  std::unique_lock lock(m_);
+  // A writer that cannot keep up holds the caller back rather than taking
+  // memory without bound (one frame may always wait).
+  idle_.wait(lock, [&] { return queuedBytes_ == 0 || queuedBytes_ + bytes <= kMaxQueuedBytes; });
+  queuedBytes_ += bytes;
+  jobs_.push_back(std::move(j));
+  lock.unlock();
   cv_.notify_one();
 }
 
 void RecorderThread::record(const std::string& path) {
-  if (path == path_) return rethrow();
+  rethrow();
+  if (path == path_) return;
   path_ = path;
   Job j;
   j.isOpen = true;
@@ -108,7 +116,8 @@ void RecorderThread::record(const std::string& path) {
 }
 
 void RecorderThread::writePlaced(const Frame& f, const Mat4& imageToReference, double timeS) {
-  if (path_.empty()) return rethrow();
+  rethrow();
+  if (path_.empty()) return;
   Job j;
   j.frame = f;
   j.pose = imageToReference;
@@ -117,42 +126,64 @@ void RecorderThread::writePlaced(const Frame& f, const Mat4& imageToReference, d
 }
 
 void RecorderThread::finish() {
-  record("");
-  std::unique_lock lock(m_);
-  idle_.wait(lock, [&] { return jobs_.empty() && !busy_; });
-  lock.unlock();
+  if (!path_.empty()) {
+    path_.clear();
+    Job j;
+    j.isOpen = true;
+    push(std::move(j));
+  }
+  {
+    std::unique_lock lock(m_);
+    idle_.wait(lock, [&] { return jobs_.empty() && !busy_; });
+  }
   rethrow();
 }
 
 void RecorderThread::run() {
   std::unique_ptr<Recorder> rec;
+  std::string recPath;
   std::unique_lock lock(m_);
   for (;;) {
     cv_.wait(lock, [&] { return quit_ || !jobs_.empty(); });
     if (jobs_.empty()) return;  // quit, with nothing left to write
     Job j = std::move(jobs_.front());
     jobs_.pop_front();
+    queuedBytes_ -= j.frame.pixels.size();
     busy_ = true;
     lock.unlock();
-    try {
-      if (j.isOpen) {
-        std::unique_ptr<Recorder> old = std::move(rec);
-        if (old) old->close();
-        if (!j.open.empty()) {
-          rec = std::make_unique<Recorder>(j.open);
-          spdlog::info("viewer: recording the frames that go into the pipeline to {}", j.open);
+    idle_.notify_all();  // room in the queue
+    if (j.isOpen) {
+      if (rec) {
+        // As a recording's close always was: a failure is said (with where
+        // the frames are kept) and the next recording opens all the same.
+        try {
+          rec->close();
+        } catch (const std::exception& e) {
+          spdlog::error("viewer: the page's recording: {}", e.what());
         }
-      } else if (rec) {
-        rec->writePlaced(j.frame, j.pose, j.timeS);
+        rec.reset();
       }
-    } catch (...) {
-      // The recording is abandoned (its journal keeps what it had); the
-      // frames queued for it are dropped with it, and the caller hears why.
-      rec.reset();
-      lock.lock();
-      error_ = std::current_exception();
-      while (!jobs_.empty() && !jobs_.front().isOpen) jobs_.pop_front();
-      lock.unlock();
+      recPath = j.open;
+      if (!j.open.empty()) {
+        rec = std::make_unique<Recorder>(j.open);  // opens its files at the first frame
+        spdlog::info("viewer: recording the frames that go into the pipeline to {}", j.open);
+      }
+    } else if (rec) {
+      try {
+        rec->writePlaced(j.frame, j.pose, j.timeS);
+      } catch (...) {
+        // The recording is abandoned (its journal keeps what it had), the
+        // frames queued for it go with it, and the caller hears why.
+        rec.reset();
+        lock.lock();
+        error_ = std::current_exception();
+        errorPath_ = recPath;
+        while (!jobs_.empty() && !jobs_.front().isOpen) {
+          queuedBytes_ -= jobs_.front().frame.pixels.size();
+          jobs_.pop_front();
+        }
+        lock.unlock();
+      }
     }
     lock.lock();
     busy_ = false;

@@ -48,18 +48,24 @@ private:
 // Recordings written on a thread of their own, for a caller whose thread
 // must not wait for the disk (the host's loop, recording what the viewer's
 // page asks for): compressing each frame, the journal's periodic sync and the
-// file's close happen there. Frames queue until written, without bound, so
-// nothing recorded is lost. A failure is rethrown on the caller's thread at
-// its next call (and by finish()); what was recorded stays in the journal.
+// file's close happen there. Frames queue until written (up to
+// kMaxQueuedBytes of pixels; beyond, the caller waits), so nothing recorded
+// is lost. A frame that cannot be written ends its recording (the journal
+// keeps the frames before it) and the error is rethrown on the caller's
+// thread at its next call or by finish(), once. A recording that cannot be
+// closed is said in the log, with where its frames are kept, as Recorder's
+// destructor says it, and the next recording opens all the same.
 class RecorderThread {
 public:
+  static constexpr std::size_t kMaxQueuedBytes = std::size_t{256} << 20;
   RecorderThread();
   ~RecorderThread();  // finishes, logging a failure
   RecorderThread(const RecorderThread&) = delete;
   RecorderThread& operator=(const RecorderThread&) = delete;
-  // Closes the recording open (if any) and opens `path` ("" = none).
+  // Closes the recording open (if any) and opens `path` ("" = none); nothing
+  // when `path` is the one open.
   void record(const std::string& path);
-  // Recorder::writePlaced, once the frames before it are written.
+  // Recorder::writePlaced into the recording open, after the frames before it.
   void writePlaced(const Frame& f, const Mat4& imageToReference, double timeS);
   // Closes the recording and waits until everything queued is on disk.
   void finish();
@@ -67,19 +73,21 @@ public:
 
 private:
   struct Job {
-    std::string open;  // a recording to open ("" = none); set only on an open's job
-    bool isOpen = false;
+    bool isOpen = false;  // an open (or, with `open` empty, a close) rather than a frame
+    std::string open;
     Frame frame;
     Mat4 pose{1.0};
     double timeS = 0.0;
   };
-  std::string path_;  // the caller's view: the recording last asked for
+  std::string path_;  // the caller's side: the recording open
   std::mutex m_;
-  std::condition_variable cv_, idle_;
+  std::condition_variable cv_, idle_;  // jobs for the thread; the queue shorter or empty
   std::deque<Job> jobs_;
+  std::size_t queuedBytes_ = 0;
   bool busy_ = false, quit_ = false;
   std::exception_ptr error_;
-  std::thread thread_;
+  std::string errorPath_;  // the recording error_ ended
+  std::thread thread_;  // last: started once the rest is built
   void push(Job&& j);
   void rethrow();
   void run();
