@@ -222,7 +222,7 @@ TEST(RecorderThread, AFailedWriteReachesTheCallerOnce) {
     rec.writePlaced(good, slid(0.0), 0.0);
     rec.writePlaced(bad, slid(1.0), 0.1);
     bool thrown = false;
-    for (int i = 0; i < 400 && !thrown; ++i) {  // the writer's thread gets to it soon
+    for (int i = 0; i < 6000 && !thrown; ++i) {  // the writer's thread gets to it (30 s at most)
       try {
         rec.writePlaced(good, slid(2.0), 0.2);
       } catch (const InputError&) {
@@ -238,6 +238,44 @@ TEST(RecorderThread, AFailedWriteReachesTheCallerOnce) {
   EXPECT_FALSE(fs::exists(seq));
   ASSERT_TRUE(fs::exists(seq + ".journal"));
   EXPECT_EQ(readAllFrames(seq + ".journal").size(), 1u);
+  fs::remove_all(dir);
+}
+
+// A recording that fails after the caller has moved on to another: the
+// caller hears of it, and the one open loses no frame for it.
+TEST(RecorderThread, AnEarlierRecordingsFailureCostsTheNextNothing) {
+  namespace fs = std::filesystem;
+  const fs::path dir = fs::temp_directory_path() / ("pp5recn-" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  const std::string a = (dir / "a.mha").string(), b = (dir / "b.mha").string();
+  {
+    host::RecorderThread rec;
+    Frame good, bad;
+    good.allocate(8, 6, PixelType::U8);
+    bad.allocate(9, 6, PixelType::U8);
+    rec.record(a);
+    rec.writePlaced(good, slid(0.0), 0.0);
+    rec.writePlaced(bad, slid(1.0), 0.1);  // fails a, once the writer gets to it
+    rec.record(b);
+    int thrown = 0;
+    for (int i = 0; i < 5; ++i) {
+      try {
+        rec.writePlaced(good, slid(i), 0.1 * i);
+      } catch (const InputError&) {
+        ++thrown;
+      }
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+    try {
+      rec.finish();
+    } catch (const InputError&) {
+      ++thrown;
+    }
+    EXPECT_EQ(thrown, 1);
+    EXPECT_FALSE(fs::exists(a));
+    EXPECT_EQ(readAllFrames(b).size(), 5u);
+  }
   fs::remove_all(dir);
 }
 
@@ -257,10 +295,12 @@ TEST(RecorderThread, AFailedCloseLeavesTheNextRecordingWhole) {
   f.allocate(8, 6, PixelType::U8);
   for (int i = 0; i < 3; ++i) rec.writePlaced(f, slid(i), 0.1 * i);
   // Once the writer has journalled them, folder a stops taking files.
-  for (int i = 0; i < 400; ++i) {
-    if (fs::exists(a + ".journal") && readAllFrames(a + ".journal").size() == 3) break;
-    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  bool journalled = false;
+  for (int i = 0; i < 6000 && !journalled; ++i) {  // 30 s at most
+    journalled = fs::exists(a + ".journal") && readAllFrames(a + ".journal").size() == 3;
+    if (!journalled) std::this_thread::sleep_for(std::chrono::milliseconds(5));
   }
+  ASSERT_TRUE(journalled);
   const fs::path da = dir / "a";
   fs::permissions(da, fs::perms::owner_read | fs::perms::owner_exec);
   const bool readOnly = ::access(da.c_str(), W_OK) != 0 ||

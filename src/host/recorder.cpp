@@ -71,6 +71,8 @@ RecorderThread::~RecorderThread() {
     finish();
   } catch (const std::exception& e) {
     spdlog::error("viewer: recording: {}", e.what());
+  } catch (...) {
+    spdlog::error("viewer: recording: an unknown error");
   }
   {
     const std::lock_guard lock(m_);
@@ -80,17 +82,18 @@ RecorderThread::~RecorderThread() {
   thread_.join();
 }
 
-void RecorderThread::rethrow() {
+std::exception_ptr RecorderThread::takeError() {
   std::exception_ptr e;
-  std::string failed;
+  std::uint64_t failed = 0;
   {
     const std::lock_guard lock(m_);
     std::swap(e, error_);
-    std::swap(failed, errorPath_);
+    failed = errorGeneration_;
   }
-  if (!e) return;
-  if (failed == path_) path_.clear();  // that recording is over; its frames are in its journal
-  std::rethrow_exception(e);
+  // The caller's recording is the one that failed: it is over (its frames
+  // are in its journal). An earlier one's failure leaves the caller's alone.
+  if (e && failed == generation_) path_.clear();
+  return e;
 }
 
 void RecorderThread::push(Job&& j) {
@@ -105,24 +108,31 @@ void RecorderThread::push(Job&& j) {
   cv_.notify_one();
 }
 
+// Each call does its work first (a failure of an earlier recording must not
+// cost the one open a frame) and then says a failure the writer met, once.
 void RecorderThread::record(const std::string& path) {
-  rethrow();
-  if (path == path_) return;
-  path_ = path;
-  Job j;
-  j.isOpen = true;
-  j.open = path;
-  push(std::move(j));
+  const std::exception_ptr e = takeError();
+  if (path != path_) {
+    path_ = path;
+    Job j;
+    j.isOpen = true;
+    j.open = path;
+    j.generation = ++generation_;
+    push(std::move(j));
+  }
+  if (e) std::rethrow_exception(e);
 }
 
 void RecorderThread::writePlaced(const Frame& f, const Mat4& imageToReference, double timeS) {
-  rethrow();
-  if (path_.empty()) return;
-  Job j;
-  j.frame = f;
-  j.pose = imageToReference;
-  j.timeS = timeS;
-  push(std::move(j));
+  const std::exception_ptr e = takeError();
+  if (!path_.empty()) {
+    Job j;
+    j.frame = f;
+    j.pose = imageToReference;
+    j.timeS = timeS;
+    push(std::move(j));
+  }
+  if (e) std::rethrow_exception(e);
 }
 
 void RecorderThread::finish() {
@@ -130,18 +140,19 @@ void RecorderThread::finish() {
     path_.clear();
     Job j;
     j.isOpen = true;
+    j.generation = ++generation_;
     push(std::move(j));
   }
   {
     std::unique_lock lock(m_);
     idle_.wait(lock, [&] { return jobs_.empty() && !busy_; });
   }
-  rethrow();
+  if (const std::exception_ptr e = takeError()) std::rethrow_exception(e);
 }
 
 void RecorderThread::run() {
   std::unique_ptr<Recorder> rec;
-  std::string recPath;
+  std::uint64_t recGeneration = 0;
   std::unique_lock lock(m_);
   for (;;) {
     cv_.wait(lock, [&] { return quit_ || !jobs_.empty(); });
@@ -160,10 +171,12 @@ void RecorderThread::run() {
           rec->close();
         } catch (const std::exception& e) {
           spdlog::error("viewer: the page's recording: {}", e.what());
+        } catch (...) {
+          spdlog::error("viewer: the page's recording could not be closed (an unknown error)");
         }
         rec.reset();
       }
-      recPath = j.open;
+      recGeneration = j.generation;
       if (!j.open.empty()) {
         rec = std::make_unique<Recorder>(j.open);  // opens its files at the first frame
         spdlog::info("viewer: recording the frames that go into the pipeline to {}", j.open);
@@ -176,8 +189,16 @@ void RecorderThread::run() {
         // frames queued for it go with it, and the caller hears why.
         rec.reset();
         lock.lock();
+        if (error_) {  // the caller has not heard of an earlier failure yet: said here
+          try {
+            std::rethrow_exception(error_);
+          } catch (const std::exception& e) {
+            spdlog::error("viewer: the page's recording: {}", e.what());
+          } catch (...) {
+          }
+        }
         error_ = std::current_exception();
-        errorPath_ = recPath;
+        errorGeneration_ = recGeneration;
         while (!jobs_.empty() && !jobs_.front().isOpen) {
           queuedBytes_ -= jobs_.front().frame.pixels.size();
           jobs_.pop_front();

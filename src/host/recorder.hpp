@@ -52,7 +52,7 @@ private:
 // kMaxQueuedBytes of pixels; beyond, the caller waits), so nothing recorded
 // is lost. A frame that cannot be written ends its recording (the journal
 // keeps the frames before it) and the error is rethrown on the caller's
-// thread at its next call or by finish(), once. A recording that cannot be
+// thread once, at its next call (after that call's own work) or by finish(). A recording that cannot be
 // closed is said in the log, with where its frames are kept, as Recorder's
 // destructor says it, and the next recording opens all the same.
 class RecorderThread {
@@ -75,21 +75,23 @@ private:
   struct Job {
     bool isOpen = false;  // an open (or, with `open` empty, a close) rather than a frame
     std::string open;
+    std::uint64_t generation = 0;  // an open's: the caller's count of record() changes
     Frame frame;
     Mat4 pose{1.0};
     double timeS = 0.0;
   };
-  std::string path_;  // the caller's side: the recording open
+  std::string path_;  // the caller's side: the recording open, and its generation
+  std::uint64_t generation_ = 0;
   std::mutex m_;
   std::condition_variable cv_, idle_;  // jobs for the thread; the queue shorter or empty
   std::deque<Job> jobs_;
   std::size_t queuedBytes_ = 0;
   bool busy_ = false, quit_ = false;
   std::exception_ptr error_;
-  std::string errorPath_;  // the recording error_ ended
+  std::uint64_t errorGeneration_ = 0;  // the recording error_ ended
   std::thread thread_;  // last: started once the rest is built
   void push(Job&& j);
-  void rethrow();
+  std::exception_ptr takeError();
   void run();
 };
 
