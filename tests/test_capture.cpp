@@ -224,6 +224,7 @@ TEST(RecorderThread, AFailedWriteReachesTheCallerOnce) {
     bool thrown = false;
     for (int i = 0; i < 6000 && !thrown; ++i) {  // the writer's thread gets to it (30 s at most)
       try {
+        rec.record(seq);  // as the viewer calls it, before every frame
         rec.writePlaced(good, slid(2.0), 0.2);
       } catch (const InputError&) {
         thrown = true;
@@ -232,7 +233,11 @@ TEST(RecorderThread, AFailedWriteReachesTheCallerOnce) {
     }
     EXPECT_TRUE(thrown);
     EXPECT_EQ(rec.path(), "");
-    EXPECT_NO_THROW(rec.writePlaced(good, slid(3.0), 0.3));  // said once; nothing open
+    for (int i = 0; i < 3; ++i) {  // said once; the failed recording is not opened again
+      EXPECT_NO_THROW(rec.record(seq));
+      EXPECT_NO_THROW(rec.writePlaced(good, slid(3.0), 0.3));
+    }
+    EXPECT_EQ(rec.path(), "");
     EXPECT_NO_THROW(rec.finish());
   }
   EXPECT_FALSE(fs::exists(seq));

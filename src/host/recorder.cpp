@@ -64,6 +64,35 @@ void Recorder::close() {
   spdlog::info("run.record: {} frames written to {}", frames_, path_);
 }
 
+namespace {
+
+// A recording's failure that will not be rethrown, said in the log.
+void logFailure(const std::exception_ptr& e) {
+  try {
+    std::rethrow_exception(e);
+  } catch (const std::exception& x) {
+    spdlog::error("viewer: the page's recording: {}", x.what());
+  } catch (...) {
+    spdlog::error("viewer: the page's recording failed (an unknown error)");
+  }
+}
+
+// A call's own work first (a failure of an earlier recording must not cost
+// the one open a frame), then the writer's failure `e`, if any; when the work
+// itself throws, `e` is said in the log so that it is not lost.
+template <class F>
+void workThenSay(const std::exception_ptr& e, F&& work) {
+  try {
+    work();
+  } catch (...) {
+    if (e) logFailure(e);
+    throw;
+  }
+  if (e) std::rethrow_exception(e);
+}
+
+}  // namespace
+
 RecorderThread::RecorderThread() : thread_([this] { run(); }) {}
 
 RecorderThread::~RecorderThread() {
@@ -92,7 +121,10 @@ std::exception_ptr RecorderThread::takeError() {
   }
   // The caller's recording is the one that failed: it is over (its frames
   // are in its journal). An earlier one's failure leaves the caller's alone.
-  if (e && failed == generation_) path_.clear();
+  if (e && failed == generation_) {
+    ended_ = path_;  // not opened again by the caller's next record() of it
+    path_.clear();
+  }
   return e;
 }
 
@@ -108,41 +140,37 @@ void RecorderThread::push(Job&& j) {
   cv_.notify_one();
 }
 
-// Each call does its work first (a failure of an earlier recording must not
-// cost the one open a frame) and then says a failure the writer met, once.
+void RecorderThread::open(const std::string& path) {
+  Job j;
+  j.isOpen = true;
+  j.open = path;
+  j.generation = generation_ + 1;
+  push(std::move(j));
+  path_ = path;  // only once the writer has it
+  ++generation_;
+}
+
 void RecorderThread::record(const std::string& path) {
-  const std::exception_ptr e = takeError();
-  if (path != path_) {
-    path_ = path;
-    Job j;
-    j.isOpen = true;
-    j.open = path;
-    j.generation = ++generation_;
-    push(std::move(j));
-  }
-  if (e) std::rethrow_exception(e);
+  workThenSay(takeError(), [&] {
+    if (path == path_ || (!path.empty() && path == ended_)) return;  // the one open, or the one that failed
+    ended_.clear();
+    open(path);
+  });
 }
 
 void RecorderThread::writePlaced(const Frame& f, const Mat4& imageToReference, double timeS) {
-  const std::exception_ptr e = takeError();
-  if (!path_.empty()) {
+  workThenSay(takeError(), [&] {
+    if (path_.empty()) return;
     Job j;
     j.frame = f;
     j.pose = imageToReference;
     j.timeS = timeS;
     push(std::move(j));
-  }
-  if (e) std::rethrow_exception(e);
+  });
 }
 
 void RecorderThread::finish() {
-  if (!path_.empty()) {
-    path_.clear();
-    Job j;
-    j.isOpen = true;
-    j.generation = ++generation_;
-    push(std::move(j));
-  }
+  if (!path_.empty()) open("");
   {
     std::unique_lock lock(m_);
     idle_.wait(lock, [&] { return jobs_.empty() && !busy_; });
@@ -189,14 +217,7 @@ void RecorderThread::run() {
         // frames queued for it go with it, and the caller hears why.
         rec.reset();
         lock.lock();
-        if (error_) {  // the caller has not heard of an earlier failure yet: said here
-          try {
-            std::rethrow_exception(error_);
-          } catch (const std::exception& e) {
-            spdlog::error("viewer: the page's recording: {}", e.what());
-          } catch (...) {
-          }
-        }
+        if (error_) logFailure(error_);  // the caller has not heard of an earlier failure yet: said here
         error_ = std::current_exception();
         errorGeneration_ = recGeneration;
         while (!jobs_.empty() && !jobs_.front().isOpen) {

@@ -82,6 +82,7 @@ private:
   };
   std::string path_;  // the caller's side: the recording open, and its generation
   std::uint64_t generation_ = 0;
+  std::string ended_;  // the caller's recording that failed (record() of it does not reopen it)
   std::mutex m_;
   std::condition_variable cv_, idle_;  // jobs for the thread; the queue shorter or empty
   std::deque<Job> jobs_;
@@ -91,6 +92,7 @@ private:
   std::uint64_t errorGeneration_ = 0;  // the recording error_ ended
   std::thread thread_;  // last: started once the rest is built
   void push(Job&& j);
+  void open(const std::string& path);  // queues the open (or the close, "") and then takes it as the caller's
   std::exception_ptr takeError();
   void run();
 };
