@@ -15,6 +15,7 @@
 #include <filesystem>
 #include <fstream>
 #include <memory>
+#include <string>
 #include <thread>
 
 #include "core/error.hpp"
@@ -33,6 +34,14 @@ Frame blank(int w, int h, std::uint64_t index) {
   f.allocate(w, h, PixelType::U8);
   f.index = index;
   return f;
+}
+
+// An empty folder of the temporary directory, named for the test and process.
+std::filesystem::path freshDir(const std::string& name) {
+  const auto dir = std::filesystem::temp_directory_path() / (name + "-" + std::to_string(::getpid()));
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  return dir;
 }
 
 // 0.3 mm pixels; the image slides along z by `stepMm` a frame.
@@ -99,9 +108,7 @@ TEST(Acquisition, ConstantIntervalCaptureLeavesFramesOutAndCountsThem) {
 // are kept and how to restore them, and the journal holds every frame.
 TEST(Recorder, AFailedFinishSaysWhereTheFramesAreKept) {
   namespace fs = std::filesystem;
-  const fs::path dir = fs::temp_directory_path() / ("pp5rec-" + std::to_string(::getpid()));
-  fs::remove_all(dir);
-  fs::create_directories(dir);
+  const fs::path dir = freshDir("pp5rec");
   const std::string seq = (dir / "rec.mha").string();
   auto rec = std::make_unique<host::Recorder>(seq);
   Frame f;
@@ -145,9 +152,7 @@ TEST(Recorder, AFailedFinishSaysWhereTheFramesAreKept) {
 // every frame before it, never discarded as if the sequence were complete.
 TEST(Recorder, AFailedWriteKeepsTheJournal) {
   namespace fs = std::filesystem;
-  const fs::path dir = fs::temp_directory_path() / ("pp5recw-" + std::to_string(::getpid()));
-  fs::remove_all(dir);
-  fs::create_directories(dir);
+  const fs::path dir = freshDir("pp5recw");
   const std::string seq = (dir / "rec.mha").string();
   {
     host::Recorder rec(seq);
@@ -170,9 +175,7 @@ TEST(Recorder, AFailedWriteKeepsTheJournal) {
 // the files complete.
 TEST(RecorderThread, WritesEveryFrameInOrderInTheFileAskedFor) {
   namespace fs = std::filesystem;
-  const fs::path dir = fs::temp_directory_path() / ("pp5rect-" + std::to_string(::getpid()));
-  fs::remove_all(dir);
-  fs::create_directories(dir);
+  const fs::path dir = freshDir("pp5rect");
   const std::string a = (dir / "a.mha").string(), b = (dir / "b.mha").string();
   {
     host::RecorderThread rec;
@@ -209,9 +212,7 @@ TEST(RecorderThread, WritesEveryFrameInOrderInTheFileAskedFor) {
 // frames go nowhere) and the journal keeps the frames before.
 TEST(RecorderThread, AFailedWriteReachesTheCallerOnce) {
   namespace fs = std::filesystem;
-  const fs::path dir = fs::temp_directory_path() / ("pp5recf-" + std::to_string(::getpid()));
-  fs::remove_all(dir);
-  fs::create_directories(dir);
+  const fs::path dir = freshDir("pp5recf");
   const std::string seq = (dir / "rec.mha").string();
   {
     host::RecorderThread rec;
@@ -250,9 +251,7 @@ TEST(RecorderThread, AFailedWriteReachesTheCallerOnce) {
 // caller hears of it, and the one open loses no frame for it.
 TEST(RecorderThread, AnEarlierRecordingsFailureCostsTheNextNothing) {
   namespace fs = std::filesystem;
-  const fs::path dir = fs::temp_directory_path() / ("pp5recn-" + std::to_string(::getpid()));
-  fs::remove_all(dir);
-  fs::create_directories(dir);
+  const fs::path dir = freshDir("pp5recn");
   const std::string a = (dir / "a.mha").string(), b = (dir / "b.mha").string();
   {
     host::RecorderThread rec;
@@ -289,8 +288,7 @@ TEST(RecorderThread, AnEarlierRecordingsFailureCostsTheNextNothing) {
 // for next is written all the same.
 TEST(RecorderThread, AFailedCloseLeavesTheNextRecordingWhole) {
   namespace fs = std::filesystem;
-  const fs::path dir = fs::temp_directory_path() / ("pp5recc-" + std::to_string(::getpid()));
-  fs::remove_all(dir);
+  const fs::path dir = freshDir("pp5recc");
   fs::create_directories(dir / "a");
   fs::create_directories(dir / "b");
   const std::string a = (dir / "a" / "rec.mha").string(), b = (dir / "b" / "rec.mha").string();

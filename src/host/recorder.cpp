@@ -98,10 +98,8 @@ RecorderThread::RecorderThread() : thread_([this] { run(); }) {}
 RecorderThread::~RecorderThread() {
   try {
     finish();
-  } catch (const std::exception& e) {
-    spdlog::error("viewer: recording: {}", e.what());
   } catch (...) {
-    spdlog::error("viewer: recording: an unknown error");
+    logFailure(std::current_exception());
   }
   {
     const std::lock_guard lock(m_);
@@ -197,10 +195,8 @@ void RecorderThread::run() {
         // the frames are kept) and the next recording opens all the same.
         try {
           rec->close();
-        } catch (const std::exception& e) {
-          spdlog::error("viewer: the page's recording: {}", e.what());
         } catch (...) {
-          spdlog::error("viewer: the page's recording could not be closed (an unknown error)");
+          logFailure(std::current_exception());
         }
         rec.reset();
       }

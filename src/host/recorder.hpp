@@ -52,9 +52,10 @@ private:
 // kMaxQueuedBytes of pixels; beyond, the caller waits), so nothing recorded
 // is lost. A frame that cannot be written ends its recording (the journal
 // keeps the frames before it) and the error is rethrown on the caller's
-// thread once, at its next call (after that call's own work) or by finish(). A recording that cannot be
-// closed is said in the log, with where its frames are kept, as Recorder's
-// destructor says it, and the next recording opens all the same.
+// thread once, at its next call (after that call's own work) or by finish().
+// A recording that cannot be closed is said in the log, with where its frames
+// are kept, as Recorder's destructor says it, and the next one opens all the
+// same.
 class RecorderThread {
 public:
   static constexpr std::size_t kMaxQueuedBytes = std::size_t{256} << 20;
