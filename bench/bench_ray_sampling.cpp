@@ -30,6 +30,7 @@
 #include "gp/dirty_region.hpp"
 #include "gp/ray_sampler.hpp"
 #include "core/sample_lattice.hpp"
+#include "core/sample_runs.hpp"
 #include "gp/shade_buffer.hpp"
 
 namespace {
@@ -223,5 +224,54 @@ void BM_DBufferAndSampleRegion(benchmark::State& state) {
   state.SetItemsProcessed(static_cast<std::int64_t>(samples));
 }
 BENCHMARK(BM_DBufferAndSampleRegion)->ArgName("region")->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+// The wire between a GP and a PP: one full view's samples of the scene (one
+// thread, in the sampler's order), encoded as the GP sends them (half, the
+// default wire) and decoded as the PP takes them in.
+class CollectingSink final : public gp::SampleSink {
+public:
+  void consume(int, std::uint32_t, std::span<const pp5::RaySample> s) override { all.insert(all.end(), s.begin(), s.end()); }
+  std::vector<pp5::RaySample> all;
+};
+
+const std::vector<pp5::RaySample>& viewSamples() {
+  static const std::vector<pp5::RaySample> v = [] {
+    const Scene& sc = scene();
+    pp5::RenderSettings s = sc.settings;
+    s.threads = 1;
+    CollectingSink sink;
+    gp::sampleAll(sc.shade, *sc.lattice, s, sink, sc.space.get());
+    return std::move(sink.all);
+  }();
+  return v;
+}
+
+void BM_EncodeSampleRuns(benchmark::State& state) {
+  const auto& samples = viewSamples();
+  std::vector<std::byte> wire;
+  for (auto _ : state) {
+    wire.clear();
+    pp5::encodeSampleRuns(samples, pp5::SampleWire::Half, wire);
+    benchmark::DoNotOptimize(wire.data());
+  }
+  state.counters["samples"] = static_cast<double>(samples.size());
+  state.counters["wire_MB"] = static_cast<double>(wire.size()) / 1e6;
+  state.SetItemsProcessed(static_cast<std::int64_t>(samples.size()) * state.iterations());
+}
+BENCHMARK(BM_EncodeSampleRuns)->Unit(benchmark::kMillisecond);
+
+void BM_DecodeSampleRuns(benchmark::State& state) {
+  const auto& samples = viewSamples();
+  std::vector<std::byte> wire;
+  pp5::encodeSampleRuns(samples, pp5::SampleWire::Half, wire);
+  std::vector<pp5::RaySample> out;
+  for (auto _ : state) {
+    out.clear();
+    if (!pp5::decodeSampleRuns(wire, pp5::SampleWire::Half, out, samples.size())) state.SkipWithError("decode failed");
+    benchmark::DoNotOptimize(out.data());
+  }
+  state.SetItemsProcessed(static_cast<std::int64_t>(samples.size()) * state.iterations());
+}
+BENCHMARK(BM_DecodeSampleRuns)->Unit(benchmark::kMillisecond);
 
 }  // namespace

@@ -70,6 +70,24 @@ TEST(LocalTransport, KeepsEachSendersOrderAndCountsBytes) {
   EXPECT_THROW(job.rank(1).send(3, header(comm::kTagQuit, 0)), comm::CommError);
 }
 
+// An idle loop yields a while, then sleeps 10 us doubling up to 1 ms, and
+// starts short again after work.
+TEST(IdleBackoff, YieldsThenDoublesUpToAMillisecond) {
+  using us = std::chrono::microseconds;
+  comm::IdleBackoff idle;
+  std::vector<long> steps;
+  for (int i = 0; i < 30; ++i) {
+    steps.push_back(static_cast<long>(idle.next().count()));
+    idle.pause(us(0));  // capped at zero: a yield, so the test does not sleep
+  }
+  const std::vector<long> want = {0,  0,  0,  0,  0,   0,   0,   0,   0,    0,    0,    0,    0,    0,    0,
+                                  0,  0,  0,  0,  0,   10,  20,  40,  80,   160,  320,  640,  1000, 1000, 1000};
+  EXPECT_EQ(steps, want);
+  EXPECT_EQ(comm::IdleBackoff::kLongest, us(1000));
+  idle.reset();
+  EXPECT_EQ(idle.next(), us(0));
+}
+
 TEST(LocalTransport, BroadcastBarrierAndTimeout) {
   comm::LocalJob job(4, 0.2);
   std::vector<comm::GridMsg> got(4);

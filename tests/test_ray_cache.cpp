@@ -132,6 +132,37 @@ TEST(HalfFloat, BatchConversionsMatchScalar) {
   std::printf("half conversions use F16C: %s\n", pp5::halfConversionUsesF16c() ? "yes" : "no");
 }
 
+// The strided four-value conversions (a sample's r g b a in a struct, to and
+// from the wire's packed halves) give the scalar bits too, groups at any stride.
+TEST(HalfFloat, StridedGroupsOfFourMatchScalar) {
+  constexpr std::size_t kStride = 6;  // floats: RaySample's size
+  std::vector<float> in;
+  for (std::uint64_t u = 0; u < (1ull << 32); u += 4099) {
+    const auto v = static_cast<std::uint32_t>(u);
+    float x;
+    std::memcpy(&x, &v, 4);
+    if (!std::isnan(x)) in.push_back(x);
+  }
+  const std::size_t groups = in.size() / 4;
+  std::vector<float> strided(groups * kStride, -7.0f);
+  for (std::size_t g = 0; g < groups; ++g)
+    for (std::size_t c = 0; c < 4; ++c) strided[g * kStride + c] = in[g * 4 + c];
+  std::vector<std::uint16_t> halves(groups * 4 + 4, 0xabcd);
+  pp5::floatToHalf4Strided(strided.data(), kStride, groups, halves.data());
+  for (std::size_t i = 0; i < groups * 4; ++i) ASSERT_EQ(halves[i], pp5::floatToHalf(in[i])) << in[i];
+  EXPECT_EQ(halves[groups * 4], 0xabcd);  // nothing written past the last group
+  std::vector<float> back(groups * kStride, -7.0f);
+  pp5::halfToFloat4Strided(halves.data(), groups, back.data(), kStride);
+  for (std::size_t g = 0; g < groups; ++g) {
+    for (std::size_t c = 0; c < 4; ++c) {
+      const float want = pp5::halfToFloat(halves[g * 4 + c]);
+      ASSERT_EQ(std::memcmp(&want, &back[g * kStride + c], 4), 0) << g;
+    }
+    ASSERT_EQ(back[g * kStride + 4], -7.0f);  // the struct's other fields are left alone
+    ASSERT_EQ(back[g * kStride + 5], -7.0f);
+  }
+}
+
 // ---------------------------------------------------------------------------
 // Analytic composites.
 

@@ -24,27 +24,35 @@ void Transport::countReceived(int source, std::size_t bytes) {
   ++c.messagesReceived;
 }
 
+std::chrono::microseconds IdleBackoff::next() const {
+  constexpr int kYields = 20;
+  if (idle_ < kYields) return std::chrono::microseconds(0);
+  const int doublings = std::min(idle_ - kYields, 7);  // 10 us << 7 = 1.28 ms: past kLongest
+  return std::min(kLongest, std::chrono::microseconds(10 << doublings));
+}
+
+void IdleBackoff::pause(std::chrono::microseconds cap) {
+  const std::chrono::microseconds step = std::min(next(), cap);
+  ++idle_;
+  if (step <= std::chrono::microseconds(0)) std::this_thread::yield();
+  else std::this_thread::sleep_for(step);
+}
+
 Message Transport::wait(const std::string& waitingFor) {
   if (auto m = poll()) return std::move(*m);
   const auto t0 = std::chrono::steady_clock::now();
-  // Ranks share cores: after a short burst of polls, sleep in growing steps
-  // (up to 200 us, well under a 30 Hz frame) so a waiting rank leaves the
-  // core to the ones that work.
-  for (int idle = 0;; ++idle) {
+  IdleBackoff idle;
+  for (;;) {
     if (auto m = poll()) {
       waitS_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
       return std::move(*m);
-    }
-    if (idle < 20) {
-      std::this_thread::yield();
-      continue;
     }
     const double waited = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     if (waited > timeoutS_)
       throw CommError(fmt::format("no message in {:.0f} s while waiting for {}; a rank may have died or hung "
                                   "(parallel.timeout_s)",
                                   timeoutS_, waitingFor));
-    std::this_thread::sleep_for(std::chrono::microseconds(std::min(200, 10 * (idle - 19))));
+    idle.pause();
   }
 }
 

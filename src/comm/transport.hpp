@@ -12,6 +12,7 @@
 // A peer that vanishes must not hang the job: wait() gives up after the
 // configured timeout with a CommError naming what it waited for.
 #include <array>
+#include <chrono>
 #include <cstddef>
 #include <cstdint>
 #include <cstring>
@@ -54,6 +55,25 @@ struct Message {
   std::span<const std::byte> payload() const {
     return std::span<const std::byte>(bytes).subspan(sizeof(M));
   }
+};
+
+// How a loop with nothing to do waits, since ranks share cores: a few yields,
+// then sleeps that double from 10 us up to kLongest (1 ms), so that an idle
+// rank wakes about a thousand times a second, not five thousand (each wake
+// is a context switch and an MPI probe, CPU taken from the ranks that work).
+// A message that comes meanwhile waits half a millisecond on average.
+class IdleBackoff {
+public:
+  static constexpr std::chrono::microseconds kLongest{1000};
+  // After work: the next pause is short again.
+  void reset() { idle_ = 0; }
+  // How long the next pause() will be at most (zero: a yield).
+  std::chrono::microseconds next() const;
+  // Yields or sleeps the next step, at most `cap`, and lengthens the next.
+  void pause(std::chrono::microseconds cap = kLongest);
+
+private:
+  int idle_ = 0;
 };
 
 // The interface every rank loop talks through; the MPI implementation is

@@ -25,7 +25,41 @@ __attribute__((target("avx,f16c"))) void floatToHalfF16c(const float* src, std::
   for (; i < n; ++i) dst[i] = floatToHalf(src[i]);
 }
 
+__attribute__((target("avx,f16c"))) void floatToHalf4F16c(const float* src, std::size_t stride, std::size_t count,
+                                                          std::byte* dst) {
+  for (std::size_t g = 0; g < count; ++g)
+    _mm_storel_epi64(reinterpret_cast<__m128i*>(dst + 8 * g),
+                     _mm_cvtps_ph(_mm_loadu_ps(src + g * stride), _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC));
+}
+
+__attribute__((target("avx,f16c"))) void halfToFloat4F16c(const std::byte* src, std::size_t count, float* dst,
+                                                          std::size_t stride) {
+  for (std::size_t g = 0; g < count; ++g)
+    _mm_storeu_ps(dst + g * stride, _mm_cvtph_ps(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(src + 8 * g))));
+}
+
 }  // namespace
+
+void floatToHalf4Strided(const float* src, std::size_t strideFloats, std::size_t count, void* dst) {
+  auto* out = static_cast<std::byte*>(dst);
+  if (halfConversionUsesF16c()) return floatToHalf4F16c(src, strideFloats, count, out);
+  for (std::size_t g = 0; g < count; ++g) {
+    const float* v = src + g * strideFloats;
+    const std::uint16_t h[4] = {floatToHalf(v[0]), floatToHalf(v[1]), floatToHalf(v[2]), floatToHalf(v[3])};
+    std::memcpy(out + 8 * g, h, sizeof h);
+  }
+}
+
+void halfToFloat4Strided(const void* src, std::size_t count, float* dst, std::size_t strideFloats) {
+  const auto* in = static_cast<const std::byte*>(src);
+  if (halfConversionUsesF16c()) return halfToFloat4F16c(in, count, dst, strideFloats);
+  for (std::size_t g = 0; g < count; ++g) {
+    std::uint16_t h[4];
+    std::memcpy(h, in + 8 * g, sizeof h);
+    float* v = dst + g * strideFloats;
+    for (int c = 0; c < 4; ++c) v[c] = halfToFloat(h[c]);
+  }
+}
 
 void halfToFloatN(const std::uint16_t* src, std::size_t n, float* dst) {
   if (halfConversionUsesF16c()) return halfToFloatF16c(src, n, dst);

@@ -1,5 +1,7 @@
 #include "core/sample_runs.hpp"
 
+#include <algorithm>
+#include <cstddef>
 #include <cstring>
 
 #include "core/error.hpp"
@@ -12,6 +14,13 @@ namespace {
 constexpr std::uint16_t kTransparent = 0x8000;
 constexpr std::uint16_t kMaxRun = 0x7fff;
 
+// A sample's four values, r g b a, one after the other (the strided
+// conversions read them as a group of four floats).
+static_assert(offsetof(RaySample, g) == offsetof(RaySample, r) + 4 && offsetof(RaySample, b) == offsetof(RaySample, r) + 8 &&
+              offsetof(RaySample, a) == offsetof(RaySample, r) + 12);
+constexpr std::size_t kStride = sizeof(RaySample) / sizeof(float);
+static_assert(sizeof(RaySample) % sizeof(float) == 0);
+
 bool transparent(const RaySample& s) {
   const float v[4] = {s.r, s.g, s.b, s.a};
   std::uint32_t bits[4];
@@ -19,92 +28,104 @@ bool transparent(const RaySample& s) {
   return (bits[0] | bits[1] | bits[2] | bits[3]) == 0;
 }
 
-void putValues(const RaySample& s, SampleWire w, std::byte* dst) {
-  const float v[4] = {s.r, s.g, s.b, s.a};
-  if (w == SampleWire::Float) {
-    std::memcpy(dst, v, sizeof v);
-    return;
+// The run that starts at samples[i]: its length and whether it is transparent.
+std::size_t runAt(std::span<const RaySample> samples, std::size_t i, bool& clear) {
+  const RaySample& first = samples[i];
+  PP5_CHECK_LE(first.k, 0xffffu);
+  clear = transparent(first);
+  std::size_t n = 1;
+  while (i + n < samples.size() && n < kMaxRun) {
+    const RaySample& s = samples[i + n];
+    if (s.pixel != first.pixel || s.k != first.k + n || transparent(s) != clear) break;
+    ++n;
   }
-  const std::uint16_t h[4] = {floatToHalf(v[0]), floatToHalf(v[1]), floatToHalf(v[2]), floatToHalf(v[3])};
-  std::memcpy(dst, h, sizeof h);
+  PP5_CHECK_LE(first.k + n - 1, 0xffffu);
+  return n;
 }
 
 }  // namespace
 
 void encodeSampleRuns(std::span<const RaySample> samples, SampleWire wire, std::vector<std::byte>& out) {
   const std::size_t valueBytes = sampleWireBytes(wire);
-  std::size_t i = 0;
-  while (i < samples.size()) {
+  // Room is made a few thousand samples' worst case at a time (every sample a
+  // run of its own) and cut to what was written at the end: the samples are
+  // read once, and the room is zeroed while it is still in cache.
+  const std::size_t room = 2048 * (sizeof(SampleRunHeader) + valueBytes);
+  std::size_t at = out.size();
+  for (std::size_t i = 0; i < samples.size();) {
+    bool clear = false;
+    const std::size_t n = runAt(samples, i, clear);
+    const std::size_t need = sizeof(SampleRunHeader) + (clear ? 0 : n * valueBytes);
+    if (at + need > out.size()) out.resize(at + need + room);
     const RaySample& first = samples[i];
-    PP5_CHECK_LE(first.k, 0xffffu);
-    const bool clear = transparent(first);
-    std::size_t n = 1;
-    while (i + n < samples.size() && n < kMaxRun) {
-      const RaySample& s = samples[i + n];
-      if (s.pixel != first.pixel || s.k != first.k + n || transparent(s) != clear) break;
-      ++n;
-    }
-    PP5_CHECK_LE(first.k + n - 1, 0xffffu);
     const SampleRunHeader h{first.pixel, static_cast<std::uint16_t>(first.k),
                             static_cast<std::uint16_t>(clear ? kTransparent + n : n)};
-    const std::size_t at = out.size();
-    out.resize(at + sizeof h + (clear ? 0 : n * valueBytes));
     std::memcpy(out.data() + at, &h, sizeof h);
-    if (!clear)
-      for (std::size_t j = 0; j < n; ++j) putValues(samples[i + j], wire, out.data() + at + sizeof h + j * valueBytes);
+    at += sizeof h;
+    if (!clear) {
+      if (wire == SampleWire::Half) {
+        floatToHalf4Strided(&first.r, kStride, n, out.data() + at);
+      } else {
+        for (std::size_t j = 0; j < n; ++j) {
+          const RaySample& s = samples[i + j];
+          const float v[4] = {s.r, s.g, s.b, s.a};
+          std::memcpy(out.data() + at + j * valueBytes, v, sizeof v);
+        }
+      }
+      at += n * valueBytes;
+    }
     i += n;
   }
+  out.resize(at);
 }
 
 bool decodeSampleRuns(std::span<const std::byte> in, SampleWire wire, std::vector<RaySample>& out,
                       std::size_t maxSamples) {
   const std::size_t valueBytes = sampleWireBytes(wire);
-  const std::size_t had = out.size();
-  std::size_t at = 0;
-  bool ok = true;
-  while (ok && at < in.size()) {
+  // Every run checked, and the samples counted, before anything is written.
+  std::size_t total = 0;
+  for (std::size_t at = 0; at < in.size();) {
     SampleRunHeader h;
-    if (in.size() - at < sizeof h) {
-      ok = false;
-      break;
-    }
+    if (in.size() - at < sizeof h) return false;
     std::memcpy(&h, in.data() + at, sizeof h);
     at += sizeof h;
     const bool clear = h.n >= kTransparent;
     const std::size_t n = clear ? h.n - kTransparent : h.n;
     if (n == 0 || static_cast<std::size_t>(h.k) + n - 1 > 0xffffu || (!clear && (in.size() - at) / valueBytes < n) ||
-        out.size() - had + n > maxSamples) {
-      ok = false;
-      break;
-    }
-    const std::size_t base = out.size();
-    out.resize(base + n);
-    for (std::size_t j = 0; j < n; ++j) {
-      RaySample& s = out[base + j];
-      s.pixel = h.pixel;
-      s.k = h.k + static_cast<std::uint32_t>(j);
-      if (clear) {
-        s.r = s.g = s.b = s.a = 0.0f;
-        continue;
-      }
-      float v[4];
-      if (wire == SampleWire::Float) {
-        std::memcpy(v, in.data() + at, sizeof v);
-      } else {
-        std::uint16_t hv[4];
-        std::memcpy(hv, in.data() + at, sizeof hv);
-        for (int c = 0; c < 4; ++c) v[c] = halfToFloat(hv[c]);
-      }
-      at += valueBytes;
-      s.r = v[0];
-      s.g = v[1];
-      s.b = v[2];
-      s.a = v[3];
-    }
+        total + n > maxSamples)
+      return false;
+    total += n;
+    if (!clear) at += n * valueBytes;
   }
-  if (!ok) {
-    out.resize(had);
-    return false;
+  std::size_t next = out.size();
+  out.resize(next + total);  // zeroed: a transparent sample's values are +0.0
+  for (std::size_t at = 0; at < in.size();) {
+    SampleRunHeader h;
+    std::memcpy(&h, in.data() + at, sizeof h);
+    at += sizeof h;
+    const bool clear = h.n >= kTransparent;
+    const std::size_t n = clear ? h.n - kTransparent : h.n;
+    RaySample* s = out.data() + next;
+    for (std::size_t j = 0; j < n; ++j) {
+      s[j].pixel = h.pixel;
+      s[j].k = h.k + static_cast<std::uint32_t>(j);
+    }
+    if (!clear) {
+      if (wire == SampleWire::Half) {
+        halfToFloat4Strided(in.data() + at, n, &s->r, kStride);
+      } else {
+        for (std::size_t j = 0; j < n; ++j) {
+          float v[4];
+          std::memcpy(v, in.data() + at + j * valueBytes, sizeof v);
+          s[j].r = v[0];
+          s[j].g = v[1];
+          s[j].b = v[2];
+          s[j].a = v[3];
+        }
+      }
+      at += n * valueBytes;
+    }
+    next += n;
   }
   return true;
 }

@@ -282,8 +282,14 @@ private:
       handle(m);
     }
   }
-  void pump() {
-    while (auto m = t_.poll()) handle(*m);
+  // Handles what has arrived; whether there was anything.
+  bool pump() {
+    bool any = false;
+    while (auto m = t_.poll()) {
+      handle(*m);
+      any = true;
+    }
+    return any;
   }
 
   // The heartbeat: every quarter of parallel.timeout_s a keep-alive to every
@@ -584,8 +590,9 @@ int HostRank::run() {
   Clock::time_point firstSent{}, lastLog = start;
   bool stopping = false;
   lastHeard_.assign(static_cast<std::size_t>(L_.worldSize()), Clock::now());
+  comm::IdleBackoff idle;
   for (;;) {
-    pump();
+    if (pump()) idle.reset();
     heartbeat();
     if (serveViewer(lockstep) && !stopping) {
       // Paused: a live source's frames go by unused; a file's wait.
@@ -602,6 +609,7 @@ int HostRank::run() {
     }
     AcquiredFrame a;
     if (acq.tryPop(a)) {
+      idle.reset();
       if (sent_ == 0) firstSent = Clock::now();
       const std::uint64_t sourceIndex = a.frame.index;
       sendFrame(a);
@@ -637,7 +645,7 @@ int HostRank::run() {
     } else if (acq.finished()) {
       break;
     } else {
-      std::this_thread::sleep_for(std::chrono::microseconds(100));
+      idle.pause();
     }
   }
   if (sent_ == 0) throw InputError("run: the source gave no frame that can be placed");

@@ -51,6 +51,7 @@ public:
     const auto tick = std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(1.0 / c_.parallel.tickHz));
     auto nextTick = Clock::now() + tick;
     auto lastHeard = Clock::now();
+    comm::IdleBackoff idle;
     for (;;) {
       std::optional<Message> m;
       if (lockstep) {
@@ -66,7 +67,7 @@ public:
             nextTick = std::max(nextTick + tick, now);
           } else {
             const auto idle0 = Clock::now();
-            std::this_thread::sleep_for(std::min<Clock::duration>(nextTick - now, std::chrono::microseconds(200)));
+            idle.pause(std::chrono::duration_cast<std::chrono::microseconds>(nextTick - now));
             clock_.add(kWait, std::chrono::duration<double, std::milli>(Clock::now() - idle0).count());
           }
           if (std::chrono::duration<double>(now - lastHeard).count() > t_.timeoutS())
@@ -76,6 +77,7 @@ public:
           continue;
         }
         lastHeard = Clock::now();
+        idle.reset();
       }
       if (m->source == 0) {
         switch (m->tag) {
