@@ -84,8 +84,17 @@ TEST(IdleBackoff, YieldsThenDoublesUpToAMillisecond) {
                                   0,  0,  0,  0,  0,   10,  20,  40,  80,   160,  320,  640,  1000, 1000, 1000};
   EXPECT_EQ(steps, want);
   EXPECT_EQ(comm::IdleBackoff::kLongest, us(1000));
+  // The cap bounds the step (a PP's next tick comes first); none below zero.
+  EXPECT_EQ(idle.step(), us(1000));
+  EXPECT_EQ(idle.step(us(50)), us(50));
+  EXPECT_EQ(idle.step(us(0)), us(0));
+  EXPECT_EQ(idle.step(us(-5)), us(0));
+  // However long idle, the step stays at the longest.
+  for (int i = 0; i < 1000; ++i) idle.pause(us(0));
+  EXPECT_EQ(idle.next(), us(1000));
   idle.reset();
   EXPECT_EQ(idle.next(), us(0));
+  EXPECT_EQ(idle.step(us(50)), us(0));
 }
 
 TEST(LocalTransport, BroadcastBarrierAndTimeout) {

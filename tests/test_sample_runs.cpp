@@ -33,6 +33,67 @@ std::vector<RaySample> someSamples(std::mt19937& rng) {
   return s;
 }
 
+// The wire byte for byte as the format's comment says, against an encoder
+// written here the plain way (a run at a time, a value at a time): appended
+// after bytes already in `out`, for both wires, and for a batch long enough
+// that the encoder makes room for it more than once.
+std::vector<std::byte> referenceWire(const std::vector<RaySample>& s, SampleWire w, std::vector<std::byte> out) {
+  auto put = [&](const void* p, std::size_t n) {
+    const auto* b = static_cast<const std::byte*>(p);
+    out.insert(out.end(), b, b + n);
+  };
+  auto clearOf = [](const RaySample& x) {
+    std::uint32_t bits[4];
+    const float v[4] = {x.r, x.g, x.b, x.a};
+    std::memcpy(bits, v, sizeof bits);
+    return (bits[0] | bits[1] | bits[2] | bits[3]) == 0;
+  };
+  for (std::size_t i = 0; i < s.size();) {
+    const bool clear = clearOf(s[i]);
+    std::size_t n = 1;
+    while (i + n < s.size() && n < 0x7fff && s[i + n].pixel == s[i].pixel && s[i + n].k == s[i].k + n &&
+           clearOf(s[i + n]) == clear)
+      ++n;
+    const std::uint32_t pixel = s[i].pixel;
+    const auto k = static_cast<std::uint16_t>(s[i].k), count = static_cast<std::uint16_t>(clear ? 0x8000 + n : n);
+    put(&pixel, 4);
+    put(&k, 2);
+    put(&count, 2);
+    for (std::size_t j = 0; j < n && !clear; ++j) {
+      const float v[4] = {s[i + j].r, s[i + j].g, s[i + j].b, s[i + j].a};
+      if (w == SampleWire::Float) {
+        put(v, sizeof v);
+      } else {
+        for (const float x : v) {
+          const std::uint16_t h = floatToHalf(x);
+          put(&h, 2);
+        }
+      }
+    }
+    i += n;
+  }
+  return out;
+}
+
+TEST(SampleRuns, TheWireIsTheFormatsBytes) {
+  std::mt19937 rng(11);
+  std::vector<RaySample> in;
+  while (in.size() < 20000) {  // several of the encoder's rooms
+    const std::vector<RaySample> more = someSamples(rng);
+    in.insert(in.end(), more.begin(), more.end());
+  }
+  for (int i = 0; i < 3000; ++i) in.push_back({7u, static_cast<std::uint32_t>(100 + i), 0.5f, 0.25f, 0.125f, 1.0f});
+  for (const SampleWire w : {SampleWire::Half, SampleWire::Float}) {
+    const std::vector<std::byte> before = {std::byte{1}, std::byte{2}, std::byte{3}};
+    std::vector<std::byte> wire = before;
+    encodeSampleRuns(in, w, wire);
+    EXPECT_EQ(wire, referenceWire(in, w, before)) << (w == SampleWire::Half ? "half" : "float");
+    std::vector<std::byte> empty = before;
+    encodeSampleRuns({}, w, empty);
+    EXPECT_EQ(empty, before);
+  }
+}
+
 TEST(SampleRuns, FloatRoundTripsExactly) {
   std::mt19937 rng(3);
   const std::vector<RaySample> in = someSamples(rng);

@@ -25,15 +25,18 @@ void Transport::countReceived(int source, std::size_t bytes) {
 }
 
 std::chrono::microseconds IdleBackoff::next() const {
-  constexpr int kYields = 20;
   if (idle_ < kYields) return std::chrono::microseconds(0);
-  const int doublings = std::min(idle_ - kYields, 7);  // 10 us << 7 = 1.28 ms: past kLongest
+  const int doublings = std::min(idle_ - kYields, kSteps - kYields);  // 10 us << 7 = 1.28 ms: past kLongest
   return std::min(kLongest, std::chrono::microseconds(10 << doublings));
 }
 
+std::chrono::microseconds IdleBackoff::step(std::chrono::microseconds cap) const {
+  return std::max(std::chrono::microseconds(0), std::min(next(), cap));
+}
+
 void IdleBackoff::pause(std::chrono::microseconds cap) {
-  const std::chrono::microseconds step = std::min(next(), cap);
-  ++idle_;
+  const std::chrono::microseconds step = this->step(cap);
+  if (idle_ < kSteps) ++idle_;  // past the longest step: stays there
   if (step <= std::chrono::microseconds(0)) std::this_thread::yield();
   else std::this_thread::sleep_for(step);
 }

@@ -69,10 +69,13 @@ public:
   void reset() { idle_ = 0; }
   // How long the next pause() will be at most (zero: a yield).
   std::chrono::microseconds next() const;
+  // What pause(cap) will do: sleep this long, or yield when it is zero.
+  std::chrono::microseconds step(std::chrono::microseconds cap = kLongest) const;
   // Yields or sleeps the next step, at most `cap`, and lengthens the next.
   void pause(std::chrono::microseconds cap = kLongest);
 
 private:
+  static constexpr int kYields = 20, kSteps = kYields + 7;
   int idle_ = 0;
 };
 

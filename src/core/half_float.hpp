@@ -58,12 +58,14 @@ inline float halfToFloat(std::uint16_t h) {
 // else the functions above; the same bits either way.
 void halfToFloatN(const std::uint16_t* src, std::size_t n, float* dst);
 void floatToHalfN(const float* src, std::size_t n, std::uint16_t* dst);
-// `count` groups of 4 values, group g at src + g * strideFloats (floats) and
-// at dst + 8 * g bytes (halves, contiguous): the four channels of a sample
-// kept in a struct, to or from a packed wire. The same bits as the
-// one-value functions, with F16C or without.
-void floatToHalf4Strided(const float* src, std::size_t strideFloats, std::size_t count, void* dst);
-void halfToFloat4Strided(const void* src, std::size_t count, float* dst, std::size_t strideFloats);
+// `count` groups of 4 values: group g's floats at src + g * strideBytes, its
+// halves at dst + 8 * g (contiguous). The four channels of a sample kept in a
+// struct, to or from a packed wire; addresses are in bytes, so that a
+// caller steps through an array of structs, not past a member. The same bits
+// as the one-value functions, with F16C or without, but for a signalling NaN
+// half, which F16C turns into a quiet one (no pp5echo wire holds one).
+void floatToHalf4Strided(const void* src, std::size_t strideBytes, std::size_t count, void* dst);
+void halfToFloat4Strided(const void* src, std::size_t count, void* dst, std::size_t strideBytes);
 // Whether the CPU converts with F16C (and AVX), which the N-value conversions
 // and the cache's half put loop then use. A function-local static, so that it
 // is set even when called during another file's static initialisation.

@@ -18,8 +18,10 @@ constexpr std::uint16_t kMaxRun = 0x7fff;
 // conversions read them as a group of four floats).
 static_assert(offsetof(RaySample, g) == offsetof(RaySample, r) + 4 && offsetof(RaySample, b) == offsetof(RaySample, r) + 8 &&
               offsetof(RaySample, a) == offsetof(RaySample, r) + 12);
-constexpr std::size_t kStride = sizeof(RaySample) / sizeof(float);
-static_assert(sizeof(RaySample) % sizeof(float) == 0);
+// Where sample i's values begin, as bytes of the array (the strided
+// conversions step from there by sizeof(RaySample)).
+const std::byte* valuesOf(const RaySample* s) { return reinterpret_cast<const std::byte*>(s) + offsetof(RaySample, r); }
+std::byte* valuesOf(RaySample* s) { return reinterpret_cast<std::byte*>(s) + offsetof(RaySample, r); }
 
 bool transparent(const RaySample& s) {
   const float v[4] = {s.r, s.g, s.b, s.a};
@@ -47,34 +49,40 @@ std::size_t runAt(std::span<const RaySample> samples, std::size_t i, bool& clear
 
 void encodeSampleRuns(std::span<const RaySample> samples, SampleWire wire, std::vector<std::byte>& out) {
   const std::size_t valueBytes = sampleWireBytes(wire);
-  // Room is made a few thousand samples' worst case at a time (every sample a
-  // run of its own) and cut to what was written at the end: the samples are
-  // read once, and the room is zeroed while it is still in cache.
-  const std::size_t room = 2048 * (sizeof(SampleRunHeader) + valueBytes);
+  const std::size_t worst = sizeof(SampleRunHeader) + valueBytes;  // bytes of one sample at most
+  // Room is made for the worst case (every sample a run of its own) of up to
+  // 2048 of the samples left at a time and cut to what was written at the
+  // end: the samples are read once, and the room is zeroed while in cache.
   std::size_t at = out.size();
-  for (std::size_t i = 0; i < samples.size();) {
-    bool clear = false;
-    const std::size_t n = runAt(samples, i, clear);
-    const std::size_t need = sizeof(SampleRunHeader) + (clear ? 0 : n * valueBytes);
-    if (at + need > out.size()) out.resize(at + need + room);
-    const RaySample& first = samples[i];
-    const SampleRunHeader h{first.pixel, static_cast<std::uint16_t>(first.k),
-                            static_cast<std::uint16_t>(clear ? kTransparent + n : n)};
-    std::memcpy(out.data() + at, &h, sizeof h);
-    at += sizeof h;
-    if (!clear) {
-      if (wire == SampleWire::Half) {
-        floatToHalf4Strided(&first.r, kStride, n, out.data() + at);
-      } else {
-        for (std::size_t j = 0; j < n; ++j) {
-          const RaySample& s = samples[i + j];
-          const float v[4] = {s.r, s.g, s.b, s.a};
-          std::memcpy(out.data() + at + j * valueBytes, v, sizeof v);
+  try {
+    for (std::size_t i = 0; i < samples.size();) {
+      bool clear = false;
+      const std::size_t n = runAt(samples, i, clear);
+      const std::size_t need = sizeof(SampleRunHeader) + (clear ? 0 : n * valueBytes);
+      if (at + need > out.size())
+        out.resize(at + std::max(need, std::min<std::size_t>(2048, samples.size() - i) * worst));
+      const RaySample& first = samples[i];
+      const SampleRunHeader h{first.pixel, static_cast<std::uint16_t>(first.k),
+                              static_cast<std::uint16_t>(clear ? kTransparent + n : n)};
+      std::memcpy(out.data() + at, &h, sizeof h);
+      at += sizeof h;
+      if (!clear) {
+        if (wire == SampleWire::Half) {
+          floatToHalf4Strided(valuesOf(&first), sizeof(RaySample), n, out.data() + at);
+        } else {
+          for (std::size_t j = 0; j < n; ++j) {
+            const RaySample& s = samples[i + j];
+            const float v[4] = {s.r, s.g, s.b, s.a};
+            std::memcpy(out.data() + at + j * valueBytes, v, sizeof v);
+          }
         }
+        at += n * valueBytes;
       }
-      at += n * valueBytes;
+      i += n;
     }
-    i += n;
+  } catch (...) {
+    out.resize(at);  // the whole runs written before the failure, no room after them
+    throw;
   }
   out.resize(at);
 }
@@ -112,7 +120,7 @@ bool decodeSampleRuns(std::span<const std::byte> in, SampleWire wire, std::vecto
     }
     if (!clear) {
       if (wire == SampleWire::Half) {
-        halfToFloat4Strided(in.data() + at, n, &s->r, kStride);
+        halfToFloat4Strided(in.data() + at, n, valuesOf(s), sizeof(RaySample));
       } else {
         for (std::size_t j = 0; j < n; ++j) {
           float v[4];
