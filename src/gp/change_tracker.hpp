@@ -17,7 +17,7 @@
 //     sample reads the 8 voxels of one cell (gp/stencil.hpp), so only a
 //     sample whose cell has a changed voxel can differ from what the PP's
 //     cache holds: changedCells() marks those cells, and changedBricks()
-//     holds the 8^3-voxel bricks with a changed shade for the D-buffer and
+//     holds the kBrick^3-voxel bricks with a changed shade for the D-buffer and
 //     the empty-space map.
 // Skipping the rest is exact: a voxel whose inputs did not change shades to
 // the same bits, and a sample whose voxels did not change interpolates to
@@ -36,7 +36,11 @@ namespace pp5::gp {
 
 class ChangeTracker {
 public:
-  static constexpr int kBrick = 8;  // voxels a side of changedBricks()
+  // Voxels a side of changedBricks(): the D-buffer's spans are whole bricks,
+  // and the sampler visits every sample in them to find the few whose cell
+  // changed. 4 visits fewer than 8 and costs fewer boxes than 2
+  // (docs/benchmarks.md, "Smaller changed bricks").
+  static constexpr int kBrick = 4;
 
   ChangeTracker() = default;
   // The values the shade buffer is computed from (e.g. the empty grid).
