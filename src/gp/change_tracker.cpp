@@ -7,6 +7,7 @@
 #include <type_traits>
 
 #include "core/error.hpp"
+#include "gp/voxel_array.hpp"
 
 #if defined(__SSE2__)
 #include <emmintrin.h>
@@ -19,17 +20,32 @@ constexpr std::int32_t kNone = INT32_MAX;
 constexpr std::int64_t kAhead = 8;  // rows fetched ahead
 }
 
+namespace {
+// A zero-filled (or copied) byte array on huge pages where the system allows:
+// the tracker reads rows a kilobyte apart, a TLB miss a row on 4 KiB pages.
+template <typename It>
+void assignOnHugePages(std::vector<std::uint8_t>& v, It first, It last) {
+  v.reserve(static_cast<std::size_t>(last - first));
+  adviseHugePages(v.data(), v.capacity());
+  v.assign(first, last);
+}
+}  // namespace
+
 ChangeTracker::ChangeTracker(const Volume& values)
     : grid_(values.grid),
-      copy_(values),
       rowLo_(static_cast<std::size_t>(values.grid.dims.y * values.grid.dims.z), kNone),
       rowHi_(static_cast<std::size_t>(values.grid.dims.y * values.grid.dims.z), -1),
       selfLo_(rowLo_),
       selfHi_(rowHi_),
       visLo_(rowLo_),
       visHi_(rowHi_),
-      cells_(values.grid.voxelCount(), 0),
-      bricks_(values.grid, kBrick) {}
+      bricks_(values.grid, kBrick) {
+  copy_.grid = values.grid;
+  copy_.type = values.type;
+  assignOnHugePages(copy_.bytes, values.bytes.begin(), values.bytes.end());
+  const std::vector<std::uint8_t> zero(values.grid.voxelCount(), 0);
+  assignOnHugePages(cells_, zero.begin(), zero.end());
+}
 
 std::uint64_t ChangeTracker::memoryBytes(const Grid& g, ScalarType t) {
   return g.voxelCount() * bytesPerVoxel(t) +
