@@ -260,10 +260,36 @@ std::vector<Box3> ChangeTracker::shadingRuns(const Volume& values, std::span<con
   return out;
 }
 
+namespace {
+// A voxel's (i, j, k) from its linear index, for voxels that come mostly in
+// rows (as shade() reports them): the divisions only when the row changes.
+class RowCursor {
+public:
+  explicit RowCursor(const Index3& d) : d_(d) {}
+  void at(std::int64_t v, std::int64_t& i, std::int64_t& j, std::int64_t& k) {
+    if (v < rowBase_ || v >= rowBase_ + d_.x) {
+      const std::int64_t q = v / d_.x;
+      rowBase_ = q * d_.x;
+      j_ = q % d_.y;
+      k_ = q / d_.y;
+    }
+    i = v - rowBase_;
+    j = j_;
+    k = k_;
+  }
+
+private:
+  Index3 d_;
+  std::int64_t rowBase_ = -1, j_ = 0, k_ = 0;
+};
+}  // namespace
+
 void ChangeTracker::markCells(std::uint8_t value) {
   const Index3 d = grid_.dims;
+  RowCursor cur(d);
   for (const std::int64_t v : changed_) {
-    const std::int64_t i = v % d.x, j = (v / d.x) % d.y, k = v / (d.x * d.y);
+    std::int64_t i = 0, j = 0, k = 0;
+    cur.at(v, i, j, k);
     // Voxel v is a corner of cells v - 1 and v on each axis (those in 0 .. dims - 2).
     for (std::int64_t ck = std::max<std::int64_t>(k - 1, 0); ck <= std::min(k, d.z - 2); ++ck)
       for (std::int64_t cj = std::max<std::int64_t>(j - 1, 0); cj <= std::min(j, d.y - 2); ++cj) {
@@ -274,15 +300,17 @@ void ChangeTracker::markCells(std::uint8_t value) {
 }
 
 void ChangeTracker::setShadeChanges(std::span<const std::int64_t> voxels) {
-  const Index3 d = grid_.dims;
   for (const std::int64_t v : voxels) PP5_CHECK(v >= 0 && static_cast<std::uint64_t>(v) < grid_.voxelCount());
   markCells(0);
   changed_.assign(voxels.begin(), voxels.end());
   markCells(1);
   bricks_.clear();
   std::int64_t lastBrick = -1;
+  RowCursor cur(grid_.dims);
   for (const std::int64_t v : changed_) {
-    const std::int64_t bi = (v % d.x) / kBrick, bj = ((v / d.x) % d.y) / kBrick, bk = v / (d.x * d.y) / kBrick;
+    std::int64_t i = 0, j = 0, k = 0;
+    cur.at(v, i, j, k);
+    const std::int64_t bi = i / kBrick, bj = j / kBrick, bk = k / kBrick;
     const std::int64_t id = (bk * bricks_.brickDims().y + bj) * bricks_.brickDims().x + bi;
     if (id == lastBrick) continue;
     lastBrick = id;
