@@ -44,6 +44,13 @@ std::filesystem::path freshDir(const std::string& name) {
   return dir;
 }
 
+// A recording that failed: no sequence, and its journal holding `frames` frames.
+void expectOnlyTheJournal(const std::string& seq, std::size_t frames) {
+  EXPECT_FALSE(std::filesystem::exists(seq)) << seq;
+  ASSERT_TRUE(std::filesystem::exists(seq + ".journal")) << seq;
+  EXPECT_EQ(readAllFrames(seq + ".journal").size(), frames) << seq;
+}
+
 // 0.3 mm pixels; the image slides along z by `stepMm` a frame.
 Mat4 slid(double mm) { return glm::translate(Mat4(1.0), Vec3(0.0, 0.0, mm)) * glm::scale(Mat4(1.0), Vec3(0.3, 0.3, 1.0)); }
 
@@ -163,9 +170,7 @@ TEST(Recorder, AFailedWriteKeepsTheJournal) {
     EXPECT_THROW(rec.write(f), InputError);
     rec.close();
   }
-  EXPECT_FALSE(fs::exists(seq));
-  ASSERT_TRUE(fs::exists(seq + ".journal"));
-  EXPECT_EQ(readAllFrames(seq + ".journal").size(), 1u);
+  expectOnlyTheJournal(seq, 1);
   fs::remove_all(dir);
 }
 
@@ -241,9 +246,7 @@ TEST(RecorderThread, AFailedWriteReachesTheCallerOnce) {
     EXPECT_EQ(rec.path(), "");
     EXPECT_NO_THROW(rec.finish());
   }
-  EXPECT_FALSE(fs::exists(seq));
-  ASSERT_TRUE(fs::exists(seq + ".journal"));
-  EXPECT_EQ(readAllFrames(seq + ".journal").size(), 1u);
+  expectOnlyTheJournal(seq, 1);
   fs::remove_all(dir);
 }
 
@@ -317,8 +320,7 @@ TEST(RecorderThread, AFailedCloseLeavesTheNextRecordingWhole) {
     fs::remove_all(dir);
     GTEST_SKIP() << "cannot make a read-only folder here";
   }
-  EXPECT_FALSE(fs::exists(a));
-  EXPECT_EQ(readAllFrames(a + ".journal").size(), 3u);
+  expectOnlyTheJournal(a, 3);
   EXPECT_EQ(readAllFrames(b).size(), 2u);
   EXPECT_FALSE(fs::exists(b + ".journal"));
   fs::remove_all(dir);

@@ -70,11 +70,7 @@ void encodeSampleRuns(std::span<const RaySample> samples, SampleWire wire, std::
         if (wire == SampleWire::Half) {
           floatToHalf4Strided(valuesOf(&first), sizeof(RaySample), n, out.data() + at);
         } else {
-          for (std::size_t j = 0; j < n; ++j) {
-            const RaySample& s = samples[i + j];
-            const float v[4] = {s.r, s.g, s.b, s.a};
-            std::memcpy(out.data() + at + j * valueBytes, v, sizeof v);
-          }
+          for (std::size_t j = 0; j < n; ++j) std::memcpy(out.data() + at + j * valueBytes, valuesOf(&first + j), valueBytes);
         }
         at += n * valueBytes;
       }
@@ -122,14 +118,7 @@ bool decodeSampleRuns(std::span<const std::byte> in, SampleWire wire, std::vecto
       if (wire == SampleWire::Half) {
         halfToFloat4Strided(in.data() + at, n, valuesOf(s), sizeof(RaySample));
       } else {
-        for (std::size_t j = 0; j < n; ++j) {
-          float v[4];
-          std::memcpy(v, in.data() + at + j * valueBytes, sizeof v);
-          s[j].r = v[0];
-          s[j].g = v[1];
-          s[j].b = v[2];
-          s[j].a = v[3];
-        }
+        for (std::size_t j = 0; j < n; ++j) std::memcpy(valuesOf(s + j), in.data() + at + j * valueBytes, valueBytes);
       }
       at += n * valueBytes;
     }
