@@ -1,9 +1,12 @@
 // The change tracker (gp/change_tracker.hpp) against brute force: shading
 // only the runs it lists gives the bits of a full re-shade, for random
-// changes of values, visible and transparent, for every voxel type; and the
+// changes of values, visible and transparent, for every voxel type, in both
+// its forms (comparing with a copy, and told the changed rows); and the
 // cells it marks are exactly those with a changed voxel among their 8.
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <climits>
 #include <cstring>
 #include <random>
 #include <vector>
@@ -71,7 +74,11 @@ TEST_P(Tracker, ShadingTheRunsEqualsAFullReshade) {
   const Box3 all{Index3(0), g.dims};
   ShadeBuffer buf(g);
   shade(v, tf, s, cam, all, buf);
-  ChangeTracker tracker(v);
+  ChangeTracker tracker(v, buf, true);
+  // The reported form, with a shade buffer of its own.
+  ShadeBuffer bufR = buf;
+  ChangeTracker told(v, bufR, false);
+  EXPECT_LT(told.memoryBytes(), tracker.memoryBytes());
 
   for (int round = 0; round < 12; ++round) {
     // Change values in a random box (the "dirty region"), some of them.
@@ -82,11 +89,32 @@ TEST_P(Tracker, ShadingTheRunsEqualsAFullReshade) {
       hi[a] = std::uniform_int_distribution<std::int64_t>(lo[a] + 1, n)(rng);
     }
     const Box3 dirty{lo, hi};
+    // What the reconstructor would report: per row, the changed voxels'
+    // range, widened by up to two voxels on either side (the runs may hold
+    // unchanged ones) and at times cut in two overlapping halves.
+    std::vector<RowRun> reported;
     for (std::int64_t k = lo.z; k < hi.z; ++k)
-      for (std::int64_t j = lo.y; j < hi.y; ++j)
+      for (std::int64_t j = lo.y; j < hi.y; ++j) {
+        std::int32_t a = INT32_MAX, z = -1;
         for (std::int64_t i = lo.x; i < hi.x; ++i)
-          if (std::uniform_int_distribution<int>(0, 2)(rng) == 0)
+          if (std::uniform_int_distribution<int>(0, 2)(rng) == 0) {
             v.setValue(static_cast<std::size_t>((k * g.dims.y + j) * g.dims.x + i), randomValue());
+            a = std::min(a, static_cast<std::int32_t>(i));
+            z = static_cast<std::int32_t>(i);
+          }
+        if (a > z) continue;
+        a = std::max(0, a - std::uniform_int_distribution<std::int32_t>(0, 2)(rng));
+        z = std::min(static_cast<std::int32_t>(g.dims.x - 1), z + std::uniform_int_distribution<std::int32_t>(0, 2)(rng));
+        const auto jj = static_cast<std::int32_t>(j), kk = static_cast<std::int32_t>(k);
+        if (z - a >= 2 && std::uniform_int_distribution<int>(0, 1)(rng) == 0) {
+          const std::int32_t m = (a + z) / 2;
+          reported.push_back({jj, kk, m - 1, z});
+          reported.push_back({jj, kk, a, m});
+        } else {
+          reported.push_back({jj, kk, a, z});
+        }
+      }
+    std::shuffle(reported.begin(), reported.end(), rng);
     const Box3 needed = dirty.grown(1).intersect(all);
     const std::vector<Box3> within = pieces(needed);
     std::uint64_t withinVoxels = 0;
@@ -97,17 +125,26 @@ TEST_P(Tracker, ShadingTheRunsEqualsAFullReshade) {
     std::vector<std::int64_t> changed;
     shade(v, tf, s, cam, runs, buf, &changed);
 
+    const std::vector<Box3> runsR = told.shadingRuns(v, reported, within, grey ? nullptr : &tf);
+    std::vector<std::int64_t> changedR;
+    shade(v, tf, s, cam, runsR, bufR, &changedR);
+
     ShadeBuffer full(g);
     shade(v, tf, s, cam, all, full);
     ASSERT_EQ(std::memcmp(full.data(), buf.data(), g.voxelCount() * sizeof(ShadeVoxel)), 0) << "round " << round;
-    std::uint64_t runVoxels = 0;
+    ASSERT_EQ(std::memcmp(full.data(), bufR.data(), g.voxelCount() * sizeof(ShadeVoxel)), 0) << "round " << round;
+    EXPECT_EQ(changedR, changed) << "both forms find the same changed shades";
+    std::uint64_t runVoxels = 0, runVoxelsR = 0;
     for (const Box3& r : runs) runVoxels += r.voxelCount();
+    for (const Box3& r : runsR) runVoxelsR += r.voxelCount();
     if (!grey) {
       EXPECT_LT(runVoxels, needed.voxelCount()) << "transparent voxels are left out";
+      EXPECT_LT(runVoxelsR, needed.voxelCount()) << "transparent voxels are left out";
     }
+    told.setShadeChanges(changedR, bufR);
 
     // The cells: marked exactly where one of the 8 voxels changed its shade.
-    tracker.setShadeChanges(changed);
+    tracker.setShadeChanges(changed, buf);
     std::vector<std::uint8_t> flag(g.voxelCount(), 0);
     for (const std::int64_t c : changed) flag[static_cast<std::size_t>(c)] = 1;
     for (std::size_t c = 1; c < changed.size(); ++c) ASSERT_LT(changed[c - 1], changed[c]) << "ascending, unique";
@@ -135,6 +172,7 @@ TEST_P(Tracker, ShadingTheRunsEqualsAFullReshade) {
   // Nothing changed: nothing to shade.
   const std::vector<Box3> none = tracker.shadingRuns(v, std::span<const Box3>(&all, 1), std::span<const Box3>(&all, 1), &tf);
   EXPECT_TRUE(none.empty());
+  EXPECT_TRUE(told.shadingRuns(v, std::span<const RowRun>(), std::span<const Box3>(&all, 1), &tf).empty());
 }
 
 INSTANTIATE_TEST_SUITE_P(Types, Tracker,
@@ -161,7 +199,8 @@ TEST(Tracker, FloatScanListsTheRunsOfTheScalarScan) {
     u.setValue(i, x);
   }
   const TransferFunction tf;
-  ChangeTracker tf32(f), tu16(u);
+  const ShadeBuffer none(g);
+  ChangeTracker tf32(f, none, true), tu16(u, none, true);
   const Box3 all{Index3(0), g.dims};
   int listed = 0;
   for (int round = 0; round < 40; ++round) {

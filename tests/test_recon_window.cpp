@@ -220,16 +220,23 @@ std::unique_ptr<Reconstructor> windowedRun(const Grid& g, const ReconSettings& s
     std::string where;
     EXPECT_TRUE(sameInside(rec->output(), ref.out[n + 1], rec->window(), &where)) << "output, " << where;
     EXPECT_TRUE(sameInside(rec->weights(), ref.wts[n + 1], rec->window(), &where)) << "weights, " << where;
-    // The dirty region covers every voxel of the window whose output changed.
+    // The dirty region, and the changed runs where the method reports them,
+    // cover every voxel of the window whose output changed.
     const Box3 w = rec->window();
-    int uncovered = 0;
+    std::vector<std::uint8_t> inRuns(g.voxelCount(), 0);
+    for (const RowRun& r : res.changedRuns)
+      for (std::int64_t i = r.i0; i <= r.i1; ++i) inRuns[g.linear(i, r.j, r.k)] = 1;
+    int uncovered = 0, outsideRuns = 0;
     for (std::int64_t k = w.lo.z; k < w.hi.z; ++k)
       for (std::int64_t j = w.lo.y; j < w.hi.y; ++j)
         for (std::int64_t i = w.lo.x; i < w.hi.x; ++i) {
           const std::size_t v = g.linear(i, j, k);
-          if (bitsAt(ref.out[n], v) != bitsAt(ref.out[n + 1], v) && !res.dirty.containsVoxel(i, j, k)) ++uncovered;
+          if (bitsAt(ref.out[n], v) == bitsAt(ref.out[n + 1], v)) continue;
+          if (!res.dirty.containsVoxel(i, j, k)) ++uncovered;
+          if (rec->reportsChangedRuns() && !inRuns[v]) ++outsideRuns;
         }
     EXPECT_EQ(uncovered, 0);
+    EXPECT_EQ(outsideRuns, 0);
     if (::testing::Test::HasFailure()) break;  // one frame's report is enough
   }
   return rec;

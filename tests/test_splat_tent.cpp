@@ -810,6 +810,19 @@ std::vector<Shot> mixedSequence() {
   return shots;
 }
 
+// Per voxel, whether one of `runs` holds it (every run inside the grid).
+std::vector<std::uint8_t> runMask(const Grid& g, const std::vector<RowRun>& runs) {
+  std::vector<std::uint8_t> m(g.voxelCount(), 0);
+  for (const RowRun& r : runs) {
+    EXPECT_TRUE(r.j >= 0 && r.j < g.dims.y && r.k >= 0 && r.k < g.dims.z && r.i0 >= 0 && r.i0 <= r.i1 &&
+                r.i1 < g.dims.x);
+    for (std::int64_t i = r.i0; i <= r.i1; ++i) m[g.linear(i, r.j, r.k)] = 1;
+  }
+  return m;
+}
+
+// The dirty region covers every voxel whose output or weight changed, and the
+// changed runs every voxel whose output bits changed.
 TEST(TentDeterminism, IncrementalEqualsBatchForAnyThreadCountAndDirtyCoversEveryChange) {
   const Grid g = cubeGrid(40, 1.0);
   const std::vector<Shot> shots = mixedSequence();
@@ -838,7 +851,9 @@ TEST(TentDeterminism, IncrementalEqualsBatchForAnyThreadCountAndDirtyCoversEvery
       for (std::size_t n = 0; n < shots.size(); ++n) {
         const InsertResult r = rec->insert(shots[n].frame, shots[n].pose, shots[n].t);
         const Volume w = rec->weights();
-        std::size_t changed = 0;
+        ASSERT_TRUE(rec->reportsChangedRuns());
+        const std::vector<std::uint8_t> inRuns = runMask(g, r.changedRuns);
+        std::size_t changed = 0, outputChanged = 0;
         for (std::int64_t k = 0; k < g.dims.z; ++k)
           for (std::int64_t j = 0; j < g.dims.y; ++j)
             for (std::int64_t i = 0; i < g.dims.x; ++i) {
@@ -849,8 +864,13 @@ TEST(TentDeterminism, IncrementalEqualsBatchForAnyThreadCountAndDirtyCoversEvery
               ++changed;
               ASSERT_TRUE(r.dirty.containsVoxel(i, j, k)) << "frame " << n << " changed voxel " << i << " " << j
                                                           << " " << k << " outside its dirty region";
+              if (std::memcmp(prevOut.bytes.data() + 4 * li, rec->output().bytes.data() + 4 * li, 4) == 0) continue;
+              ++outputChanged;
+              ASSERT_TRUE(inRuns[li]) << "frame " << n << " changed output at " << i << " " << j << " " << k
+                                      << " outside the changed runs";
             }
         EXPECT_GT(changed, 100u) << "frame " << n;
+        EXPECT_GT(outputChanged, 100u) << "frame " << n;
         EXPECT_LT(r.dirty.voxelCount(), g.voxelCount()) << "frame " << n;
         prevOut = rec->output();
         prevW = w;

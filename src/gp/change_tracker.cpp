@@ -31,31 +31,52 @@ void assignOnHugePages(std::vector<std::uint8_t>& v, It first, It last) {
 }
 }  // namespace
 
-ChangeTracker::ChangeTracker(const Volume& values)
+ChangeTracker::ChangeTracker(const Volume& values, const ShadeBuffer& shades, bool compare)
     : grid_(values.grid),
+      type_(values.type),
+      compare_(compare),
       rowLo_(static_cast<std::size_t>(values.grid.dims.y * values.grid.dims.z), kNone),
       rowHi_(static_cast<std::size_t>(values.grid.dims.y * values.grid.dims.z), -1),
       selfLo_(rowLo_),
       selfHi_(rowHi_),
-      visLo_(rowLo_),
-      visHi_(rowHi_),
       bricks_(values.grid, kBrick) {
   copy_.grid = values.grid;
   copy_.type = values.type;
-  assignOnHugePages(copy_.bytes, values.bytes.begin(), values.bytes.end());
   const std::vector<std::uint8_t> zero(values.grid.voxelCount(), 0);
   assignOnHugePages(cells_, zero.begin(), zero.end());
+  resync(values, shades);
 }
 
-std::uint64_t ChangeTracker::memoryBytes(const Grid& g, ScalarType t) {
-  return g.voxelCount() * bytesPerVoxel(t) +
-         static_cast<std::uint64_t>(g.dims.y * g.dims.z) * 32;
+std::uint64_t ChangeTracker::memoryBytes(const Grid& g, ScalarType t, bool compare) {
+  const std::uint64_t n = g.voxelCount();
+  const std::uint64_t values = compare ? n * static_cast<std::uint64_t>(scalarBytes(t)) : (n + 63) / 64 * 8;
+  return n + values + static_cast<std::uint64_t>(g.dims.y * g.dims.z) * 16;
 }
 
-void ChangeTracker::resync(const Volume& values) {
+void ChangeTracker::resync(const Volume& values, const ShadeBuffer& shades) {
   PP5_CHECK(values.grid.dims == grid_.dims);
-  PP5_CHECK(values.type == copy_.type);
-  copy_.bytes = values.bytes;
+  PP5_CHECK(values.type == type_);
+  PP5_CHECK(shades.grid().dims == grid_.dims);
+  if (compare_) {
+    if (copy_.bytes.empty())
+      assignOnHugePages(copy_.bytes, values.bytes.begin(), values.bytes.end());
+    else
+      copy_.bytes = values.bytes;
+    return;
+  }
+  const std::uint64_t n = grid_.voxelCount();
+  shadedBits_.assign((n + 63) / 64, 0);
+  const auto* v = reinterpret_cast<const std::uint8_t*>(shades.data());
+  for (std::uint64_t w = 0; w < shadedBits_.size(); ++w) {
+    std::uint64_t bits = 0;
+    const std::uint64_t end = std::min<std::uint64_t>(64, n - 64 * w);
+    for (std::uint64_t b = 0; b < end; ++b) {
+      std::uint32_t rgba;  // a shade is zero when its four bytes are
+      std::memcpy(&rgba, v + 4 * (64 * w + b), 4);
+      bits |= static_cast<std::uint64_t>(rgba != 0) << b;
+    }
+    shadedBits_[w] = bits;
+  }
 }
 
 namespace {
@@ -64,8 +85,14 @@ namespace {
 struct RowScan {
   std::int32_t changedLo = kNone, changedHi = -1;  // values that changed
   std::int32_t selfLo = kNone, selfHi = -1;        // ... and were or are visible
-  std::int32_t visibleLo = kNone, visibleHi = -1;  // values visible now
 };
+
+template <class T>
+float loadValue(const std::uint8_t* bytes, std::int64_t i) {
+  T v;
+  std::memcpy(&v, bytes + i * static_cast<std::int64_t>(sizeof(T)), sizeof(T));
+  return static_cast<float>(v);
+}
 
 // Compares n values of a row with the copy (by their bits), takes the new
 // ones into the copy, and notes the ranges.
@@ -79,15 +106,10 @@ RowScan scanRow(const std::uint8_t* nowBytes, std::uint8_t* wasBytes, std::int32
     Bits now, was;
     std::memcpy(&now, nowBytes + v * static_cast<std::int64_t>(sizeof(T)), sizeof(T));
     std::memcpy(&was, wasBytes + v * static_cast<std::int64_t>(sizeof(T)), sizeof(T));
-    const bool vis = visible(now);
-    if (vis) {
-      s.visibleLo = std::min(s.visibleLo, v);
-      s.visibleHi = v;
-    }
     if (now == was) continue;
     s.changedLo = std::min(s.changedLo, v);
     s.changedHi = v;
-    if (vis || visible(was)) {
+    if (visible(now) || visible(was)) {
       s.selfLo = std::min(s.selfLo, v);
       s.selfHi = v;
     }
@@ -101,39 +123,51 @@ RowScan scanRow(const std::uint8_t* nowBytes, std::uint8_t* wasBytes, std::int32
 }
 
 #if defined(__SSE2__)
+// Four floats at a time, the lanes that transparentUpTo calls visible (tf
+// null: all), by the same float operations: x = v <= 0 ? 0 : v >= 255 ? 255
+// : v, visible unless x * steps < below (a NaN stays visible, as there).
+class VisibleLanes {
+public:
+  explicit VisibleLanes(const TransferFunction* tf)
+      : tf_(tf != nullptr), below_(_mm_set1_ps(tf ? tf->transparentBelow() : 0.0f)) {}
+  int operator()(__m128 v) const {
+    if (!tf_) return 0xf;
+    const __m128 zero = _mm_setzero_ps(), top = _mm_set1_ps(255.0f);
+    const __m128 steps = _mm_set1_ps(static_cast<float>(TransferFunction::kStepsPerLevel));
+    const __m128 le = _mm_cmple_ps(v, zero), ge = _mm_cmpge_ps(v, top);
+    const __m128 clamped = _mm_or_ps(_mm_and_ps(ge, top), _mm_andnot_ps(ge, v));
+    const __m128 x = _mm_andnot_ps(le, clamped);
+    return _mm_movemask_ps(_mm_cmplt_ps(_mm_mul_ps(x, steps), below_)) ^ 0xf;
+  }
+
+private:
+  bool tf_;
+  __m128 below_;
+};
+
+// Widens [lo, hi] by the set lanes of `mask`, lane 0 at x = at.
+inline void noteLanes(std::int32_t& lo, std::int32_t& hi, int mask, std::int32_t at) {
+  if (!mask) return;
+  lo = std::min(lo, at + std::countr_zero(static_cast<unsigned>(mask)));
+  hi = std::max(hi, at + 31 - std::countl_zero(static_cast<unsigned>(mask)));
+}
+
 // scanRow for float values, four at a time without a branch per voxel (the
 // speckle of a reconstruction makes "visible" a coin toss, which a branch
 // mispredicts): the same tests by the same float operations, so the same
 // ranges.
 RowScan scanRowF32(const std::uint8_t* nowBytes, std::uint8_t* wasBytes, std::int32_t n, const TransferFunction* tf) {
   RowScan s;
-  const __m128 zero = _mm_setzero_ps(), top = _mm_set1_ps(255.0f);
-  const __m128 steps = _mm_set1_ps(static_cast<float>(TransferFunction::kStepsPerLevel));
-  const __m128 below = _mm_set1_ps(tf ? tf->transparentBelow() : 0.0f);
-  // Lanes visible by transparentUpTo's test: x = v <= 0 ? 0 : v >= 255 ? 255
-  // : v, visible unless x * steps < below (a NaN stays visible, as there).
-  auto visible = [&](__m128 v) -> int {
-    if (!tf) return 0xf;
-    const __m128 le = _mm_cmple_ps(v, zero), ge = _mm_cmpge_ps(v, top);
-    const __m128 clamped = _mm_or_ps(_mm_and_ps(ge, top), _mm_andnot_ps(ge, v));
-    const __m128 x = _mm_andnot_ps(le, clamped);
-    return _mm_movemask_ps(_mm_cmplt_ps(_mm_mul_ps(x, steps), below)) ^ 0xf;
-  };
-  auto note = [](std::int32_t& lo, std::int32_t& hi, int mask, std::int32_t at) {
-    if (!mask) return;
-    lo = std::min(lo, at + std::countr_zero(static_cast<unsigned>(mask)));
-    hi = at + 31 - std::countl_zero(static_cast<unsigned>(mask));
-  };
+  const VisibleLanes visible(tf);
+  const auto note = noteLanes;
   std::int32_t v = 0;
   for (; v + 4 <= n; v += 4) {
     const __m128i nowI = _mm_loadu_si128(reinterpret_cast<const __m128i*>(nowBytes + 4 * v));
     const __m128i wasI = _mm_loadu_si128(reinterpret_cast<const __m128i*>(wasBytes + 4 * v));
     const int changed = _mm_movemask_ps(_mm_castsi128_ps(_mm_cmpeq_epi32(nowI, wasI))) ^ 0xf;
-    const int vis = visible(_mm_castsi128_ps(nowI));
-    note(s.visibleLo, s.visibleHi, vis, v);
     if (!changed) continue;
     note(s.changedLo, s.changedHi, changed, v);
-    note(s.selfLo, s.selfHi, changed & (vis | visible(_mm_castsi128_ps(wasI))), v);
+    note(s.selfLo, s.selfHi, changed & (visible(_mm_castsi128_ps(nowI)) | visible(_mm_castsi128_ps(wasI))), v);
   }
   if (v < n) {
     // The last one to three, by the scalar scan.
@@ -145,7 +179,6 @@ RowScan scanRowF32(const std::uint8_t* nowBytes, std::uint8_t* wasBytes, std::in
     };
     widen(s.changedLo, s.changedHi, t.changedLo, t.changedHi);
     widen(s.selfLo, s.selfHi, t.selfLo, t.selfHi);
-    widen(s.visibleLo, s.visibleHi, t.visibleLo, t.visibleHi);
   }
   // The copy takes the changed range (the tail's part again, the same bytes).
   if (s.changedLo <= s.changedHi)
@@ -155,28 +188,93 @@ RowScan scanRowF32(const std::uint8_t* nowBytes, std::uint8_t* wasBytes, std::in
 }
 #endif
 
+// The first (last) set bit of `bits` in [from, to], or -1.
+std::int64_t firstSetBit(const std::vector<std::uint64_t>& bits, std::int64_t from, std::int64_t to) {
+  for (std::int64_t w = from / 64; w <= to / 64; ++w) {
+    std::uint64_t word = bits[static_cast<std::size_t>(w)];
+    if (w == from / 64) word &= ~std::uint64_t{0} << (from % 64);
+    if (w == to / 64 && to % 64 != 63) word &= (std::uint64_t{1} << (to % 64 + 1)) - 1;
+    if (word) return w * 64 + std::countr_zero(word);
+  }
+  return -1;
+}
+std::int64_t lastSetBit(const std::vector<std::uint64_t>& bits, std::int64_t from, std::int64_t to) {
+  for (std::int64_t w = to / 64; w >= from / 64; --w) {
+    std::uint64_t word = bits[static_cast<std::size_t>(w)];
+    if (w == from / 64) word &= ~std::uint64_t{0} << (from % 64);
+    if (w == to / 64 && to % 64 != 63) word &= (std::uint64_t{1} << (to % 64 + 1)) - 1;
+    if (word) return w * 64 + 63 - std::countl_zero(word);
+  }
+  return -1;
+}
+
+// Narrows [a, z] of the row at `row` (its first voxel's bytes) to its first
+// and last voxel for which keep(value, x) holds (a > z: none).
+template <class T, class Keep>
+void narrowRow(const std::uint8_t* row, std::int64_t& a, std::int64_t& z, Keep&& keep) {
+  while (a <= z && !keep(loadValue<T>(row, a), a)) ++a;
+  while (z > a && !keep(loadValue<T>(row, z), z)) --z;
+}
+
+// Narrows [a, z] of a row of values to its first and last visible voxel.
+void narrowToVisible(ScalarType type, const std::uint8_t* row, std::int64_t& a, std::int64_t& z,
+                     const TransferFunction& tf) {
+  auto keep = [&](float v, std::int64_t) { return !tf.transparentUpTo(v); };
+  switch (type) {
+    case ScalarType::U8: narrowRow<std::uint8_t>(row, a, z, keep); break;
+    case ScalarType::U16: narrowRow<std::uint16_t>(row, a, z, keep); break;
+    case ScalarType::F32: {
+#if defined(__SSE2__)
+      // Four at a time and no branch on the (speckled) visibility: the
+      // visible lanes' range, over the groups of four inside [a, z] and the
+      // last one to three one by one.
+      const VisibleLanes visible(&tf);
+      std::int32_t lo = kNone, hi = -1;
+      const auto* f = reinterpret_cast<const float*>(row);
+      auto x = static_cast<std::int32_t>(a);
+      for (; x + 3 <= z; x += 4) noteLanes(lo, hi, visible(_mm_loadu_ps(f + x)), x);
+      for (; x <= z; ++x)
+        if (keep(loadValue<float>(row, x), x)) noteLanes(lo, hi, 1, x);
+      a = lo;
+      z = hi;
+#else
+      narrowRow<float>(row, a, z, keep);
+#endif
+      break;
+    }
+  }
+}
+
 }  // namespace
+
+void ChangeTracker::noteRow(std::int64_t row, std::int32_t lo, std::int32_t hi, std::int32_t sLo, std::int32_t sHi) {
+  if (lo > hi) return;
+  const auto i = static_cast<std::size_t>(row);
+  if (rowLo_[i] > rowHi_[i]) rowsTouched_.push_back(row);
+  rowLo_[i] = std::min(rowLo_[i], lo);
+  rowHi_[i] = std::max(rowHi_[i], hi);
+  if (sLo <= sHi) {
+    selfLo_[i] = std::min(selfLo_[i], sLo);
+    selfHi_[i] = std::max(selfHi_[i], sHi);
+  }
+}
 
 std::vector<Box3> ChangeTracker::shadingRuns(const Volume& values, std::span<const Box3> dirty,
                                              std::span<const Box3> within, const TransferFunction* tf) {
+  PP5_CHECK(compares());
   PP5_CHECK(values.grid.dims == grid_.dims);
-  PP5_CHECK(values.type == copy_.type);
+  PP5_CHECK(values.type == type_);
   const Index3 d = grid_.dims;
   const ScalarType type = values.type;
   const std::int64_t B = scalarBytes(type);
   const Box3 all{Index3(0), d};
-  auto widen = [](std::int32_t& lo, std::int32_t& hi, std::int32_t a, std::int32_t z, std::int64_t x0) {
-    if (a > z) return;
-    lo = std::min(lo, static_cast<std::int32_t>(x0 + a));
-    hi = std::max(hi, static_cast<std::int32_t>(x0 + z));
-  };
-  // One pass over the values: what changed, and what is visible (the rows
-  // next to a change need it too, so every row of `dirty` is scanned).
+  // One pass over the values of `dirty`: what changed.
   for (const Box3& b0 : dirty) {
     const Box3 b = b0.intersect(all);
     if (b.empty()) continue;
     const std::int64_t len = (b.hi.x - b.lo.x) * B;
     const auto n = static_cast<std::int32_t>(b.hi.x - b.lo.x);
+    const auto x0 = static_cast<std::int32_t>(b.lo.x);
     for (std::int64_t k = b.lo.z; k < b.hi.z; ++k)
       for (std::int64_t j = b.lo.y; j < b.hi.y; ++j) {
         const std::int64_t row = k * d.y + j;
@@ -202,23 +300,63 @@ std::vector<Box3> ChangeTracker::shadingRuns(const Volume& values, std::span<con
 #endif
             break;
         }
-        if (r.changedLo > r.changedHi && r.visibleLo > r.visibleHi) continue;
-        const auto i = static_cast<std::size_t>(row);
-        if (rowLo_[i] > rowHi_[i] && selfLo_[i] > selfHi_[i] && visLo_[i] > visHi_[i]) rowsTouched_.push_back(row);
-        widen(rowLo_[i], rowHi_[i], r.changedLo, r.changedHi, b.lo.x);
-        widen(selfLo_[i], selfHi_[i], r.selfLo, r.selfHi, b.lo.x);
-        widen(visLo_[i], visHi_[i], r.visibleLo, r.visibleHi, b.lo.x);
+        if (r.changedLo > r.changedHi) continue;
+        noteRow(row, x0 + r.changedLo, x0 + r.changedHi, r.selfLo > r.selfHi ? kNone : x0 + r.selfLo,
+                r.selfLo > r.selfHi ? -1 : x0 + r.selfHi);
       }
   }
+  return runsWithin(values, within, tf);
+}
+
+std::vector<Box3> ChangeTracker::shadingRuns(const Volume& values, std::span<const RowRun> changed,
+                                             std::span<const Box3> within, const TransferFunction* tf) {
+  PP5_CHECK(!compares());
+  PP5_CHECK(values.grid.dims == grid_.dims);
+  PP5_CHECK(values.type == type_);
+  const Index3 d = grid_.dims;
+  for (const RowRun& c : changed) {
+    if (c.j < 0 || c.j >= d.y || c.k < 0 || c.k >= d.z) continue;
+    std::int64_t a = std::max<std::int64_t>(c.i0, 0), z = std::min<std::int64_t>(c.i1, d.x - 1);
+    if (a > z) continue;
+    const std::int64_t row = std::int64_t{c.k} * d.y + c.j;
+    const auto lo = static_cast<std::int32_t>(a), hi = static_cast<std::int32_t>(z);
+    // Of the changed voxels, those shaded before: the ones visible now are
+    // in this row's range of changes, which runsWithin narrows to them.
+    std::int32_t sLo = lo, sHi = hi;
+    if (tf) {
+      const std::int64_t base = row * d.x;
+      const std::int64_t first = firstSetBit(shadedBits_, base + a, base + z);
+      sLo = kNone;
+      sHi = -1;
+      if (first >= 0) {
+        sLo = static_cast<std::int32_t>(first - base);
+        sHi = static_cast<std::int32_t>(lastSetBit(shadedBits_, base + a, base + z) - base);
+      }
+    }
+    noteRow(row, lo, hi, sLo, sHi);
+  }
+  return runsWithin(values, within, tf);
+}
+
+std::vector<Box3> ChangeTracker::runsWithin(const Volume& values, std::span<const Box3> within,
+                                            const TransferFunction* tf) {
+  const Index3 d = grid_.dims;
+  const std::int64_t B = scalarBytes(values.type);
+  const Box3 all{Index3(0), d};
   std::vector<Box3> out;
-  bool any = false;
-  for (const std::int64_t row : rowsTouched_) any = any || rowLo_[static_cast<std::size_t>(row)] <= rowHi_[static_cast<std::size_t>(row)];
-  if (any) {
+  if (!rowsTouched_.empty()) {
     for (const Box3& w0 : within) {
       const Box3 w = w0.intersect(all);
       if (w.empty()) continue;
+      const std::int64_t len = (w.hi.x - w.lo.x) * B;
       for (std::int64_t k = w.lo.z; k < w.hi.z; ++k)
         for (std::int64_t j = w.lo.y; j < w.hi.y; ++j) {
+          // The values a few rows on, which the narrowing below may read (as
+          // in the comparing pass, the hardware does not fetch them ahead).
+          if (tf && j + kAhead < w.hi.y) {
+            const std::uint8_t* ahead = values.bytes.data() + ((k * d.y + j + kAhead) * d.x + w.lo.x) * B;
+            for (std::int64_t o = 0; o < len + 63; o += 64) __builtin_prefetch(ahead + std::min(o, len - 1), 0, 3);
+          }
           // The row and its four face-neighbour rows: a voxel reads x - 1 and
           // x + 1 of its own row and x of the others.
           std::int32_t lo = kNone, hi = -1;
@@ -234,27 +372,29 @@ std::vector<Box3> ChangeTracker::shadingRuns(const Volume& values, std::span<con
           take(j, k - 1);
           take(j, k + 1);
           if (lo > hi) continue;
-          // Of the voxels next to a change, the visible ones (this row's
-          // visible range, so a few more); and this row's own changes that
-          // were or are visible.
+          // Of the voxels next to a change, the visible ones (the first to
+          // the last, so a few more); and this row's own changes that were or
+          // are visible.
           const auto r = static_cast<std::size_t>(k * d.y + j);
-          std::int32_t a = std::max(lo - 1, visLo_[r]), z = std::min(hi + 1, visHi_[r]);
+          std::int64_t a = std::max<std::int64_t>(lo - 1, w.lo.x), z = std::min<std::int64_t>(hi + 1, w.hi.x - 1);
+          if (tf) narrowToVisible(values.type, values.bytes.data() + static_cast<std::int64_t>(r) * d.x * B, a, z, *tf);
+          const std::int64_t sa = std::max<std::int64_t>(selfLo_[r], w.lo.x);
+          const std::int64_t sz = std::min<std::int64_t>(selfHi_[r], w.hi.x - 1);
           if (a > z) {
-            a = selfLo_[r];
-            z = selfHi_[r];
-          } else if (selfLo_[r] <= selfHi_[r]) {
-            a = std::min(a, selfLo_[r]);
-            z = std::max(z, selfHi_[r]);
+            a = sa;
+            z = sz;
+          } else if (sa <= sz) {
+            a = std::min(a, sa);
+            z = std::max(z, sz);
           }
-          const std::int64_t s0 = std::max<std::int64_t>(a, w.lo.x), s1 = std::min<std::int64_t>(z, w.hi.x - 1);
-          if (s0 <= s1) out.push_back({Index3(s0, j, k), Index3(s1 + 1, j + 1, k + 1)});
+          if (a <= z) out.push_back({Index3(a, j, k), Index3(z + 1, j + 1, k + 1)});
         }
     }
   }
   for (const std::int64_t row : rowsTouched_) {
     const auto r = static_cast<std::size_t>(row);
-    rowLo_[r] = selfLo_[r] = visLo_[r] = kNone;
-    rowHi_[r] = selfHi_[r] = visHi_[r] = -1;
+    rowLo_[r] = selfLo_[r] = kNone;
+    rowHi_[r] = selfHi_[r] = -1;
   }
   rowsTouched_.clear();
   return out;
@@ -299,8 +439,15 @@ void ChangeTracker::markCells(std::uint8_t value) {
   }
 }
 
-void ChangeTracker::setShadeChanges(std::span<const std::int64_t> voxels) {
+void ChangeTracker::setShadeChanges(std::span<const std::int64_t> voxels, const ShadeBuffer& shades) {
   for (const std::int64_t v : voxels) PP5_CHECK(v >= 0 && static_cast<std::uint64_t>(v) < grid_.voxelCount());
+  PP5_CHECK(shades.grid().dims == grid_.dims);
+  if (!compare_)
+    for (const std::int64_t v : voxels) {
+      const std::uint64_t bit = std::uint64_t{1} << (v % 64);
+      std::uint64_t& w = shadedBits_[static_cast<std::size_t>(v / 64)];
+      w = shades.at(static_cast<std::size_t>(v)) != ShadeVoxel{} ? (w | bit) : (w & ~bit);
+    }
   markCells(0);
   changed_.assign(voxels.begin(), voxels.end());
   markCells(1);

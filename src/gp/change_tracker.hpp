@@ -4,15 +4,19 @@
 // conservative (whole bricks around the slice and its reach): on the doll,
 // of the 600k voxels it asks to re-shade, about 9k change their shade.
 //
-//  1. Values. The tracker keeps a copy of the grey values the shade buffer
-//     was computed from. Inside the dirty region it compares them with the
-//     reconstruction's output, row by row, and updates the copy. A voxel's
-//     shade reads its own value and its six face neighbours' (gp/shading.hpp),
-//     so only voxels within one face step of a changed value can shade
-//     differently, and of those only the ones visible now (a voxel the
-//     transfer function makes transparent shades to zero, as it did before
-//     unless its own value changed from a visible one): shadingRuns() lists
-//     them, as row runs of the boxes this GP shades.
+//  1. Values. Which values changed the tracker learns in one of two ways.
+//     Either the reconstructor lists the rows it changed, bit for bit
+//     (Reconstructor::reportsChangedRuns, the tent method), or the tracker
+//     keeps a copy of the grey values the shade buffer was computed from and
+//     compares it with the reconstruction's output inside the dirty region,
+//     row by row, updating the copy (every other reconstructor). A voxel's
+//     shade reads its own value and its six face neighbours'
+//     (gp/shading.hpp), so only voxels within one face step of a changed
+//     value can shade differently, and of those only the ones visible now (a
+//     voxel the transfer function makes transparent shades to zero, as it
+//     did before unless its own value changed from a visible one, or, without
+//     the copy, unless its shade was not zero): shadingRuns() lists them, as
+//     row runs of the boxes this GP shades.
 //  2. Shades. shade() reports the voxels whose shade it changed. A ray
 //     sample reads the 8 voxels of one cell (gp/stencil.hpp), so only a
 //     sample whose cell has a changed voxel can differ from what the PP's
@@ -31,6 +35,7 @@
 #include "core/transfer_function.hpp"
 #include "core/volume_io.hpp"
 #include "gp/dirty_region.hpp"
+#include "gp/shade_buffer.hpp"
 
 namespace pp5::gp {
 
@@ -43,33 +48,47 @@ public:
   static constexpr int kBrick = 4;
 
   ChangeTracker() = default;
-  // The values the shade buffer is computed from (e.g. the empty grid).
-  // The caller checks the memory: memoryBytes() of the grid and type.
-  explicit ChangeTracker(const Volume& values);
-  // What a tracker of grid g with values of type t holds: per voxel the copy
-  // (its voxel type) and the cell mask (a byte), and the row ranges.
-  static std::uint64_t bytesPerVoxel(ScalarType t) { return static_cast<std::uint64_t>(scalarBytes(t)) + 1; }
-  static std::uint64_t memoryBytes(const Grid& g, ScalarType t);
-  std::uint64_t memoryBytes() const { return memoryBytes(grid_, copy_.type); }
+  // The values the shade buffer `shades` is computed from (e.g. the empty
+  // grid). compare: keep a copy of the values and find changes by comparing
+  // (the first shadingRuns); otherwise the caller reports them (the second),
+  // and the tracker keeps a bit per voxel: whether its shade is not zero.
+  // The caller checks the memory: memoryBytes() of the grid, type and form.
+  ChangeTracker(const Volume& values, const ShadeBuffer& shades, bool compare);
+  // What a tracker of grid g with values of type t holds: per voxel the cell
+  // mask (a byte) and, when it compares, the copy (its voxel type), else the
+  // shade bit; and the row ranges. bytesPerVoxel rounds the bit up to a byte.
+  static std::uint64_t bytesPerVoxel(ScalarType t, bool compare) {
+    return (compare ? static_cast<std::uint64_t>(scalarBytes(t)) : 1) + 1;
+  }
+  static std::uint64_t memoryBytes(const Grid& g, ScalarType t, bool compare);
+  std::uint64_t memoryBytes() const { return memoryBytes(grid_, type_, compares()); }
+  bool compares() const { return compare_; }
 
-  // After a full re-shade from `values`: every value is the shaded one.
-  void resync(const Volume& values);
+  // After a full re-shade of `values` into `shades`: every value is the shaded one.
+  void resync(const Volume& values, const ShadeBuffer& shades);
 
-  // Compares `values` with the copy inside `dirty` (boxes; clipped to the
-  // grid), takes the new values into the copy, and returns, as one-row boxes
-  // clipped to `within` (disjoint boxes), every voxel whose shade can have
-  // changed: a changed value that was or is visible, or a visible voxel with
-  // a changed value among its six face neighbours. `tf`: what makes a value
-  // transparent (TransferFunction::transparentUpTo); null when every value
-  // may be visible (the grey values of MIP and additive). The runs may hold
-  // a few voxels more (each row's run is one range). Empty when no value of
+  // The comparing form. Compares `values` with the copy inside `dirty`
+  // (boxes; clipped to the grid), takes the new values into the copy, and
+  // returns, as one-row boxes clipped to `within` (disjoint boxes), every
+  // voxel whose shade can have changed: a changed value that was or is
+  // visible, or a visible voxel with a changed value among its six face
+  // neighbours. `tf`: what makes a value transparent
+  // (TransferFunction::transparentUpTo); null when every value may be
+  // visible (the grey values of MIP and additive). The runs may hold a few
+  // voxels more (each row's run is one range). Empty when no value of
   // `dirty` changed.
   std::vector<Box3> shadingRuns(const Volume& values, std::span<const Box3> dirty, std::span<const Box3> within,
                                 const TransferFunction* tf);
+  // The reported form: `changed` holds every voxel whose value changed since
+  // the last call (runs clipped to the grid; they may overlap and hold
+  // unchanged voxels). The same runs as above, with "was visible" read as
+  // "its shade was not zero" (a transparent value shades to zero).
+  std::vector<Box3> shadingRuns(const Volume& values, std::span<const RowRun> changed, std::span<const Box3> within,
+                                const TransferFunction* tf);
 
-  // The voxels whose shade changed (linear indices, any order): replaces the
-  // last call's cells and bricks.
-  void setShadeChanges(std::span<const std::int64_t> voxels);
+  // The voxels whose shade changed (linear indices, any order), now as in
+  // `shades`: replaces the last call's cells and bricks.
+  void setShadeChanges(std::span<const std::int64_t> voxels, const ShadeBuffer& shades);
   // Per cell, indexed by the linear index of its lowest voxel (cells 0 ..
   // dims - 2 per axis): non-zero when one of its 8 voxels changed its shade
   // in the last setShadeChanges().
@@ -79,12 +98,19 @@ public:
 
 private:
   Grid grid_;
-  Volume copy_;
+  ScalarType type_ = ScalarType::F32;
+  bool compare_ = true;
+  Volume copy_;  // empty when the changes are reported
+  // Reported: bit v % 64 of word v / 64 set when voxel v's shade is not 0.
+  std::vector<std::uint64_t> shadedBits_;
   // Per row (j, k), ranges of x in this call (lo > hi: none): the voxels
-  // whose value changed, of those the ones visible before or now, and the
-  // voxels visible now; and the rows that have an entry to clear.
-  std::vector<std::int32_t> rowLo_, rowHi_, selfLo_, selfHi_, visLo_, visHi_;
+  // whose value changed, and of those the ones visible before or now; and
+  // the rows that have an entry to clear.
+  std::vector<std::int32_t> rowLo_, rowHi_, selfLo_, selfHi_;
   std::vector<std::int64_t> rowsTouched_;
+  void noteRow(std::int64_t row, std::int32_t lo, std::int32_t hi, std::int32_t selfLo, std::int32_t selfHi);
+  // From the rows' ranges: the runs to shade within `within` (and the ranges cleared).
+  std::vector<Box3> runsWithin(const Volume& values, std::span<const Box3> within, const TransferFunction* tf);
   std::vector<std::uint8_t> cells_;
   std::vector<std::int64_t> changed_;  // the voxels behind cells_
   DirtyRegion bricks_;

@@ -27,6 +27,12 @@ struct Box3 {
   bool operator==(const Box3&) const = default;
 };
 
+// One run of voxels (i0 .. i1, j, k) along a grid row, both ends included.
+struct RowRun {
+  std::int32_t j = 0, k = 0, i0 = 0, i1 = -1;
+  bool operator==(const RowRun&) const = default;
+};
+
 class DirtyRegion {
 public:
   static constexpr int kDefaultBrick = 16;

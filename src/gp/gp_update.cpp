@@ -13,25 +13,28 @@ GpUpdate::GpUpdate(const Grid& grid, const GpUpdateSettings& settings, const Cam
   if (!recon_) recon_ = makeReconstructor(grid_, s_.recon, s_.memoryLimitBytes, "reconstruction grid ([grid])");
   checkGridFits(grid_, 4, "shade buffer ([grid])", s_.memoryLimitBytes);
   shade_ = ShadeBuffer(grid_);
-  checkGridFits(grid_, ChangeTracker::bytesPerVoxel(recon_->output().type), "change tracker ([grid])",
+  const bool compare = !recon_->reportsChangedRuns();
+  checkGridFits(grid_, ChangeTracker::bytesPerVoxel(recon_->output().type, compare), "change tracker ([grid])",
                 s_.memoryLimitBytes);
-  changes_ = ChangeTracker(recon_->output());
+  changes_ = ChangeTracker(recon_->output(), shade_, compare);
   lattice_ = SampleLattice(camera_, grid_, s_.render.step(grid_), s_.render.maxSamples, s_.render.threads,
                            s_.render.pixelStride);
   reshadeAll(false);
 }
 
-bool GpUpdate::shadeChanged(const DirtyRegion& dirty) {
+bool GpUpdate::shadeChanged(const DirtyRegion& dirty, std::span<const RowRun> changedRuns) {
   // The dirty bricks and their gradient margin (what shade(dirty) shades)
   // bound the work; within them the tracker finds the voxels whose shade can
   // change, and from their new shades the cells and bricks that the
   // empty-space map, the D-buffer and the sampler then limit themselves to.
   const std::vector<Box3> needed = shadingBoxes(dirty);
-  shaded_ = changes_.shadingRuns(recon_->output(), needed, share_->shadeShare(needed, camera_),
-                                 s_.shading.greyValues ? nullptr : &tf_);
+  const std::vector<Box3> within = share_->shadeShare(needed, camera_);
+  const TransferFunction* tf = s_.shading.greyValues ? nullptr : &tf_;
+  shaded_ = changes_.compares() ? changes_.shadingRuns(recon_->output(), needed, within, tf)
+                                : changes_.shadingRuns(recon_->output(), changedRuns, within, tf);
   changedVoxels_.clear();
   shade(recon_->output(), tf_, s_.shading, camera_, shaded_, shade_, &changedVoxels_);
-  changes_.setShadeChanges(changedVoxels_);
+  changes_.setShadeChanges(changedVoxels_, shade_);
   spaceBefore_.assignBricks(space_);  // a few kB (a byte per 8^3 cells); the storage is kept
   space_.update(shade_, changes_.changedBricks().boxes());
   return changes_.changedShades() > 0;
@@ -75,7 +78,7 @@ void GpUpdate::reshadeAll(bool viewOnly) {
   }
   shade(recon_->output(), tf_, s_.shading, camera_, share_->shadeAll(camera_), shade_);
   space_ = EmptySpaceMap(shade_, s_.render.threads);
-  changes_.resync(recon_->output());
+  changes_.resync(recon_->output(), shade_);
 }
 
 void GpUpdate::sampleAll(SampleSink& sink) {

@@ -85,8 +85,10 @@ public:
 
   // Re-shades the voxels of this GP's share whose shade `dirty`'s changes
   // can have changed (ChangeTracker) and updates the empty-space map; false
-  // when no shade changed (nothing to sample).
-  bool shadeChanged(const DirtyRegion& dirty);
+  // when no shade changed (nothing to sample). `changedRuns`: the
+  // InsertResults' changedRuns since the last call (used when the
+  // reconstructor reports them).
+  bool shadeChanged(const DirtyRegion& dirty, std::span<const RowRun> changedRuns);
   // Every lattice sample whose cell holds a voxel the last shadeChanged()
   // changed, into `sink` (transparent ones too, but those both maps know
   // were and stay 0).

@@ -86,6 +86,10 @@ ReconSettings fromPlus(const PlusVolumeReconstruction& v);
 
 struct InsertResult {
   DirtyRegion dirty;               // every voxel whose output value may have changed
+  // From a reconstructor whose reportsChangedRuns() is true: row runs that
+  // hold every voxel whose output bits changed (runs may overlap and hold
+  // voxels that kept their bits). Empty otherwise.
+  std::vector<RowRun> changedRuns;
   std::uint64_t pixelsInserted = 0;
   int fillInSlices = 0;            // intermediate slices splatted before this frame
 };
@@ -100,6 +104,10 @@ public:
   // including pixel spacing). `timeS` drives the decay replacement. The output
   // volume is up to date inside the returned dirty region on return.
   virtual InsertResult insert(const Frame& f, const Mat4& imageToReference, double timeS) = 0;
+  // Whether insert() lists the voxels whose output bits it changed
+  // (InsertResult::changedRuns), so that later stages need not compare the
+  // dirty region's values with a copy (gp/change_tracker.hpp).
+  virtual bool reportsChangedRuns() const { return false; }
   // Final passes that are not incremental (e.g. hole filling when
   // fill_holes_incremental = false). Idempotent.
   virtual void finish() {}

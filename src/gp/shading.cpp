@@ -160,7 +160,29 @@ struct Context {
   glm::vec3 eyeRel{0.0f};      // eye - origin, mm
   PowTable spec;  // phong only
   bool greyColour = false;  // grey mode: colour = grey level / 255
+  std::int64_t valueBytes = 4;
 };
+
+// Asks for the lines that shading row (j, k) of `x` reads (its values and
+// the four face-neighbour rows', a voxel on from either end) and writes: a
+// change's rows are a grid row or plane apart, which the hardware does not
+// fetch ahead.
+void prefetchRow(const Context& c, const Box3& x, std::int64_t j, std::int64_t k) {
+  const std::int64_t i0 = std::max<std::int64_t>(x.lo.x - 1, 0), i1 = std::min<std::int64_t>(x.hi.x, c.nx - 1);
+  const std::int64_t B = c.valueBytes;
+  auto fetch = [&](std::int64_t j, std::int64_t k) {
+    if (j < 0 || j >= c.ny || k < 0 || k >= c.nz) return;
+    const std::uint8_t* row = c.vol + (k * c.ny + j) * c.nx * B;
+    for (std::int64_t o = i0 * B; o <= i1 * B + 63; o += 64) __builtin_prefetch(row + std::min(o, i1 * B), 0, 3);
+  };
+  fetch(j, k);
+  fetch(j - 1, k);
+  fetch(j + 1, k);
+  fetch(j, k - 1);
+  fetch(j, k + 1);
+  const ShadeVoxel* out = c.out + (k * c.ny + j) * c.nx;
+  for (std::int64_t i = x.lo.x; i < x.hi.x + 16; i += 16) __builtin_prefetch(out + std::min(i, x.hi.x - 1), 1, 3);
+}
 
 inline std::uint8_t quantise(float x) { return static_cast<std::uint8_t>(x + 0.5f); }  // x in [0, 255]
 
@@ -383,6 +405,13 @@ void shadeBoxes(const Context& c, RowFn fn, const std::vector<Box3>& boxes, int 
     std::vector<std::int64_t>* mine = changed ? &found[static_cast<std::size_t>(omp_get_thread_num())] : nullptr;
 #pragma omp for schedule(dynamic, 1)
     for (std::int64_t w = 0; w < n; ++w) {
+      constexpr std::int64_t kAhead = 4;  // pieces fetched ahead (one-row boxes: the runs of an update)
+      if (w + kAhead < n) {
+        const Work& ahead = work[static_cast<std::size_t>(w + kAhead)];
+        const Box3& x = boxes[ahead.box];
+        const std::int64_t height = x.hi.y - x.lo.y;
+        prefetchRow(c, x, x.lo.y + ahead.rowBegin % height, x.lo.z + ahead.rowBegin / height);
+      }
       const Work& wk = work[static_cast<std::size_t>(w)];
       const Box3& x = boxes[wk.box];
       const std::int64_t height = x.hi.y - x.lo.y;
@@ -432,6 +461,7 @@ void shadeAll(const Volume& values, const TransferFunction& tf, const ShadeSetti
   c.goInvWidth = static_cast<float>(1.0 / std::max(s.gradientOpacityWidth, 1e-12));
   c.eyeRel = glm::vec3(view.eye - g.origin);
   c.greyColour = mode == ShadeMode::Grey;
+  c.valueBytes = scalarBytes(values.type);
 
   Lighting k = Lighting::None;
   if (mode == ShadeMode::Phong) {

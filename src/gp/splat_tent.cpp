@@ -225,6 +225,7 @@ void TentReconstructor::contributeRows(const SliceKernel& Kref, const SliceFrame
       __builtin_prefetch(out + lastV, 1);
     }
     const Row& row = rows_[r];
+    ChangedRange changed;
     const Vec3 b = sf.base + static_cast<double>(row.j) * sj + static_cast<double>(row.k) * sk;
     const std::int64_t lin0 = row.j * nx + row.k * nxy;
     float rowSw = 0.0f, rowSwv = 0.0f;
@@ -252,10 +253,20 @@ void TentReconstructor::contributeRows(const SliceKernel& Kref, const SliceFrame
         c[0] = hit ? cw : 0.0f;
         c[1] = hit ? cwv : 0.0f;
       } else {
-        if (hit) applyVoxel<R>(acc, out, static_cast<std::size_t>(lin0 + i), cw, cwv, tf, cacheT, cacheF);
+        if (hit && applyVoxel<R>(acc, out, static_cast<std::size_t>(lin0 + i), cw, cwv, tf, cacheT, cacheF))
+          changed.add(i);
       }
     }
+    rowChanged_[2 * r] = changed.lo;
+    rowChanged_[2 * r + 1] = changed.hi;
   }
+}
+
+void TentReconstructor::collectChanged(std::vector<RowRun>& runs) const {
+  for (std::size_t r = 0; r < rows_.size(); ++r)
+    if (rowChanged_[2 * r] <= rowChanged_[2 * r + 1])
+      runs.push_back({static_cast<std::int32_t>(rows_[r].j), static_cast<std::int32_t>(rows_[r].k),
+                      rowChanged_[2 * r], rowChanged_[2 * r + 1]});
 }
 
 template <bool Sheared, Along A>
@@ -275,7 +286,7 @@ void TentReconstructor::contribute(const SliceKernel& K, const SliceFrame& sf, f
 
 
 void TentReconstructor::splat(const SlicePose& pose, const SliceImage& img, double timeS, const Vec3& dir,
-                              DirtyRegion& dirty) {
+                              DirtyRegion& dirty, std::vector<RowRun>& changed) {
   const Grid& g = grid_;
   // The pixel centres' extent in slice coordinates, and the kernel's support
   // around it: the open box lo < (U, V, N) < hi.
@@ -355,6 +366,7 @@ void TentReconstructor::splat(const SlicePose& pose, const SliceImage& img, doub
   const SliceKernel K = sliceKernel(pose, img);
   const auto tf = static_cast<float>(timeS - t0_);
   if (mode_ == Replacement::MotionVector && contrib_.size() < 2 * total) contrib_.resize(2 * total);
+  rowChanged_.resize(2 * rows_.size());
   // An image whose y axis is perpendicular to its x axis (any rigid pose with
   // a pixel scale) has the same knots on every row.
   const bool sheared = std::abs(pose.eyu) * (img.y1 + 1) > 1e-9;
@@ -370,6 +382,7 @@ void TentReconstructor::splat(const SlicePose& pose, const SliceImage& img, doub
     rebaseCells(dir);
     applyStored(tf);
   }
+  collectChanged(changed);
 }
 
 SlicePose TentReconstructor::checkPose(const std::string& what, const Mat4& imageToReference, double timeS) const {
@@ -501,12 +514,13 @@ InsertResult TentReconstructor::insert(const Frame& f, const Mat4& imageToRefere
       if (mid_.selected == 0) continue;
       if (mid_.selected == static_cast<std::uint64_t>(mid_.x1 - mid_.x0 + 1) * static_cast<std::uint64_t>(mid_.y1 - mid_.y0 + 1))
         mid_.mask.clear();
-      splat(interpolatePose(prevPose_, pose, t), mid_, prevTime_ + (timeS - prevTime_) * t, dir_, res.dirty);
+      splat(interpolatePose(prevPose_, pose, t), mid_, prevTime_ + (timeS - prevTime_) * t, dir_, res.dirty,
+            res.changedRuns);
       ++res.fillInSlices;
     }
   }
 
-  if (cur_.selected > 0) splat(pose, cur_, timeS, dir_, res.dirty);
+  if (cur_.selected > 0) splat(pose, cur_, timeS, dir_, res.dirty, res.changedRuns);
   std::swap(prev_, cur_);
   endFrame(pose, timeS, true);
   if (windowed()) {

@@ -6,6 +6,8 @@
 // one with makeTentReconstructor (gp/splat_tent.hpp). The voxel update and the
 // row loop are here, inline, because the kernel's voxel loops run them.
 #include <algorithm>
+#include <bit>
+#include <climits>
 #include <cmath>
 #include <cstdint>
 #include <string>
@@ -89,6 +91,7 @@ public:
   void setWindow(const Box3& window) override;
   InsertResult advance(int width, int height, const Mat4& imageToReference, double timeS) override;
   void restorePrevious(const Frame& f) override;
+  bool reportsChangedRuns() const override { return true; }
   const Volume& output() const override { return output_; }
   Volume weights() const override;
   bool covered(std::size_t i) const override { return weightAt(i) > 0.0f; }
@@ -103,7 +106,9 @@ private:
   // largest displacement of a corner of the pixel rectangle since the previous frame.
   bool stepMotion(const SlicePose& pose, double timeS, double& maxCornerMm);
   void endFrame(const SlicePose& pose, double timeS, bool pixelsKnown);
-  void splat(const SlicePose& pose, const SliceImage& img, double timeS, const Vec3& dir, DirtyRegion& dirty);
+  // Splats one slice: its support slab into `dirty`, the rows whose output changed onto `changed`.
+  void splat(const SlicePose& pose, const SliceImage& img, double timeS, const Vec3& dir, DirtyRegion& dirty,
+             std::vector<RowRun>& changed);
   SliceKernel sliceKernel(const SlicePose& pose, const SliceImage& img);
   void buildProfiles(const SliceImage& img, const KnotLattice& lat, int padRows);
   template <bool Sheared, Along A>
@@ -119,9 +124,12 @@ private:
   // The output volume's voxels as floats (F32, little-endian like the host).
   float* outF32() { return reinterpret_cast<float*>(output_.bytes.data()); }
   float weightAt(std::size_t i) const;
+  // Returns whether the voxel's output bits changed.
   template <Replacement R>
-  void applyVoxel(float* acc, float* out, std::size_t i, float cw, float cwv, float tf, float& cacheT,
+  bool applyVoxel(float* acc, float* out, std::size_t i, float cw, float cwv, float tf, float& cacheT,
                   float& cacheF);
+  // Appends the rows of rows_ whose output changed (rowChanged_) to `runs`.
+  void collectChanged(std::vector<RowRun>& runs) const;
 
   Replacement mode_;
   int threads_;
@@ -140,6 +148,8 @@ private:
 
   // Scratch, reused from slice to slice.
   std::vector<Row> rows_;
+  // Per row of rows_, the first and last x whose output bits the slice changed (first > last: none).
+  std::vector<std::int32_t> rowChanged_;
   std::vector<float> contrib_;  // motion_vector: (cw, cwv) per voxel of rows_
   std::vector<std::uint32_t> touched_;
   std::vector<float> profiles_, rowOff_;  // the slice's lateral profiles and axial offsets (SliceKernel)
@@ -163,7 +173,7 @@ private:
 
 // Adds one voxel's contribution from the current slice and refreshes its output.
 template <Replacement R>
-inline void TentReconstructor::applyVoxel(float* acc, float* out, std::size_t i, float cw, float cwv, float tf,
+inline bool TentReconstructor::applyVoxel(float* acc, float* out, std::size_t i, float cw, float cwv, float tf,
                                           float& cacheT, float& cacheF) {
   float* a = acc + 2 * i;
   float swv = a[0], sw = a[1];
@@ -188,8 +198,19 @@ inline void TentReconstructor::applyVoxel(float* acc, float* out, std::size_t i,
   float value = swv / sw;
   if constexpr (R == Replacement::MotionVector)
     if (baseW_[i] > 0.0f) value = wOld_ * baseV_[i] + wNew_ * value;
+  const bool changed = std::bit_cast<std::uint32_t>(out[i]) != std::bit_cast<std::uint32_t>(value);
   out[i] = value;
+  return changed;
 }
+
+// A row's first and last changed x, kept while its voxels are updated.
+struct ChangedRange {
+  std::int32_t lo = INT32_MAX, hi = -1;
+  void add(std::int64_t i) {
+    lo = std::min(lo, static_cast<std::int32_t>(i));
+    hi = static_cast<std::int32_t>(i);
+  }
+};
 
 // Runs f(first, end) over ranges of rows_, on threads_ threads. Each row is a disjoint
 // set of voxels and each voxel's update depends only on its own state and the

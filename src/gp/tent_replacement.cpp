@@ -17,12 +17,15 @@ void TentReconstructor::applyStored(float tf) {
     for (std::size_t r = first; r < end; ++r) {
       const Row& row = rows_[r];
       const std::size_t lin0 = grid_.linear(0, row.j, row.k);
+      ChangedRange changed;
       for (std::int64_t i = row.i0; i <= row.i1; ++i) {
         const float* c = contrib_.data() + 2 * (row.offset + static_cast<std::size_t>(i - row.i0));
-        if (c[0] > 0.0f)
-          applyVoxel<Replacement::MotionVector>(acc, out, lin0 + static_cast<std::size_t>(i), c[0], c[1], tf, cacheT,
-                                                cacheF);
+        if (c[0] > 0.0f && applyVoxel<Replacement::MotionVector>(acc, out, lin0 + static_cast<std::size_t>(i), c[0],
+                                                                  c[1], tf, cacheT, cacheF))
+          changed.add(i);
       }
+      rowChanged_[2 * r] = changed.lo;
+      rowChanged_[2 * r + 1] = changed.hi;
     }
   });
 }

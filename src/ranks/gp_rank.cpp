@@ -187,12 +187,14 @@ private:
     std::vector<std::uint64_t> dirtyOf;
     std::vector<StageTimes> times;
     DirtyRegion dirty;
+    std::vector<RowRun> changedRuns;
     bool anyDirty = false;
     auto add = [&](const Message& m) {
       InsertResult r = reconstruct(m);
       frames.push_back(m.header());
       dirtyOf.push_back(r.dirty.voxelCount());
       times.push_back(clock_.take());
+      changedRuns.insert(changedRuns.end(), r.changedRuns.begin(), r.changedRuns.end());
       if (r.dirty.empty()) return;
       if (anyDirty) {
         dirty.merge(r.dirty);
@@ -222,7 +224,7 @@ private:
     bool shaded = false;
     if (anyDirty) {
       clock_.start(kShade);
-      shaded = update_->shadeChanged(dirty);
+      shaded = update_->shadeChanged(dirty, changedRuns);
     }
     if (shaded) {
       clock_.start(kSample);

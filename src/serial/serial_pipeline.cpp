@@ -168,7 +168,7 @@ FrameStats SerialPipeline::insert(const Frame& f, const Mat4& pose, double timeS
   }
 
   t = Clock::now();
-  gp_->shadeChanged(r.dirty);
+  gp_->shadeChanged(r.dirty, r.changedRuns);
   for (const gp::Box3& b : gp_->lastShaded()) st.shadedVoxels += b.intersect(wholeGrid(grid_)).voxelCount();
   st.shadeMs = msSince(t);
   if (census_) census_->addFrame(r.dirty, gp_->lastShaded(), gp_->lattice(), f.pixels.size());
