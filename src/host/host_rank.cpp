@@ -468,7 +468,10 @@ private:
   // What the page asks: a control change (once the last one's image is in,
   // so that a drag does not queue views), a volume for the
   // slices; and the figures it shows. Returns whether acquisition is paused.
-  bool serveViewer(bool lockstep) {
+  // Serves the viewer: its changes, images and volume; true while it holds
+  // acquisition paused. `acted`: set when it sent something (a loop with
+  // nothing else to do then does not back off).
+  bool serveViewer(bool lockstep, bool& acted) {
     if (!live_) return false;
     if (live_->version() != wantedVersion_) {  // fetched (under the viewer's lock) only when it changed
       wantedVersion_ = live_->version();
@@ -477,14 +480,19 @@ private:
     const LiveWanted& w = wanted_;
     const std::uint32_t ch = controlChanges(state_, w.state);
     if (ch && shownEpoch_ == epoch_) {
+      acted = true;
       sendControl(ch, w.state);
       if (lockstep && sent_ > 0) {
         waitImage(static_cast<std::int64_t>(sent_) - 1);
         if (ref_) verify(fb_, ref_->image(), "after a change from the viewer");
       }
     }
-    if (live_->wantsImage()) live_->image(fb_, w_, h_, shownEpoch_, shownEpoch_ == epoch_ ? imageFrame_ : shownFrame_);
+    if (live_->wantsImage()) {
+      acted = true;
+      live_->image(fb_, w_, h_, shownEpoch_, shownEpoch_ == epoch_ ? imageFrame_ : shownFrame_);
+    }
     if (!volumeOutstanding_ && sent_ > 0 && live_->wantsVolume()) {
+      acted = true;
       EmptyMsg rq;
       rq.h = {kTagVolumeRequest, epoch_, sent_ - 1};
       volumesDone_ = 0;
@@ -527,11 +535,13 @@ private:
     live_->servingFinal();
     std::printf("viewer: the final volume stays live at %s until Ctrl-C\n", live_->url().c_str());
     std::fflush(stdout);
+    comm::IdleBackoff idle;  // waits as the streaming loop does: a drag's images go out at once
     while (!(j_.interrupt && j_.interrupt->load())) {
-      pump();
+      bool acted = pump();
       heartbeat();
-      serveViewer(j_.parallel.lockstep());
-      std::this_thread::sleep_for(std::chrono::milliseconds(5));
+      serveViewer(j_.parallel.lockstep(), acted);
+      if (acted) idle.reset();
+      else idle.pause();
     }
     waitUntil([&] { return shownEpoch_ == epoch_ && !volumeOutstanding_; }, "the last image for the viewer");
   }
@@ -594,7 +604,10 @@ int HostRank::run() {
   for (;;) {
     if (pump()) idle.reset();
     heartbeat();
-    if (serveViewer(lockstep) && !stopping) {
+    bool viewerActed = false;
+    const bool paused = serveViewer(lockstep, viewerActed);
+    if (viewerActed) idle.reset();
+    if (paused && !stopping) {
       // Paused: a live source's frames go by unused; a file's wait.
       AcquiredFrame skipped;
       if (liveSource && acq.tryPop(skipped)) ++pausedFrames_;
