@@ -157,7 +157,7 @@ TEST_P(Tracker, ShadingTheRunsEqualsAFullReshade) {
             any = any || flag[static_cast<std::size_t>(((k + (c >> 2)) * g.dims.y + j + ((c >> 1) & 1)) * g.dims.x + i +
                                                        (c & 1))];
           const auto idx = static_cast<std::size_t>((k * g.dims.y + j) * g.dims.x + i);
-          ASSERT_EQ(tracker.changedCells()[idx] != 0, any) << "cell " << i << " " << j << " " << k;
+          ASSERT_EQ(tracker.changedCells().changed(static_cast<std::int64_t>(idx)), any) << "cell " << i << " " << j << " " << k;
           marked += any;
         }
     // Every changed voxel's 8^3 brick is listed, and only those.
@@ -173,6 +173,39 @@ TEST_P(Tracker, ShadingTheRunsEqualsAFullReshade) {
   const std::vector<Box3> none = tracker.shadingRuns(v, std::span<const Box3>(&all, 1), std::span<const Box3>(&all, 1), &tf);
   EXPECT_TRUE(none.empty());
   EXPECT_TRUE(told.shadingRuns(v, std::span<const RowRun>(), std::span<const Box3>(&all, 1), &tf).empty());
+}
+
+// Each update marks its cells with a new value, and the marks are cleared
+// only when the values wrap (every 255 updates): across several wraps, the
+// marked cells are exactly those of the last update's voxels.
+TEST(TrackerCells, MarksStayExactAcrossTheWrap) {
+  Grid g;
+  g.dims = Index3(9, 7, 6);
+  Volume v;
+  v.allocate(g, ScalarType::F32);
+  const ShadeBuffer none(g);
+  ChangeTracker tracker(v, none, false);
+  std::mt19937 rng(5);
+  const auto n = static_cast<std::int64_t>(g.voxelCount());
+  for (int update = 0; update < 600; ++update) {
+    std::vector<std::int64_t> voxels;
+    const int count = std::uniform_int_distribution<int>(0, 4)(rng);
+    for (int c = 0; c < count; ++c) voxels.push_back(std::uniform_int_distribution<std::int64_t>(0, n - 1)(rng));
+    std::sort(voxels.begin(), voxels.end());
+    voxels.erase(std::unique(voxels.begin(), voxels.end()), voxels.end());
+    tracker.setShadeChanges(voxels, none);
+    for (std::int64_t k = 0; k + 1 < g.dims.z; ++k)
+      for (std::int64_t j = 0; j + 1 < g.dims.y; ++j)
+        for (std::int64_t i = 0; i + 1 < g.dims.x; ++i) {
+          bool any = false;
+          for (const std::int64_t x : voxels) {
+            const std::int64_t xi = x % g.dims.x, xj = (x / g.dims.x) % g.dims.y, xk = x / (g.dims.x * g.dims.y);
+            any = any || (xi - i >= 0 && xi - i <= 1 && xj - j >= 0 && xj - j <= 1 && xk - k >= 0 && xk - k <= 1);
+          }
+          ASSERT_EQ(tracker.changedCells().changed((k * g.dims.y + j) * g.dims.x + i), any)
+              << "update " << update << ", cell " << i << " " << j << " " << k;
+        }
+  }
 }
 
 INSTANTIATE_TEST_SUITE_P(Types, Tracker,

@@ -420,7 +420,7 @@ public:
 
 private:
   Index3 d_;
-  std::int64_t rowBase_ = -1, j_ = 0, k_ = 0;
+  std::int64_t rowBase_ = -(std::int64_t{1} << 62), j_ = 0, k_ = 0;  // no row yet: every voxel is outside it
 };
 }  // namespace
 
@@ -448,9 +448,13 @@ void ChangeTracker::setShadeChanges(std::span<const std::int64_t> voxels, const 
       std::uint64_t& w = shadedBits_[static_cast<std::size_t>(v / 64)];
       w = shades.at(static_cast<std::size_t>(v)) != ShadeVoxel{} ? (w | bit) : (w & ~bit);
     }
-  markCells(0);
+  if (++mark_ == 0) {
+    // The marks wrapped: clear them all once, every 255 updates.
+    std::fill(cells_.begin(), cells_.end(), std::uint8_t{0});
+    mark_ = 1;
+  }
   changed_.assign(voxels.begin(), voxels.end());
-  markCells(1);
+  markCells(mark_);
   bricks_.clear();
   std::int64_t lastBrick = -1;
   RowCursor cur(grid_.dims);

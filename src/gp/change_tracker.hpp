@@ -89,10 +89,11 @@ public:
   // The voxels whose shade changed (linear indices, any order), now as in
   // `shades`: replaces the last call's cells and bricks.
   void setShadeChanges(std::span<const std::int64_t> voxels, const ShadeBuffer& shades);
-  // Per cell, indexed by the linear index of its lowest voxel (cells 0 ..
-  // dims - 2 per axis): non-zero when one of its 8 voxels changed its shade
-  // in the last setShadeChanges().
-  const std::uint8_t* changedCells() const { return cells_.data(); }
+  // The cells (cells 0 .. dims - 2 per axis) of which one of the 8 voxels
+  // changed its shade in the last setShadeChanges(). Each call marks with a
+  // new value (1 to 255, then the marks are cleared once), so the last
+  // call's marks are left where they are.
+  CellMarks changedCells() const { return {cells_.data(), mark_}; }
   const DirtyRegion& changedBricks() const { return bricks_; }
   std::size_t changedShades() const { return changed_.size(); }
 
@@ -112,6 +113,7 @@ private:
   // From the rows' ranges: the runs to shade within `within` (and the ranges cleared).
   std::vector<Box3> runsWithin(const Volume& values, std::span<const Box3> within, const TransferFunction* tf);
   std::vector<std::uint8_t> cells_;
+  std::uint8_t mark_ = 0;  // cells_ == mark_: changed in the last setShadeChanges (0: before the first)
   std::vector<std::int64_t> changed_;  // the voxels behind cells_
   DirtyRegion bricks_;
   void markCells(std::uint8_t value);

@@ -33,6 +33,15 @@ struct RowRun {
   bool operator==(const RowRun&) const = default;
 };
 
+// Cells (indexed by the linear index of their lowest voxel) marked as
+// changed: cell c is when marks[c] == mark (ChangeTracker's; a new mark per
+// update, so the last update's marks need no clearing).
+struct CellMarks {
+  const std::uint8_t* marks = nullptr;
+  std::uint8_t mark = 1;
+  bool changed(std::int64_t cell) const { return marks[cell] == mark; }
+};
+
 class DirtyRegion {
 public:
   static constexpr int kDefaultBrick = 16;

@@ -474,7 +474,7 @@ void sampleAll(const ShadeBuffer& shade, const SampleLattice& lattice, const Ren
 
 void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const DBuffer& dbuffer,
                   const RenderSettings& settings, SampleSink& sink, const EmptySpaceMap* space,
-                  const SamplerOptions& options, const EmptySpaceMap* before, const std::uint8_t* changedCells) {
+                  const SamplerOptions& options, const EmptySpaceMap* before, CellMarks changedCells) {
   checkSameGrid(shade.grid(), lattice.grid());
   PP5_CHECK(!before || space);
   if (before) {
@@ -627,7 +627,7 @@ void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const 
               const int lanes = static_cast<int>(std::min<std::int64_t>(4, s1 - g + 1));
               for (int l = 0; l < lanes; ++l) {
                 const std::int64_t idx = interp.index(c, l);
-                if (changedCells && changedCells[idx] == 0) continue;
+                if (changedCells.marks && !changedCells.changed(idx)) continue;
                 const std::size_t brick = brickOf(c, l, bd);
                 if (dist[brick] == 0) {
                   // An all-transparent cell blends to exact zeros: no voxels read.
@@ -656,7 +656,7 @@ void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const 
             const int lanes = static_cast<int>(std::min<std::int64_t>(4, s1 - g + 1));
             for (int l = 0; l < lanes; ++l) {
               const std::int64_t idx = interp.index(c, l);
-              if (changedCells && changedCells[idx] == 0) continue;
+              if (changedCells.marks && !changedCells.changed(idx)) continue;
               float* rgba = stage.slot();
               if (!dist || (dist[brickOf(c, l, bd)] == 0 && EmptySpaceMap::bitSet(cells, idx))) {
                 interp.blendAt(c, l, idx, loaded, vox, rgba);

@@ -142,13 +142,14 @@ void sampleAll(const ShadeBuffer& shade, const SampleLattice& lattice, const Ren
 // was 0 and stays 0, so it is not emitted at all. That is exact only when the
 // receiving cache holds every sample of the previous shade buffer (the
 // incremental pipeline's invariant): water around an object then costs
-// nothing to re-sample. `changedCells` (optional; ChangeTracker's): only the
-// samples whose cell is marked, which is again exact under that invariant: a
-// sample whose 8 voxels kept their shades has the bits the cache holds.
+// nothing to re-sample. `changedCells` (optional, marks null: none;
+// ChangeTracker's): only the samples whose cell is marked, which is again
+// exact under that invariant: a sample whose 8 voxels kept their shades has
+// the bits the cache holds.
 void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const DBuffer& dbuffer,
                   const RenderSettings& settings, SampleSink& sink, const EmptySpaceMap* space = nullptr,
                   const SamplerOptions& options = {}, const EmptySpaceMap* before = nullptr,
-                  const std::uint8_t* changedCells = nullptr);
+                  CellMarks changedCells = {});
 
 // One sample, by the same arithmetic (the reference in tests).
 RaySample sampleAt(const ShadeBuffer& shade, const SampleLattice& lattice, const RenderSettings& settings,
