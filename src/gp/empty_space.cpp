@@ -112,7 +112,7 @@ void EmptySpaceMap::computeCellWords(std::int64_t w0, std::int64_t w1) {
   }
 }
 
-void EmptySpaceMap::scanBrick(std::int64_t bi, std::int64_t bj, std::int64_t bk) {
+bool EmptySpaceMap::scanBrick(std::int64_t bi, std::int64_t bj, std::int64_t bk) {
   const Index3 lo = Index3(bi, bj, bk) * Index3(kBrickCells);
   const Index3 hi = glm::min(lo + Index3(kBrickCells), cellDims());
   const std::uint64_t mask = (std::uint64_t{1} << (hi.x - lo.x)) - 1;  // at most 8 cells along x
@@ -120,7 +120,10 @@ void EmptySpaceMap::scanBrick(std::int64_t bi, std::int64_t bj, std::int64_t bk)
   for (std::int64_t z = lo.z; z < hi.z && !any; ++z)
     for (std::int64_t y = lo.y; y < hi.y && !any; ++y)
       any = (bitsFrom(cellBits_.data(), static_cast<std::int64_t>(grid_.linear(lo.x, y, z))) & mask) != 0;
-  occupied_[static_cast<std::size_t>((bk * bdims_.y + bj) * bdims_.x + bi)] = any ? 1 : 0;
+  std::uint8_t& o = occupied_[static_cast<std::size_t>((bk * bdims_.y + bj) * bdims_.x + bi)];
+  const std::uint8_t was = o;
+  o = any ? 1 : 0;
+  return o != was;
 }
 
 void EmptySpaceMap::update(const ShadeBuffer& shade, std::span<const Box3> changed) {
@@ -153,7 +156,7 @@ void EmptySpaceMap::update(const ShadeBuffer& shade, std::span<const Box3> chang
       }
   }
   std::vector<std::uint8_t> seen(occupied_.size(), 0);
-  bool any = false;
+  bool flipped = false;  // a brick's occupancy changed: the distances, which follow from it, change
   for (const Box3& c : cellBoxes) {
     const Index3 clo = c.lo / Index3(kBrickCells), chi = (c.hi - Index3(1)) / Index3(kBrickCells);
     for (std::int64_t k = clo.z; k <= chi.z; ++k)
@@ -162,11 +165,10 @@ void EmptySpaceMap::update(const ShadeBuffer& shade, std::span<const Box3> chang
           const auto id = static_cast<std::size_t>((k * bdims_.y + j) * bdims_.x + i);
           if (seen[id]) continue;
           seen[id] = 1;
-          any = true;
-          scanBrick(i, j, k);
+          flipped = scanBrick(i, j, k) || flipped;
         }
   }
-  if (any) computeDistances();
+  if (flipped) computeDistances();
 }
 
 void EmptySpaceMap::assignBricks(const EmptySpaceMap& from) {

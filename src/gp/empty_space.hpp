@@ -79,8 +79,8 @@ private:
   void packVoxels(const ShadeBuffer& shade, std::int64_t first, std::int64_t last);
   // cellBits_ words [w0, w1) from voxelBits_.
   void computeCellWords(std::int64_t w0, std::int64_t w1);
-  // occupied_ of one brick, from the cell bits.
-  void scanBrick(std::int64_t bi, std::int64_t bj, std::int64_t bk);
+  // occupied_ of one brick, from the cell bits; whether it changed.
+  bool scanBrick(std::int64_t bi, std::int64_t bj, std::int64_t bk);
   void computeDistances();
 };
 
