@@ -3,7 +3,9 @@
 #include <algorithm>
 #include <bit>
 #include <climits>
+#include <cmath>
 #include <cstring>
+#include <limits>
 #include <type_traits>
 
 #include "core/error.hpp"
@@ -18,6 +20,14 @@ namespace pp5::gp {
 namespace {
 constexpr std::int32_t kNone = INT32_MAX;
 constexpr std::int64_t kAhead = 8;  // rows fetched ahead
+
+// Voxel i of a volume's bytes as a float.
+template <class T>
+float loadValue(const std::uint8_t* bytes, std::int64_t i) {
+  T v;
+  std::memcpy(&v, bytes + i * static_cast<std::int64_t>(sizeof(T)), sizeof(T));
+  return static_cast<float>(v);
+}
 }
 
 namespace {
@@ -50,7 +60,8 @@ ChangeTracker::ChangeTracker(const Volume& values, const ShadeBuffer& shades, bo
 std::uint64_t ChangeTracker::memoryBytes(const Grid& g, ScalarType t, bool compare) {
   const std::uint64_t n = g.voxelCount();
   const std::uint64_t values = compare ? n * static_cast<std::uint64_t>(scalarBytes(t)) : (n + 63) / 64 * 8;
-  return n + values + static_cast<std::uint64_t>(g.dims.y * g.dims.z) * 16;
+  // Per row: the four ranges' ends, and without the copy the row's bound.
+  return n + values + static_cast<std::uint64_t>(g.dims.y * g.dims.z) * (compare ? 16 : 20);
 }
 
 void ChangeTracker::resync(const Volume& values, const ShadeBuffer& shades) {
@@ -65,6 +76,21 @@ void ChangeTracker::resync(const Volume& values, const ShadeBuffer& shades) {
     return;
   }
   const std::uint64_t n = grid_.voxelCount();
+  const Index3 d = grid_.dims;
+  rowMax_.assign(static_cast<std::size_t>(d.y * d.z), -std::numeric_limits<float>::infinity());
+  for (std::int64_t r = 0; r < d.y * d.z; ++r) {
+    float m = -std::numeric_limits<float>::infinity();
+    for (std::int64_t x = 0; x < d.x; ++x) {
+      float v = 0.0f;
+      switch (values.type) {
+        case ScalarType::U8: v = loadValue<std::uint8_t>(values.bytes.data(), r * d.x + x); break;
+        case ScalarType::U16: v = loadValue<std::uint16_t>(values.bytes.data(), r * d.x + x); break;
+        case ScalarType::F32: v = loadValue<float>(values.bytes.data(), r * d.x + x); break;
+      }
+      if (!(v <= m)) m = std::isnan(v) ? std::numeric_limits<float>::infinity() : v;
+    }
+    rowMax_[static_cast<std::size_t>(r)] = m;
+  }
   shadedBits_.assign((n + 63) / 64, 0);
   const auto* v = reinterpret_cast<const std::uint8_t*>(shades.data());
   for (std::uint64_t w = 0; w < shadedBits_.size(); ++w) {
@@ -87,12 +113,6 @@ struct RowScan {
   std::int32_t selfLo = kNone, selfHi = -1;        // ... and were or are visible
 };
 
-template <class T>
-float loadValue(const std::uint8_t* bytes, std::int64_t i) {
-  T v;
-  std::memcpy(&v, bytes + i * static_cast<std::int64_t>(sizeof(T)), sizeof(T));
-  return static_cast<float>(v);
-}
 
 // Compares n values of a row with the copy (by their bits), takes the new
 // ones into the copy, and notes the ranges.
@@ -320,6 +340,8 @@ std::vector<Box3> ChangeTracker::shadingRuns(const Volume& values, std::span<con
     if (a > z) continue;
     const std::int64_t row = std::int64_t{c.k} * d.y + c.j;
     const auto lo = static_cast<std::int32_t>(a), hi = static_cast<std::int32_t>(z);
+    float& bound = rowMax_[static_cast<std::size_t>(row)];
+    if (!(c.newMax <= bound)) bound = std::isnan(c.newMax) ? std::numeric_limits<float>::infinity() : c.newMax;
     // Of the changed voxels, those shaded before: the ones visible now are
     // in this row's range of changes, which runsWithin narrows to them.
     std::int32_t sLo = lo, sHi = hi;
@@ -353,7 +375,7 @@ std::vector<Box3> ChangeTracker::runsWithin(const Volume& values, std::span<cons
         for (std::int64_t j = w.lo.y; j < w.hi.y; ++j) {
           // The values a few rows on, which the narrowing below may read (as
           // in the comparing pass, the hardware does not fetch them ahead).
-          if (tf && j + kAhead < w.hi.y) {
+          if (tf && j + kAhead < w.hi.y && !transparentRow(k * d.y + j + kAhead, *tf)) {
             const std::uint8_t* ahead = values.bytes.data() + ((k * d.y + j + kAhead) * d.x + w.lo.x) * B;
             for (std::int64_t o = 0; o < len + 63; o += 64) __builtin_prefetch(ahead + std::min(o, len - 1), 0, 3);
           }
@@ -377,7 +399,12 @@ std::vector<Box3> ChangeTracker::runsWithin(const Volume& values, std::span<cons
           // are visible.
           const auto r = static_cast<std::size_t>(k * d.y + j);
           std::int64_t a = std::max<std::int64_t>(lo - 1, w.lo.x), z = std::min<std::int64_t>(hi + 1, w.hi.x - 1);
-          if (tf) narrowToVisible(values.type, values.bytes.data() + static_cast<std::int64_t>(r) * d.x * B, a, z, *tf);
+          if (tf && transparentRow(static_cast<std::int64_t>(r), *tf)) {
+            a = 1;  // no visible voxel in the row
+            z = 0;
+          } else if (tf) {
+            narrowToVisible(values.type, values.bytes.data() + static_cast<std::int64_t>(r) * d.x * B, a, z, *tf);
+          }
           const std::int64_t sa = std::max<std::int64_t>(selfLo_[r], w.lo.x);
           const std::int64_t sz = std::min<std::int64_t>(selfHi_[r], w.hi.x - 1);
           if (a > z) {

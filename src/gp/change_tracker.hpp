@@ -51,7 +51,8 @@ public:
   // The values the shade buffer `shades` is computed from (e.g. the empty
   // grid). compare: keep a copy of the values and find changes by comparing
   // (the first shadingRuns); otherwise the caller reports them (the second),
-  // and the tracker keeps a bit per voxel: whether its shade is not zero.
+  // and the tracker keeps a bit per voxel, whether its shade is not zero,
+  // and a bound on each row's values.
   // The caller checks the memory: memoryBytes() of the grid, type and form.
   ChangeTracker(const Volume& values, const ShadeBuffer& shades, bool compare);
   // What a tracker of grid g with values of type t holds: per voxel the cell
@@ -102,8 +103,16 @@ private:
   ScalarType type_ = ScalarType::F32;
   bool compare_ = true;
   Volume copy_;  // empty when the changes are reported
-  // Reported: bit v % 64 of word v / 64 set when voxel v's shade is not 0.
+  // Reported: bit v % 64 of word v / 64 set when voxel v's shade is not 0;
+  // and per row (j, k), at least its largest value (a NaN counts as
+  // infinity): a row whose bound is transparent has no visible voxel, and
+  // its values need not be read.
   std::vector<std::uint64_t> shadedBits_;
+  std::vector<float> rowMax_;
+  // Whether row `row` (k * dims.y + j) holds only values `tf` makes transparent, by rowMax_ (reported form).
+  bool transparentRow(std::int64_t row, const TransferFunction& tf) const {
+    return !compare_ && tf.transparentUpTo(rowMax_[static_cast<std::size_t>(row)]);
+  }
   // Per row (j, k), ranges of x in this call (lo > hi: none): the voxels
   // whose value changed, and of those the ones visible before or now; and
   // the rows that have an entry to clear.

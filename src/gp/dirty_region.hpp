@@ -3,6 +3,7 @@
 // Every later stage (shading, ray-sampling) limits its work to it, so it must
 // cover every changed voxel and stay small for slices tilted across the grid.
 #include <cstdint>
+#include <limits>
 #include <vector>
 
 #include "core/grid.hpp"
@@ -27,9 +28,12 @@ struct Box3 {
   bool operator==(const Box3&) const = default;
 };
 
-// One run of voxels (i0 .. i1, j, k) along a grid row, both ends included.
+// One run of voxels (i0 .. i1, j, k) along a grid row, both ends included;
+// newMax: at least every value the run's voxels were given (a NaN counts as
+// infinity), infinity when not known.
 struct RowRun {
   std::int32_t j = 0, k = 0, i0 = 0, i1 = -1;
+  float newMax = std::numeric_limits<float>::infinity();
   bool operator==(const RowRun&) const = default;
 };
 

@@ -254,19 +254,19 @@ void TentReconstructor::contributeRows(const SliceKernel& Kref, const SliceFrame
         c[1] = hit ? cwv : 0.0f;
       } else {
         if (hit && applyVoxel<R>(acc, out, static_cast<std::size_t>(lin0 + i), cw, cwv, tf, cacheT, cacheF))
-          changed.add(i);
+          changed.add(i, out[lin0 + i]);
       }
     }
-    rowChanged_[2 * r] = changed.lo;
-    rowChanged_[2 * r + 1] = changed.hi;
+    rowChanged_[r] = changed;
   }
 }
 
 void TentReconstructor::collectChanged(std::vector<RowRun>& runs) const {
-  for (std::size_t r = 0; r < rows_.size(); ++r)
-    if (rowChanged_[2 * r] <= rowChanged_[2 * r + 1])
-      runs.push_back({static_cast<std::int32_t>(rows_[r].j), static_cast<std::int32_t>(rows_[r].k),
-                      rowChanged_[2 * r], rowChanged_[2 * r + 1]});
+  for (std::size_t r = 0; r < rows_.size(); ++r) {
+    const ChangedRange& c = rowChanged_[r];
+    if (c.lo <= c.hi)
+      runs.push_back({static_cast<std::int32_t>(rows_[r].j), static_cast<std::int32_t>(rows_[r].k), c.lo, c.hi, c.max});
+  }
 }
 
 template <bool Sheared, Along A>
@@ -366,7 +366,7 @@ void TentReconstructor::splat(const SlicePose& pose, const SliceImage& img, doub
   const SliceKernel K = sliceKernel(pose, img);
   const auto tf = static_cast<float>(timeS - t0_);
   if (mode_ == Replacement::MotionVector && contrib_.size() < 2 * total) contrib_.resize(2 * total);
-  rowChanged_.resize(2 * rows_.size());
+  rowChanged_.resize(rows_.size());
   // An image whose y axis is perpendicular to its x axis (any rigid pose with
   // a pixel scale) has the same knots on every row.
   const bool sheared = std::abs(pose.eyu) * (img.y1 + 1) > 1e-9;

@@ -6,6 +6,7 @@
 // one with makeTentReconstructor (gp/splat_tent.hpp). The voxel update and the
 // row loop are here, inline, because the kernel's voxel loops run them.
 #include <algorithm>
+#include <limits>
 #include <bit>
 #include <climits>
 #include <cmath>
@@ -54,6 +55,18 @@ inline void clipInterval(double a, double d, double invD, double lo, double hi, 
 struct SliceFrame {
   Vec3 base;
   Vec3 step[3];
+};
+
+// A row's first and last changed x and the largest value given, kept while
+// its voxels are updated (a NaN counts as infinity).
+struct ChangedRange {
+  std::int32_t lo = INT32_MAX, hi = -1;
+  float max = -std::numeric_limits<float>::infinity();
+  void add(std::int64_t i, float value) {
+    lo = std::min(lo, static_cast<std::int32_t>(i));
+    hi = static_cast<std::int32_t>(i);
+    if (!(value <= max)) max = std::isnan(value) ? std::numeric_limits<float>::infinity() : value;
+  }
 };
 
 // -------------------------------------------------------- reconstructor --
@@ -148,8 +161,9 @@ private:
 
   // Scratch, reused from slice to slice.
   std::vector<Row> rows_;
-  // Per row of rows_, the first and last x whose output bits the slice changed (first > last: none).
-  std::vector<std::int32_t> rowChanged_;
+  // Per row of rows_, the first and last x whose output bits the slice changed (first > last: none),
+  // and the largest value they were given.
+  std::vector<ChangedRange> rowChanged_;
   std::vector<float> contrib_;  // motion_vector: (cw, cwv) per voxel of rows_
   std::vector<std::uint32_t> touched_;
   std::vector<float> profiles_, rowOff_;  // the slice's lateral profiles and axial offsets (SliceKernel)
@@ -203,14 +217,6 @@ inline bool TentReconstructor::applyVoxel(float* acc, float* out, std::size_t i,
   return changed;
 }
 
-// A row's first and last changed x, kept while its voxels are updated.
-struct ChangedRange {
-  std::int32_t lo = INT32_MAX, hi = -1;
-  void add(std::int64_t i) {
-    lo = std::min(lo, static_cast<std::int32_t>(i));
-    hi = static_cast<std::int32_t>(i);
-  }
-};
 
 // Runs f(first, end) over ranges of rows_, on threads_ threads. Each row is a disjoint
 // set of voxels and each voxel's update depends only on its own state and the

@@ -22,10 +22,9 @@ void TentReconstructor::applyStored(float tf) {
         const float* c = contrib_.data() + 2 * (row.offset + static_cast<std::size_t>(i - row.i0));
         if (c[0] > 0.0f && applyVoxel<Replacement::MotionVector>(acc, out, lin0 + static_cast<std::size_t>(i), c[0],
                                                                   c[1], tf, cacheT, cacheF))
-          changed.add(i);
+          changed.add(i, out[lin0 + static_cast<std::size_t>(i)]);
       }
-      rowChanged_[2 * r] = changed.lo;
-      rowChanged_[2 * r + 1] = changed.hi;
+      rowChanged_[r] = changed;
     }
   });
 }
