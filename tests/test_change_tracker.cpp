@@ -85,6 +85,9 @@ TEST_P(Tracker, ShadingTheRunsEqualsAFullReshade) {
   // The reported form, with a shade buffer of its own.
   ShadeBuffer bufR = buf;
   ChangeTracker told(v, bufR, false);
+  // ... and clipped to one box instead of the list (a share of one region).
+  ShadeBuffer bufB = buf;
+  ChangeTracker toldBox(v, bufB, false);
   EXPECT_LT(told.memoryBytes(), tracker.memoryBytes());
 
   for (int round = 0; round < 12; ++round) {
@@ -144,11 +147,25 @@ TEST_P(Tracker, ShadingTheRunsEqualsAFullReshade) {
     const std::vector<Box3> runsR = told.shadingRuns(v, reported, within, grey ? nullptr : &tf);
     std::vector<std::int64_t> changedR;
     shade(v, tf, s, cam, runsR, bufR, &changedR);
+    // The box: the grid's upper part from y = 2 on, so that some changes lie outside it.
+    const Box3 part{Index3(0, 2, 0), g.dims};
+    const std::vector<Box3> runsB = toldBox.shadingRuns(v, reported, part, grey ? nullptr : &tf);
+    for (const Box3& r : runsB) ASSERT_EQ(r.intersect(part), r) << "runs stay in the box";
+    std::vector<std::int64_t> changedB;
+    shade(v, tf, s, cam, runsB, bufB, &changedB);
+    toldBox.setShadeChanges(changedB, bufB);
 
     ShadeBuffer full(g);
     shade(v, tf, s, cam, all, full);
     ASSERT_EQ(std::memcmp(full.data(), buf.data(), g.voxelCount() * sizeof(ShadeVoxel)), 0) << "round " << round;
     ASSERT_EQ(std::memcmp(full.data(), bufR.data(), g.voxelCount() * sizeof(ShadeVoxel)), 0) << "round " << round;
+    // The box's shades are the full re-shade's inside it (outside, another GP shades).
+    for (std::int64_t k = 0; k < g.dims.z; ++k)
+      for (std::int64_t j = part.lo.y; j < g.dims.y; ++j)
+        for (std::int64_t i = 0; i < g.dims.x; ++i) {
+          ASSERT_EQ(bufB.at(g.linear(i, j, k)), full.at(g.linear(i, j, k)))
+              << "round " << round << " voxel " << i << " " << j << " " << k;
+        }
     EXPECT_EQ(changedR, changed) << "both forms find the same changed shades";
     std::uint64_t runVoxels = 0, runVoxelsR = 0;
     for (const Box3& r : runs) runVoxels += r.voxelCount();

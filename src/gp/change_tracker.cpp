@@ -330,6 +330,17 @@ std::vector<Box3> ChangeTracker::shadingRuns(const Volume& values, std::span<con
 
 std::vector<Box3> ChangeTracker::shadingRuns(const Volume& values, std::span<const RowRun> changed,
                                              std::span<const Box3> within, const TransferFunction* tf) {
+  noteReported(values, changed, tf);
+  return runsWithin(values, within, tf);
+}
+
+std::vector<Box3> ChangeTracker::shadingRuns(const Volume& values, std::span<const RowRun> changed,
+                                             const Box3& region, const TransferFunction* tf) {
+  noteReported(values, changed, tf);
+  return runsWithin(values, {}, tf, &region);
+}
+
+void ChangeTracker::noteReported(const Volume& values, std::span<const RowRun> changed, const TransferFunction* tf) {
   PP5_CHECK(!compares());
   PP5_CHECK(values.grid.dims == grid_.dims);
   PP5_CHECK(values.type == type_);
@@ -357,64 +368,96 @@ std::vector<Box3> ChangeTracker::shadingRuns(const Volume& values, std::span<con
     }
     noteRow(row, lo, hi, sLo, sHi);
   }
-  return runsWithin(values, within, tf);
 }
 
 std::vector<Box3> ChangeTracker::runsWithin(const Volume& values, std::span<const Box3> within,
-                                            const TransferFunction* tf) {
+                                            const TransferFunction* tf, const Box3* region) {
   const Index3 d = grid_.dims;
   const std::int64_t B = scalarBytes(values.type);
   const Box3 all{Index3(0), d};
   std::vector<Box3> out;
-  if (!rowsTouched_.empty()) {
+  // Row (j, k) with x clipped to [x0, x1]: its run, if any.
+  auto visit = [&](std::int64_t j, std::int64_t k, std::int64_t x0, std::int64_t x1) {
+    // The row and its four face-neighbour rows: a voxel reads x - 1 and
+    // x + 1 of its own row and x of the others.
+    std::int32_t lo = kNone, hi = -1;
+    auto take = [&](std::int64_t jj, std::int64_t kk) {
+      if (jj < 0 || jj >= d.y || kk < 0 || kk >= d.z) return;
+      const auto r = static_cast<std::size_t>(kk * d.y + jj);
+      lo = std::min(lo, rowLo_[r]);
+      hi = std::max(hi, rowHi_[r]);
+    };
+    take(j, k);
+    take(j - 1, k);
+    take(j + 1, k);
+    take(j, k - 1);
+    take(j, k + 1);
+    if (lo > hi) return;
+    // Of the voxels next to a change, the visible ones (the first to the
+    // last, so a few more); and this row's own changes that were or are
+    // visible.
+    const auto r = static_cast<std::size_t>(k * d.y + j);
+    std::int64_t a = std::max<std::int64_t>(lo - 1, x0), z = std::min<std::int64_t>(hi + 1, x1);
+    if (tf && transparentRow(static_cast<std::int64_t>(r), *tf)) {
+      a = 1;  // no visible voxel in the row
+      z = 0;
+    } else if (tf) {
+      narrowToVisible(values.type, values.bytes.data() + static_cast<std::int64_t>(r) * d.x * B, a, z, *tf);
+    }
+    const std::int64_t sa = std::max<std::int64_t>(selfLo_[r], x0);
+    const std::int64_t sz = std::min<std::int64_t>(selfHi_[r], x1);
+    if (a > z) {
+      a = sa;
+      z = sz;
+    } else if (sa <= sz) {
+      a = std::min(a, sa);
+      z = std::max(z, sz);
+    }
+    if (a <= z) out.push_back({Index3(a, j, k), Index3(z + 1, j + 1, k + 1)});
+  };
+  if (!rowsTouched_.empty() && region) {
+    // Only the rows next to a changed row, marked and then read back in
+    // ascending order (memory order). A changed row's index +-1 and +-dims.y
+    // are its face neighbours, or, at the grid's y faces, rows that are not
+    // and find no change near them; no division is needed.
+    const Box3 w = region->intersect(all);
+    const std::int64_t rows = d.y * d.z;
+    if (rowMarks_.size() != static_cast<std::size_t>(rows)) rowMarks_.assign(static_cast<std::size_t>(rows), 0);
+    std::int64_t first = rows, last = -1;
+    for (const std::int64_t row : rowsTouched_)
+      for (const std::int64_t r : {row, row - 1, row + 1, row - d.y, row + d.y}) {
+        if (r < 0 || r >= rows) continue;
+        rowMarks_[static_cast<std::size_t>(r)] = 1;
+        first = std::min(first, r);
+        last = std::max(last, r);
+      }
+    if (last >= 0) {
+      std::int64_t j = first % d.y, k = first / d.y;
+      for (std::int64_t r = first; r <= last; ++r) {
+        if (rowMarks_[static_cast<std::size_t>(r)]) {
+          rowMarks_[static_cast<std::size_t>(r)] = 0;
+          if (!w.empty() && j >= w.lo.y && j < w.hi.y && k >= w.lo.z && k < w.hi.z) visit(j, k, w.lo.x, w.hi.x - 1);
+        }
+        if (++j == d.y) {
+          j = 0;
+          ++k;
+        }
+      }
+    }
+  } else if (!rowsTouched_.empty()) {
     for (const Box3& w0 : within) {
       const Box3 w = w0.intersect(all);
       if (w.empty()) continue;
       const std::int64_t len = (w.hi.x - w.lo.x) * B;
       for (std::int64_t k = w.lo.z; k < w.hi.z; ++k)
         for (std::int64_t j = w.lo.y; j < w.hi.y; ++j) {
-          // The values a few rows on, which the narrowing below may read (as
-          // in the comparing pass, the hardware does not fetch them ahead).
+          // The values a few rows on, which the narrowing may read (as in the
+          // comparing pass, the hardware does not fetch them ahead).
           if (tf && j + kAhead < w.hi.y && !transparentRow(k * d.y + j + kAhead, *tf)) {
             const std::uint8_t* ahead = values.bytes.data() + ((k * d.y + j + kAhead) * d.x + w.lo.x) * B;
             for (std::int64_t o = 0; o < len + 63; o += 64) __builtin_prefetch(ahead + std::min(o, len - 1), 0, 3);
           }
-          // The row and its four face-neighbour rows: a voxel reads x - 1 and
-          // x + 1 of its own row and x of the others.
-          std::int32_t lo = kNone, hi = -1;
-          auto take = [&](std::int64_t jj, std::int64_t kk) {
-            if (jj < 0 || jj >= d.y || kk < 0 || kk >= d.z) return;
-            const auto r = static_cast<std::size_t>(kk * d.y + jj);
-            lo = std::min(lo, rowLo_[r]);
-            hi = std::max(hi, rowHi_[r]);
-          };
-          take(j, k);
-          take(j - 1, k);
-          take(j + 1, k);
-          take(j, k - 1);
-          take(j, k + 1);
-          if (lo > hi) continue;
-          // Of the voxels next to a change, the visible ones (the first to
-          // the last, so a few more); and this row's own changes that were or
-          // are visible.
-          const auto r = static_cast<std::size_t>(k * d.y + j);
-          std::int64_t a = std::max<std::int64_t>(lo - 1, w.lo.x), z = std::min<std::int64_t>(hi + 1, w.hi.x - 1);
-          if (tf && transparentRow(static_cast<std::int64_t>(r), *tf)) {
-            a = 1;  // no visible voxel in the row
-            z = 0;
-          } else if (tf) {
-            narrowToVisible(values.type, values.bytes.data() + static_cast<std::int64_t>(r) * d.x * B, a, z, *tf);
-          }
-          const std::int64_t sa = std::max<std::int64_t>(selfLo_[r], w.lo.x);
-          const std::int64_t sz = std::min<std::int64_t>(selfHi_[r], w.hi.x - 1);
-          if (a > z) {
-            a = sa;
-            z = sz;
-          } else if (sa <= sz) {
-            a = std::min(a, sa);
-            z = std::max(z, sz);
-          }
-          if (a <= z) out.push_back({Index3(a, j, k), Index3(z + 1, j + 1, k + 1)});
+          visit(j, k, w.lo.x, w.hi.x - 1);
         }
     }
   }

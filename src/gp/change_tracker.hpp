@@ -86,6 +86,11 @@ public:
   // "its shade was not zero" (a transparent value shades to zero).
   std::vector<Box3> shadingRuns(const Volume& values, std::span<const RowRun> changed, std::span<const Box3> within,
                                 const TransferFunction* tf);
+  // The same, clipped to one box (the share of a GP that shades one region
+  // whatever changed): only the rows next to a change are visited, and the
+  // caller need not work out the shading boxes of the dirty region.
+  std::vector<Box3> shadingRuns(const Volume& values, std::span<const RowRun> changed, const Box3& region,
+                                const TransferFunction* tf);
 
   // The voxels whose shade changed (linear indices, any order), now as in
   // `shades`: replaces the last call's cells and bricks.
@@ -119,8 +124,14 @@ private:
   std::vector<std::int32_t> rowLo_, rowHi_, selfLo_, selfHi_;
   std::vector<std::int64_t> rowsTouched_;
   void noteRow(std::int64_t row, std::int32_t lo, std::int32_t hi, std::int32_t selfLo, std::int32_t selfHi);
-  // From the rows' ranges: the runs to shade within `within` (and the ranges cleared).
-  std::vector<Box3> runsWithin(const Volume& values, std::span<const Box3> within, const TransferFunction* tf);
+  // The reported form's first step: the rows' ranges from `changed`.
+  void noteReported(const Volume& values, std::span<const RowRun> changed, const TransferFunction* tf);
+  // From the rows' ranges: the runs to shade within `within`, or with
+  // `region` within it, visiting only the rows next to a change (and the
+  // ranges cleared).
+  std::vector<Box3> runsWithin(const Volume& values, std::span<const Box3> within, const TransferFunction* tf,
+                               const Box3* region = nullptr);
+  std::vector<std::uint8_t> rowMarks_;  // runsWithin's marks of rows, all 0 between calls
   std::vector<std::uint8_t> cells_;
   std::uint8_t mark_ = 0;  // cells_ == mark_: changed in the last setShadeChanges (0: before the first)
   std::vector<std::int64_t> changed_;  // the voxels behind cells_

@@ -27,11 +27,19 @@ bool GpUpdate::shadeChanged(const DirtyRegion& dirty, std::span<const RowRun> ch
   // bound the work; within them the tracker finds the voxels whose shade can
   // change, and from their new shades the cells and bricks that the
   // empty-space map, the D-buffer and the sampler then limit themselves to.
-  const std::vector<Box3> needed = shadingBoxes(dirty);
-  const std::vector<Box3> within = share_->shadeShare(needed, camera_);
+  // With the changes reported and a share of one box, the tracker visits
+  // the rows next to the changes in that box, and the shading boxes are not
+  // worked out.
   const TransferFunction* tf = s_.shading.greyValues ? nullptr : &tf_;
-  shaded_ = changes_.compares() ? changes_.shadingRuns(recon_->output(), needed, within, tf)
-                                : changes_.shadingRuns(recon_->output(), changedRuns, within, tf);
+  const std::optional<Box3> region = share_->shadeRegion();
+  if (!changes_.compares() && region) {
+    shaded_ = changes_.shadingRuns(recon_->output(), changedRuns, *region, tf);
+  } else {
+    const std::vector<Box3> needed = shadingBoxes(dirty);
+    const std::vector<Box3> within = share_->shadeShare(needed, camera_);
+    shaded_ = changes_.compares() ? changes_.shadingRuns(recon_->output(), needed, within, tf)
+                                  : changes_.shadingRuns(recon_->output(), changedRuns, within, tf);
+  }
   changedVoxels_.clear();
   shade(recon_->output(), tf_, s_.shading, camera_, shaded_, shade_, &changedVoxels_);
   changes_.setShadeChanges(changedVoxels_, shade_);

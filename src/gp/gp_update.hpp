@@ -40,6 +40,9 @@ public:
   virtual std::vector<Box3> shadeShare(const std::vector<Box3>& needed, const Camera& camera) const = 0;
   // What a full re-shade shades under `camera`.
   virtual std::vector<Box3> shadeAll(const Camera& camera) const = 0;
+  // When this GP shades one box whatever changed (shadeShare is `needed`
+  // clipped to it): that box. nullopt: the share depends on the change.
+  virtual std::optional<Box3> shadeRegion() const { return std::nullopt; }
   // After a view change alone (every opacity as it was): the region whose
   // visible voxels get new light, the empty-space map kept. nullopt: shade
   // everything anew (shadeAll) and rebuild the map.
@@ -54,6 +57,7 @@ public:
   explicit WholeShare(const Grid& grid) : whole_{Index3(0), grid.dims} {}
   std::vector<Box3> shadeShare(const std::vector<Box3>& needed, const Camera&) const override { return needed; }
   std::vector<Box3> shadeAll(const Camera&) const override { return {whole_}; }
+  std::optional<Box3> shadeRegion() const override { return whole_; }
   std::optional<Box3> relightRegion() const override { return whole_; }
   const SamplerOptions& sampler() const override { return options_; }
 

@@ -30,6 +30,7 @@ public:
     return {region_};
   }
   std::optional<gp::Box3> relightRegion() const override { return region_; }
+  std::optional<gp::Box3> shadeRegion() const override { return region_; }
   const gp::SamplerOptions& sampler() const override { return options_; }
 
 private:
