@@ -88,8 +88,8 @@ ChangeTracker::ChangeTracker(const Volume& values, const ShadeBuffer& shades, bo
 std::uint64_t ChangeTracker::memoryBytes(const Grid& g, ScalarType t, bool compare) {
   const std::uint64_t n = g.voxelCount();
   const std::uint64_t values = compare ? n * static_cast<std::uint64_t>(scalarBytes(t)) : (n + 63) / 64 * 8;
-  // Per row: the four ranges' ends, and without the copy the row's bound.
-  return n + values + static_cast<std::uint64_t>(g.dims.y * g.dims.z) * (compare ? 16 : 20);
+  // Per row: the four ranges' ends, and without the copy the row's bound and mark.
+  return n + values + static_cast<std::uint64_t>(g.dims.y * g.dims.z) * (compare ? 16 : 21);
 }
 
 void ChangeTracker::resync(const Volume& values, const ShadeBuffer& shades) {
@@ -454,8 +454,9 @@ std::vector<Box3> ChangeTracker::runsWithin(const Volume& values, std::span<cons
   if (!rowsTouched_.empty() && region) {
     // Only the rows next to a changed row, marked and then read back in
     // ascending order (memory order). A changed row's index +-1 and +-dims.y
-    // are its face neighbours, or, at the grid's y faces, rows that are not
-    // and find no change near them; no division is needed.
+    // are its face neighbours, or, at the grid's y faces, other rows, visited
+    // for nothing (visit() looks at the true neighbours); no division is
+    // needed.
     const Box3 w = region->intersect(all);
     const std::int64_t rows = d.y * d.z;
     if (rowMarks_.size() != static_cast<std::size_t>(rows)) rowMarks_.assign(static_cast<std::size_t>(rows), 0);

@@ -535,13 +535,17 @@ private:
     live_->servingFinal();
     std::printf("viewer: the final volume stays live at %s until Ctrl-C\n", live_->url().c_str());
     std::fflush(stdout);
-    comm::IdleBackoff idle;  // waits as the streaming loop does: a drag's images go out at once
+    // Waits as the streaming loop does, so a drag's images go out at once;
+    // once the backoff is at its longest (the page idle for a while), 5 ms
+    // sleeps, since this loop may sit here for hours.
+    comm::IdleBackoff idle;
     while (!(j_.interrupt && j_.interrupt->load())) {
       bool acted = pump();
       heartbeat();
       serveViewer(j_.parallel.lockstep(), acted);
       if (acted) idle.reset();
-      else idle.pause();
+      else if (idle.next() < comm::IdleBackoff::kLongest) idle.pause();
+      else std::this_thread::sleep_for(std::chrono::milliseconds(5));
     }
     waitUntil([&] { return shownEpoch_ == epoch_ && !volumeOutstanding_; }, "the last image for the viewer");
   }

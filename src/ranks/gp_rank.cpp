@@ -222,7 +222,9 @@ private:
 
     std::uint64_t samples = 0;
     bool shaded = false;
-    if (anyDirty) {
+    // Runs can come without a dirty brick (a windowed reconstruction's
+    // changes in its reach outside the window): the tracker takes them too.
+    if (anyDirty || !changedRuns.empty()) {
       clock_.start(kShade);
       shaded = update_->shadeChanged(dirty, changedRuns);
     }
