@@ -10,6 +10,7 @@
 #include <filesystem>
 #include <memory>
 #include <string>
+#include <fstream>
 #include <thread>
 #include <vector>
 
@@ -159,8 +160,11 @@ TEST(LocalTransport, AFailedRankLeavesNoneWaiting) {
 }
 
 // A small doll sweep through 1 host + 2 GP + 1 PP, lockstep, every image
-// checked against the serial pipeline on the host, with a view change.
-void runJob(parallel::GpPartition partition, const std::string& name) {
+// checked against the serial pipeline on the host, with a view change. Or
+// in tick mode (`tick`), where a GP updates the frames that wait together
+// (their reported changes joined): the images after the sweep, the final
+// passes and the orbit are checked.
+void runJob(parallel::GpPartition partition, const std::string& name, bool tick = false) {
   sim::SimSettings ss;
   ss.seed = 1;
   ss.sweep.captureIntervalMm = 6.0;
@@ -179,10 +183,29 @@ void runJob(parallel::GpPartition partition, const std::string& name) {
   j.pipeline.recon.threads = 1;
   j.parallel.gpPartition = partition;
   j.parallel.tileSize = 32;
-  j.parallel.compositeOn = parallel::CompositeOn::Lockstep;
+  j.parallel.compositeOn = tick ? parallel::CompositeOn::Tick : parallel::CompositeOn::Lockstep;
+  j.parallel.batchFrames = 8;
   j.parallel.timeoutS = 30.0;
   j.layout = parallel::RankLayout::choose(4, 2, 1);
   j.source = host::simulatorSource(simulator, grid, 1);
+  if (tick) {
+    // Every frame at once (simulated beforehand), so that frames wait at the
+    // GPs and are updated together.
+    struct Shot {
+      Frame frame;
+      Mat4 pose;
+      double t;
+    };
+    auto shots = std::make_shared<std::vector<Shot>>();
+    simulator->run(1, [&](Frame&& f) {
+      const Mat4 pose = simulator->imageToReference(f.index);
+      const double t = f.timestamp;
+      shots->push_back({std::move(f), pose, t});
+    });
+    j.source.run = [shots](const host::FrameSink& sink) {
+      for (const Shot& s : *shots) sink(s.frame, s.pose, s.t);
+    };
+  }
   RenderSettings turned = j.pipeline.render;
   turned.azimuthDeg = -60.0;
   j.script.push_back({3, parallel::makeControlState(turned, j.pipeline.shading, j.pipeline.tf), "azimuth -60"});
@@ -236,14 +259,24 @@ void runJob(parallel::GpPartition partition, const std::string& name) {
   // Every image after every frame, the view change, the final passes and the orbit.
   const auto at = out.find("verified: ");
   ASSERT_NE(at, std::string::npos) << out;
-  EXPECT_GE(std::stoi(out.substr(at + 10)), 12) << out;
+  EXPECT_GE(std::stoi(out.substr(at + 10)), tick ? 3 : 12) << out;
   EXPECT_NE(out.find("images bitwise equal to the serial pipeline's"), std::string::npos) << out;
   for (const char* f : {"final_over.png", "final_mip.png", "volume.mha", "stats.csv", "summary.json"})
     EXPECT_TRUE(fs::exists(dir / f)) << f;
+  if (tick) {
+    // The frames did wait for the GPs, and were updated together.
+    std::ifstream in(dir / "summary.json");
+    const std::string summary((std::istreambuf_iterator<char>(in)), {});
+    const auto b = summary.find("\"gp_frames_batched\": ");
+    ASSERT_NE(b, std::string::npos) << summary;
+    EXPECT_GT(std::stoi(summary.substr(b + 21)), 0) << summary;
+  }
   fs::remove_all(dir);
 }
 
 TEST(LocalJob, SlabRanksEqualTheSerialPipeline) { runJob(parallel::GpPartition::Slab, "slab"); }
 TEST(LocalJob, TileRanksEqualTheSerialPipeline) { runJob(parallel::GpPartition::Tile, "tile"); }
+TEST(LocalJob, BatchedSlabRanksEqualTheSerialPipeline) { runJob(parallel::GpPartition::Slab, "slab_tick", true); }
+TEST(LocalJob, BatchedTileRanksEqualTheSerialPipeline) { runJob(parallel::GpPartition::Tile, "tile_tick", true); }
 
 }  // namespace
