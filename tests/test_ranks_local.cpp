@@ -10,7 +10,6 @@
 #include <filesystem>
 #include <memory>
 #include <string>
-#include <fstream>
 #include <thread>
 #include <vector>
 
@@ -161,9 +160,10 @@ TEST(LocalTransport, AFailedRankLeavesNoneWaiting) {
 
 // A small doll sweep through 1 host + 2 GP + 1 PP, lockstep, every image
 // checked against the serial pipeline on the host, with a view change. Or
-// in tick mode (`tick`), where a GP updates the frames that wait together
-// (their reported changes joined): the images after the sweep, the final
-// passes and the orbit are checked.
+// in tick mode (`tick`), every frame given at once, where a GP updates the
+// frames that wait for it together (their reported changes joined; whether
+// any wait depends on the machine's timing): the images after the sweep,
+// the final passes and the orbit are checked.
 void runJob(parallel::GpPartition partition, const std::string& name, bool tick = false) {
   sim::SimSettings ss;
   ss.seed = 1;
@@ -263,20 +263,12 @@ void runJob(parallel::GpPartition partition, const std::string& name, bool tick 
   EXPECT_NE(out.find("images bitwise equal to the serial pipeline's"), std::string::npos) << out;
   for (const char* f : {"final_over.png", "final_mip.png", "volume.mha", "stats.csv", "summary.json"})
     EXPECT_TRUE(fs::exists(dir / f)) << f;
-  if (tick) {
-    // The frames did wait for the GPs, and were updated together.
-    std::ifstream in(dir / "summary.json");
-    const std::string summary((std::istreambuf_iterator<char>(in)), {});
-    const auto b = summary.find("\"gp_frames_batched\": ");
-    ASSERT_NE(b, std::string::npos) << summary;
-    EXPECT_GT(std::stoi(summary.substr(b + 21)), 0) << summary;
-  }
   fs::remove_all(dir);
 }
 
 TEST(LocalJob, SlabRanksEqualTheSerialPipeline) { runJob(parallel::GpPartition::Slab, "slab"); }
 TEST(LocalJob, TileRanksEqualTheSerialPipeline) { runJob(parallel::GpPartition::Tile, "tile"); }
-TEST(LocalJob, BatchedSlabRanksEqualTheSerialPipeline) { runJob(parallel::GpPartition::Slab, "slab_tick", true); }
-TEST(LocalJob, BatchedTileRanksEqualTheSerialPipeline) { runJob(parallel::GpPartition::Tile, "tile_tick", true); }
+TEST(LocalJob, TickSlabRanksEqualTheSerialPipeline) { runJob(parallel::GpPartition::Slab, "slab_tick", true); }
+TEST(LocalJob, TickTileRanksEqualTheSerialPipeline) { runJob(parallel::GpPartition::Tile, "tile_tick", true); }
 
 }  // namespace
