@@ -73,10 +73,7 @@ ChangeTracker::ChangeTracker(const Volume& values, const ShadeBuffer& shades, bo
     : grid_(values.grid),
       type_(values.type),
       compare_(compare),
-      rowLo_(static_cast<std::size_t>(values.grid.dims.y * values.grid.dims.z), kNone),
-      rowHi_(static_cast<std::size_t>(values.grid.dims.y * values.grid.dims.z), -1),
-      selfLo_(rowLo_),
-      selfHi_(rowHi_),
+      ranges_(static_cast<std::size_t>(values.grid.dims.y * values.grid.dims.z), RowRanges{kNone, -1, kNone, -1}),
       bricks_(values.grid, kBrick) {
   copy_.grid = values.grid;
   copy_.type = values.type;
@@ -305,13 +302,13 @@ void narrowToVisible(ScalarType type, const std::uint8_t* row, std::int64_t& a, 
 
 void ChangeTracker::noteRow(std::int64_t row, std::int32_t lo, std::int32_t hi, std::int32_t sLo, std::int32_t sHi) {
   if (lo > hi) return;
-  const auto i = static_cast<std::size_t>(row);
-  if (rowLo_[i] > rowHi_[i]) rowsTouched_.push_back(row);
-  rowLo_[i] = std::min(rowLo_[i], lo);
-  rowHi_[i] = std::max(rowHi_[i], hi);
+  RowRanges& e = ranges_[static_cast<std::size_t>(row)];
+  if (e.lo > e.hi) rowsTouched_.push_back(row);
+  e.lo = std::min(e.lo, lo);
+  e.hi = std::max(e.hi, hi);
   if (sLo <= sHi) {
-    selfLo_[i] = std::min(selfLo_[i], sLo);
-    selfHi_[i] = std::max(selfHi_[i], sHi);
+    e.selfLo = std::min(e.selfLo, sLo);
+    e.selfHi = std::max(e.selfHi, sHi);
   }
 }
 
@@ -419,9 +416,9 @@ std::vector<Box3> ChangeTracker::runsWithin(const Volume& values, std::span<cons
     std::int32_t lo = kNone, hi = -1;
     auto take = [&](std::int64_t jj, std::int64_t kk) {
       if (jj < 0 || jj >= d.y || kk < 0 || kk >= d.z) return;
-      const auto r = static_cast<std::size_t>(kk * d.y + jj);
-      lo = std::min(lo, rowLo_[r]);
-      hi = std::max(hi, rowHi_[r]);
+      const RowRanges& e = ranges_[static_cast<std::size_t>(kk * d.y + jj)];
+      lo = std::min(lo, e.lo);
+      hi = std::max(hi, e.hi);
     };
     take(j, k);
     take(j - 1, k);
@@ -440,8 +437,8 @@ std::vector<Box3> ChangeTracker::runsWithin(const Volume& values, std::span<cons
     } else if (tf) {
       narrowToVisible(values.type, values.bytes.data() + static_cast<std::int64_t>(r) * d.x * B, a, z, *tf);
     }
-    const std::int64_t sa = std::max<std::int64_t>(selfLo_[r], x0);
-    const std::int64_t sz = std::min<std::int64_t>(selfHi_[r], x1);
+    const std::int64_t sa = std::max<std::int64_t>(ranges_[r].selfLo, x0);
+    const std::int64_t sz = std::min<std::int64_t>(ranges_[r].selfHi, x1);
     if (a > z) {
       a = sa;
       z = sz;
@@ -452,22 +449,28 @@ std::vector<Box3> ChangeTracker::runsWithin(const Volume& values, std::span<cons
     if (a <= z) out.push_back({Index3(a, j, k), Index3(z + 1, j + 1, k + 1)});
   };
   if (!rowsTouched_.empty() && region) {
-    // Only the rows next to a changed row, marked and then read back in
-    // ascending order (memory order). A changed row's index +-1 and +-dims.y
-    // are its face neighbours, or, at the grid's y faces, other rows, visited
-    // for nothing (visit() looks at the true neighbours); no division is
-    // needed.
+    // Only the rows that can have a run, marked and then read back in
+    // ascending order (memory order): a changed row with changes of its own
+    // that were or are visible, and the rows next to a changed row that are
+    // not all transparent (most of a frame's changed rows are water, and so
+    // are their neighbours). A changed row's index +-1 and +-dims.y are its
+    // face neighbours, or, at the grid's y faces, other rows, visited for
+    // nothing (visit() looks at the true neighbours); no division is needed.
     const Box3 w = region->intersect(all);
     const std::int64_t rows = d.y * d.z;
     if (rowMarks_.size() != static_cast<std::size_t>(rows)) rowMarks_.assign(static_cast<std::size_t>(rows), 0);
     std::int64_t first = rows, last = -1;
-    for (const std::int64_t row : rowsTouched_)
-      for (const std::int64_t r : {row, row - 1, row + 1, row - d.y, row + d.y}) {
-        if (r < 0 || r >= rows) continue;
-        rowMarks_[static_cast<std::size_t>(r)] = 1;
-        first = std::min(first, r);
-        last = std::max(last, r);
-      }
+    auto mark = [&](std::int64_t r) {
+      rowMarks_[static_cast<std::size_t>(r)] = 1;
+      first = std::min(first, r);
+      last = std::max(last, r);
+    };
+    for (const std::int64_t row : rowsTouched_) {
+      const RowRanges& e = ranges_[static_cast<std::size_t>(row)];
+      if (e.selfLo <= e.selfHi) mark(row);
+      for (const std::int64_t r : {row, row - 1, row + 1, row - d.y, row + d.y})
+        if (r >= 0 && r < rows && !(tf && transparentRow(r, *tf))) mark(r);
+    }
     if (last >= 0) {
       std::int64_t j = first % d.y, k = first / d.y;
       for (std::int64_t r = first; r <= last; ++r) {
@@ -498,11 +501,7 @@ std::vector<Box3> ChangeTracker::runsWithin(const Volume& values, std::span<cons
         }
     }
   }
-  for (const std::int64_t row : rowsTouched_) {
-    const auto r = static_cast<std::size_t>(row);
-    rowLo_[r] = selfLo_[r] = kNone;
-    rowHi_[r] = selfHi_[r] = -1;
-  }
+  for (const std::int64_t row : rowsTouched_) ranges_[static_cast<std::size_t>(row)] = RowRanges{kNone, -1, kNone, -1};
   rowsTouched_.clear();
   return out;
 }
@@ -531,19 +530,37 @@ private:
 };
 }  // namespace
 
-void ChangeTracker::markCells(std::uint8_t value) {
+template <class F>
+void ChangeTracker::forEachRun(F&& f) const {
+  // shade() reports voxels mostly in ascending runs along x: each run once.
   const Index3 d = grid_.dims;
   RowCursor cur(d);
-  for (const std::int64_t v : changed_) {
+  std::size_t at = 0;
+  while (at < changed_.size()) {
     std::int64_t i = 0, j = 0, k = 0;
-    cur.at(v, i, j, k);
-    // Voxel v is a corner of cells v - 1 and v on each axis (those in 0 .. dims - 2).
-    for (std::int64_t ck = std::max<std::int64_t>(k - 1, 0); ck <= std::min(k, d.z - 2); ++ck)
-      for (std::int64_t cj = std::max<std::int64_t>(j - 1, 0); cj <= std::min(j, d.y - 2); ++cj) {
-        std::uint8_t* row = cells_.data() + (ck * d.y + cj) * d.x;
-        for (std::int64_t ci = std::max<std::int64_t>(i - 1, 0); ci <= std::min(i, d.x - 2); ++ci) row[ci] = value;
-      }
+    cur.at(changed_[at], i, j, k);
+    std::size_t end = at + 1;
+    std::int64_t i1 = i;
+    while (end < changed_.size() && changed_[end] == changed_[end - 1] + 1 && i1 + 1 < d.x) {
+      ++end;
+      ++i1;
+    }
+    f(i, i1, j, k);
+    at = end;
   }
+}
+
+void ChangeTracker::markCells(std::uint8_t value) {
+  const Index3 d = grid_.dims;
+  // Voxel (i, j, k) is a corner of cells i - 1 and i on each axis (those in
+  // 0 .. dims - 2): a run i0 .. i1 of a row marks cells i0 - 1 .. i1 of four rows.
+  forEachRun([&](std::int64_t i0, std::int64_t i1, std::int64_t j, std::int64_t k) {
+    const std::int64_t c0 = std::max<std::int64_t>(i0 - 1, 0), c1 = std::min(i1, d.x - 2);
+    if (c0 > c1) return;
+    for (std::int64_t ck = std::max<std::int64_t>(k - 1, 0); ck <= std::min(k, d.z - 2); ++ck)
+      for (std::int64_t cj = std::max<std::int64_t>(j - 1, 0); cj <= std::min(j, d.y - 2); ++cj)
+        std::memset(cells_.data() + (ck * d.y + cj) * d.x + c0, value, static_cast<std::size_t>(c1 - c0 + 1));
+  });
 }
 
 void ChangeTracker::setShadeChanges(std::span<const std::int64_t> voxels, const ShadeBuffer& shades) {
@@ -564,16 +581,15 @@ void ChangeTracker::setShadeChanges(std::span<const std::int64_t> voxels, const 
   markCells(mark_);
   bricks_.clear();
   std::int64_t lastBrick = -1;
-  RowCursor cur(grid_.dims);
-  for (const std::int64_t v : changed_) {
-    std::int64_t i = 0, j = 0, k = 0;
-    cur.at(v, i, j, k);
-    const std::int64_t bi = i / kBrick, bj = j / kBrick, bk = k / kBrick;
-    const std::int64_t id = (bk * bricks_.brickDims().y + bj) * bricks_.brickDims().x + bi;
-    if (id == lastBrick) continue;
-    lastBrick = id;
-    bricks_.addBrick(bi, bj, bk);
-  }
+  forEachRun([&](std::int64_t i0, std::int64_t i1, std::int64_t j, std::int64_t k) {
+    const std::int64_t bj = j / kBrick, bk = k / kBrick;
+    for (std::int64_t bi = i0 / kBrick; bi <= i1 / kBrick; ++bi) {
+      const std::int64_t id = (bk * bricks_.brickDims().y + bj) * bricks_.brickDims().x + bi;
+      if (id == lastBrick) continue;
+      lastBrick = id;
+      bricks_.addBrick(bi, bj, bk);
+    }
+  });
 }
 
 }  // namespace pp5::gp

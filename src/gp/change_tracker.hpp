@@ -119,9 +119,13 @@ private:
     return !compare_ && tf.transparentUpTo(rowMax_[static_cast<std::size_t>(row)]);
   }
   // Per row (j, k), ranges of x in this call (lo > hi: none): the voxels
-  // whose value changed, and of those the ones visible before or now; and
-  // the rows that have an entry to clear.
-  std::vector<std::int32_t> rowLo_, rowHi_, selfLo_, selfHi_;
+  // whose value changed, and of those the ones visible before or now (one
+  // record a row: a row's neighbours are read together); and the rows that
+  // have an entry to clear.
+  struct RowRanges {
+    std::int32_t lo, hi, selfLo, selfHi;
+  };
+  std::vector<RowRanges> ranges_;
   std::vector<std::int64_t> rowsTouched_;
   void noteRow(std::int64_t row, std::int32_t lo, std::int32_t hi, std::int32_t selfLo, std::int32_t selfHi);
   // The reported form's first step: the rows' ranges from `changed`.
@@ -137,6 +141,9 @@ private:
   std::vector<std::int64_t> changed_;  // the voxels behind cells_
   DirtyRegion bricks_;
   void markCells(std::uint8_t value);
+  // f(i0, i1, j, k) for each run of consecutive voxels of a row in changed_.
+  template <class F>
+  void forEachRun(F&& f) const;
 };
 
 }  // namespace pp5::gp
