@@ -1,6 +1,8 @@
 #include "gp/dbuffer.hpp"
 
 #include <algorithm>
+#include <bit>
+#include <climits>
 #include <cmath>
 #include <cstring>
 #include <limits>
@@ -63,6 +65,8 @@ void DBuffer::reset(const Camera& camera) {
   touched_.clear();
   entries_.clear();
   stats_ = {};
+  rowLo_.assign(static_cast<std::size_t>(camera.height), INT_MAX);
+  rowHi_.assign(static_cast<std::size_t>(camera.height), -1);
   if (rays_.perspective()) {
     if (dirs_.size() != n || !(dirsCamera_ == camera)) {
       dirs_.resize(n);
@@ -101,23 +105,28 @@ void DBuffer::build(const Camera& camera, std::span<const WorldBox> boxes) {
 }
 
 void DBuffer::finish() {
-  // Ascending pixel order. When many pixels are touched, reading them back off
-  // the slot table in order (a linear scan) beats sorting them.
+  // Ascending pixel order, read back off the slot table row by row within
+  // each row's range of touched columns (cheaper than sorting the list).
   const std::size_t n = touched_.size();
-  if (n < slot_.size() / 32) {
-    std::sort(touched_.begin(), touched_.end());
-    return;
-  }
+  const auto W = static_cast<std::size_t>(rays_.width());
   std::size_t at = 0;
-  for (std::size_t p = 0; p < slot_.size(); ++p)
-    if (slot_[p] != kNone) touched_[at++] = static_cast<std::uint32_t>(p);
+  for (std::size_t y = 0; y < rowLo_.size(); ++y) {
+    if (rowLo_[y] > rowHi_[y]) continue;
+    for (std::size_t p = y * W + static_cast<std::size_t>(rowLo_[y]); p <= y * W + static_cast<std::size_t>(rowHi_[y]); ++p)
+      if (slot_[p] != kNone) touched_[at++] = static_cast<std::uint32_t>(p);
+    rowLo_[y] = INT_MAX;
+    rowHi_[y] = -1;
+  }
   PP5_CHECK_EQ(at, n);
 }
 
 void DBuffer::insert(std::uint32_t pixel, double tIn, double tOut) {
+  // Rounded outwards. 0 <= tIn <= tOut: a rounded above tIn is above 0,
+  // and b rounded below tOut is finite and not negative, so one step of the
+  // bits moves each by one float towards the outside.
   float a = static_cast<float>(tIn), b = static_cast<float>(tOut);
-  if (static_cast<double>(a) > tIn) a = std::nextafter(a, -std::numeric_limits<float>::infinity());
-  if (static_cast<double>(b) < tOut) b = std::nextafter(b, std::numeric_limits<float>::infinity());
+  if (static_cast<double>(a) > tIn) a = std::bit_cast<float>(std::bit_cast<std::uint32_t>(a) - 1u);
+  if (static_cast<double>(b) < tOut) b = std::bit_cast<float>(std::bit_cast<std::uint32_t>(b) + 1u);
   if (slot_[pixel] == kNone) {
     slot_[pixel] = static_cast<std::uint32_t>(entries_.size());
     touched_.push_back(pixel);
@@ -269,6 +278,7 @@ void DBuffer::addBox(const WorldBox& box) {
     const std::uint8_t* fr = front_.data() + static_cast<std::size_t>(j) * bw;
     const std::uint8_t* bk = back_.data() + static_cast<std::size_t>(j) * bw;
     const Vec3* dirs = persp ? rowDirs(by0 + j, bx0, bx1) : nullptr;
+    int firstX = INT_MAX, lastX = -1;  // this row's inserted pixels
     for (int i = 0; i < bw; ++i) {
       if ((fr[i] | bk[i]) == 0) continue;
       const int x = bx0 + i, y = by0 + j;
@@ -291,6 +301,13 @@ void DBuffer::addBox(const WorldBox& box) {
       if (!(tOut >= tIn)) continue;
       ++stats_.boxPixels;
       insert(pixel, tIn, tOut);
+      firstX = std::min(firstX, x);
+      lastX = x;
+    }
+    if (lastX >= 0) {
+      const auto y = static_cast<std::size_t>(by0 + j);
+      rowLo_[y] = std::min(rowLo_[y], firstX);
+      rowHi_[y] = std::max(rowHi_[y], lastX);
     }
   }
 }

@@ -104,6 +104,7 @@ private:
   const Vec3* rowDirs(int y, int x0, int x1);
   std::vector<std::uint32_t> slot_;  // per image pixel: index into entries_, or kNone
   std::vector<std::uint32_t> touched_;
+  std::vector<int> rowLo_, rowHi_;  // per image row, the touched columns' range (lo > hi: none)
   std::vector<Entry> entries_;  // in the order the pixels were first touched
   std::vector<std::uint8_t> front_, back_;  // per box: which face covers each pixel of its bounds
   Stats stats_;
