@@ -792,9 +792,53 @@ TEST(EmptySpaceMap, RandomUpdatesEqualRebuilds) {
     const pp5::gp::EmptySpaceMap rebuilt(shade, 1);
     ASSERT_EQ(0, std::memcmp(m.distances(), rebuilt.distances(), static_cast<std::size_t>(bd.x * bd.y * bd.z)))
         << "round " << round;
+    EXPECT_EQ(m.occupiedCells().lo, rebuilt.occupiedCells().lo) << "round " << round;
+    EXPECT_EQ(m.occupiedCells().hi, rebuilt.occupiedCells().hi) << "round " << round;
     SCOPED_TRACE(round);
     expectCellBits(m, shade);
   }
+}
+
+// Visible voxels added one at a time to a larger, empty map (each update
+// makes at most a brick or two occupied, whose distances reach far across
+// the map), and now and then one taken away: after each update the map
+// equals one built from scratch, its occupied box included.
+TEST(EmptySpaceMap, ScatteredVoxelsAddedOneByOneEqualRebuilds) {
+  Grid g;
+  g.spacing = Vec3(1.0);
+  g.dims = Index3(8 * 13 + 1, 8 * 11 + 3, 8 * 9);
+  ShadeBuffer shade(g);
+  pp5::gp::EmptySpaceMap m(shade, 1);
+  const Index3 bd = m.brickDims();
+  std::mt19937 rng(2026);
+  std::vector<std::int64_t> lit;
+  int lowered = 0;
+  for (int round = 0; round < 60; ++round) {
+    std::int64_t v;
+    if (round % 7 == 6 && !lit.empty()) {
+      v = lit[rng() % lit.size()];  // taken away: distances rise
+      shade.at(static_cast<std::size_t>(v)) = {};
+    } else {
+      v = static_cast<std::int64_t>(g.linear(rng() % g.dims.x, rng() % g.dims.y, rng() % g.dims.z));
+      shade.at(static_cast<std::size_t>(v)) = ShadeVoxel{10, 20, 30, 40};
+      lit.push_back(v);
+    }
+    const std::vector<std::uint8_t> before(m.distances(), m.distances() + bd.x * bd.y * bd.z);
+    const Index3 at(v % g.dims.x, (v / g.dims.x) % g.dims.y, v / (g.dims.x * g.dims.y));
+    const Box3 box{at, at + Index3(1)};
+    m.update(shade, std::span<const Box3>(&box, 1));
+    const pp5::gp::EmptySpaceMap rebuilt(shade, 1);
+    ASSERT_EQ(0, std::memcmp(m.distances(), rebuilt.distances(), before.size())) << "round " << round;
+    ASSERT_EQ(m.occupiedCells().lo, rebuilt.occupiedCells().lo) << "round " << round;
+    ASSERT_EQ(m.occupiedCells().hi, rebuilt.occupiedCells().hi) << "round " << round;
+    // Count the updates that lowered a distance two or more bricks away.
+    for (std::size_t b = 0; b < before.size(); ++b)
+      if (m.distances()[b] < before[b] && m.distances()[b] >= 2) {
+        ++lowered;
+        break;
+      }
+  }
+  EXPECT_GT(lowered, 20);
 }
 
 // A larger map with a few scattered visible voxels (and none at all): the

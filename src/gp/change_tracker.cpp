@@ -580,8 +580,10 @@ void ChangeTracker::setShadeChanges(std::span<const std::int64_t> voxels, const 
   changed_.assign(voxels.begin(), voxels.end());
   markCells(mark_);
   bricks_.clear();
+  runs_.clear();
   std::int64_t lastBrick = -1;
   forEachRun([&](std::int64_t i0, std::int64_t i1, std::int64_t j, std::int64_t k) {
+    runs_.push_back({Index3(i0, j, k), Index3(i1 + 1, j + 1, k + 1)});
     const std::int64_t bj = j / kBrick, bk = k / kBrick;
     for (std::int64_t bi = i0 / kBrick; bi <= i1 / kBrick; ++bi) {
       const std::int64_t id = (bk * bricks_.brickDims().y + bj) * bricks_.brickDims().x + bi;

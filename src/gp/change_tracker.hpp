@@ -101,6 +101,8 @@ public:
   // call's marks are left where they are.
   CellMarks changedCells() const { return {cells_.data(), mark_}; }
   const DirtyRegion& changedBricks() const { return bricks_; }
+  // The same voxels as one-row boxes (runs along x), ascending.
+  std::span<const Box3> changedRuns() const { return runs_; }
   std::size_t changedShades() const { return changed_.size(); }
 
 private:
@@ -140,6 +142,7 @@ private:
   std::uint8_t mark_ = 0;  // cells_ == mark_: changed in the last setShadeChanges (0: before the first)
   std::vector<std::int64_t> changed_;  // the voxels behind cells_
   DirtyRegion bricks_;
+  std::vector<Box3> runs_;
   void markCells(std::uint8_t value);
   // f(i0, i1, j, k) for each run of consecutive voxels of a row in changed_.
   template <class F>

@@ -156,7 +156,11 @@ void EmptySpaceMap::update(const ShadeBuffer& shade, std::span<const Box3> chang
       }
   }
   std::vector<std::uint8_t> seen(occupied_.size(), 0);
-  bool flipped = false;  // a brick's occupancy changed: the distances, which follow from it, change
+  // A brick's occupancy changed: the distances, which follow from it, change.
+  // Bricks that became occupied only lower them, near the brick; one that
+  // became empty can raise any, and all are recomputed.
+  std::vector<Index3> filled;
+  bool emptied = false;
   for (const Box3& c : cellBoxes) {
     const Index3 clo = c.lo / Index3(kBrickCells), chi = (c.hi - Index3(1)) / Index3(kBrickCells);
     for (std::int64_t k = clo.z; k <= chi.z; ++k)
@@ -165,10 +169,59 @@ void EmptySpaceMap::update(const ShadeBuffer& shade, std::span<const Box3> chang
           const auto id = static_cast<std::size_t>((k * bdims_.y + j) * bdims_.x + i);
           if (seen[id]) continue;
           seen[id] = 1;
-          flipped = scanBrick(i, j, k) || flipped;
+          if (!scanBrick(i, j, k)) continue;
+          if (occupied_[id]) filled.emplace_back(i, j, k);
+          else emptied = true;
         }
   }
-  if (flipped) computeDistances();
+  if (emptied || !lowerDistances(filled)) {
+    computeDistances();
+  }
+}
+
+bool EmptySpaceMap::lowerDistances(std::span<const Index3> filled) {
+  // The map is the chessboard distance to the nearest occupied brick (capped
+  // at 255). With the bricks `filled` occupied too, each brick takes the
+  // smaller of its distance and its distance to them: a breadth-first walk
+  // from them over the 26 neighbours, through the bricks it lowers only (a
+  // brick it does not lower is no farther than the walk's level from an
+  // occupied brick already, and so are the bricks beyond it, by one per
+  // step). Its work is the lowered bricks'; past a quarter of the map the
+  // caller recomputes everything instead (false).
+  if (filled.empty()) return true;
+  const std::int64_t X = bdims_.x, Y = bdims_.y, Z = bdims_.z;
+  const std::size_t budget = dist_.size() / 32;
+  std::vector<std::int64_t> level, next;
+  for (const Index3& o : filled) {
+    const std::int64_t id = (o.z * Y + o.y) * X + o.x;
+    dist_[static_cast<std::size_t>(id)] = 0;
+    level.push_back(id);
+    const Box3 cells{o * Index3(kBrickCells), glm::min((o + Index3(1)) * Index3(kBrickCells), cellDims())};
+    occupiedCells_ = occupiedCells_.empty() ? cells
+                                            : Box3{glm::min(occupiedCells_.lo, cells.lo), glm::max(occupiedCells_.hi, cells.hi)};
+  }
+  std::size_t work = 0;
+  for (int c = 1; c < 255 && !level.empty(); ++c) {
+    const auto v = static_cast<std::uint8_t>(c);
+    next.clear();
+    for (const std::int64_t id : level) {
+      const std::int64_t x = id % X, y = (id / X) % Y, z = id / (X * Y);
+      for (std::int64_t zz = std::max<std::int64_t>(z - 1, 0); zz <= std::min(z + 1, Z - 1); ++zz)
+        for (std::int64_t yy = std::max<std::int64_t>(y - 1, 0); yy <= std::min(y + 1, Y - 1); ++yy)
+          for (std::int64_t xx = std::max<std::int64_t>(x - 1, 0); xx <= std::min(x + 1, X - 1); ++xx) {
+            const std::int64_t n = (zz * Y + yy) * X + xx;
+            std::uint8_t& d = dist_[static_cast<std::size_t>(n)];
+            if (d > v) {
+              d = v;
+              next.push_back(n);
+            }
+          }
+    }
+    work += next.size();
+    if (work > budget) return false;
+    std::swap(level, next);
+  }
+  return true;
 }
 
 void EmptySpaceMap::assignBricks(const EmptySpaceMap& from) {

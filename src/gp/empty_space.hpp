@@ -26,7 +26,10 @@ public:
   // Scans every voxel; threads: 0 = every core.
   explicit EmptySpaceMap(const ShadeBuffer& shade, int threads = 0);
   // After the voxels of `changed` were re-shaded: rescans them, the cells
-  // and bricks whose stencils reach them, then the distances.
+  // and bricks whose stencils reach them, then the distances (only those
+  // that bricks newly occupied lower, when no brick became empty and they
+  // are few; else all). `changed` may be many short runs (the voxels whose
+  // shade changed: ChangeTracker::changedRuns).
   void update(const ShadeBuffer& shade, std::span<const Box3> changed);
   // The brick level of `from` (occupancy, distances, bounds: a few kB)
   // without its cell bits, which this map then lacks (hasCellBits() false):
@@ -75,6 +78,10 @@ private:
   // zero words, so that a cell's word reads its neighbours' words unchecked.
   std::vector<std::uint64_t> voxelBits_;
   std::vector<std::uint64_t> cellBits_;
+  // After the bricks `filled` became occupied (and none became empty): the
+  // distances they lower, and the occupied box; false when that would cost
+  // more than recomputing them (left half done: the caller recomputes).
+  bool lowerDistances(std::span<const Index3> filled);
   // Voxels [first, last) (linear) into voxelBits_.
   void packVoxels(const ShadeBuffer& shade, std::int64_t first, std::int64_t last);
   // cellBits_ words [w0, w1) from voxelBits_.
