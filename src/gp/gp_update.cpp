@@ -44,7 +44,7 @@ bool GpUpdate::shadeChanged(const DirtyRegion& dirty, std::span<const RowRun> ch
   shade(recon_->output(), tf_, s_.shading, camera_, shaded_, shade_, &changedVoxels_);
   changes_.setShadeChanges(changedVoxels_, shade_);
   spaceBefore_.assignBricks(space_);  // a few kB (a byte per 8^3 cells); the storage is kept
-  space_.update(shade_, changes_.changedBricks().boxes());
+  space_.update(shade_, changes_.changedRuns());
   return changes_.changedShades() > 0;
 }
 
