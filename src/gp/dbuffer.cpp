@@ -244,15 +244,27 @@ void DBuffer::addBox(const WorldBox& box) {
     }
     const int j0 = static_cast<int>(std::clamp(firstCentre(pymin), y0d, y1d));
     const int j1 = static_cast<int>(std::clamp(firstCentre(pymax), y0d, y1d));
+    // The edges that are not horizontal, each from its lower end: x at a
+    // scanline is the lower end's x plus the slope times the height above
+    // it. Two faces that share an edge have the same ends, so the same x.
+    struct Edge {
+      double ylo, yhi, xlo, slope;
+    };
+    Edge edges[5];
+    int ne = 0;
+    for (int i = 0; i < p.n; ++i) {
+      glm::dvec2 lo = p.v[i], hi = p.v[i + 1 < p.n ? i + 1 : 0];
+      if (lo.y == hi.y) continue;
+      if (lo.y > hi.y) std::swap(lo, hi);
+      edges[ne++] = {lo.y, hi.y, lo.x, (hi.x - lo.x) / (hi.y - lo.y)};
+    }
     for (int j = j0; j < j1; ++j) {
       const double cy = j + 0.5;
       double xl = kInf, xr = -kInf;
-      for (int i = 0; i < p.n; ++i) {
-        glm::dvec2 lo = p.v[i], hi = p.v[(i + 1) % p.n];
-        if (lo.y == hi.y) continue;
-        if (lo.y > hi.y) std::swap(lo, hi);
-        if (cy < lo.y || cy >= hi.y) continue;
-        const double x = lo.x + (cy - lo.y) * (hi.x - lo.x) / (hi.y - lo.y);
+      for (int e = 0; e < ne; ++e) {
+        const Edge& g = edges[e];
+        if (cy < g.ylo || cy >= g.yhi) continue;
+        const double x = g.xlo + (cy - g.ylo) * g.slope;
         xl = std::min(xl, x);
         xr = std::max(xr, x);
       }
