@@ -385,11 +385,18 @@ void ChangeTracker::noteReported(const Volume& values, std::span<const RowRun> c
     const std::int64_t row = std::int64_t{c.k} * d.y + c.j;
     const auto lo = static_cast<std::int32_t>(a), hi = static_cast<std::int32_t>(z);
     float& bound = rowMax_[static_cast<std::size_t>(row)];
+    const float was = bound;
     if (!(c.newMax <= bound)) bound = std::isnan(c.newMax) ? std::numeric_limits<float>::infinity() : c.newMax;
     // Of the changed voxels, those shaded before: the ones visible now are
-    // in this row's range of changes, which runsWithin narrows to them.
+    // in this row's range of changes, which runsWithin narrows to them. A
+    // voxel shaded before had a visible value then, which the row's bound
+    // was at least: a row whose bound was transparent had none (most of a
+    // frame's rows: water), and its bits need not be read.
     std::int32_t sLo = lo, sHi = hi;
-    if (tf) {
+    if (tf && tf->transparentUpTo(was)) {
+      sLo = kNone;
+      sHi = -1;
+    } else if (tf) {
       const std::int64_t base = row * d.x;
       const std::int64_t first = firstSetBit(shadedBits_, base + a, base + z);
       sLo = kNone;

@@ -161,6 +161,7 @@ struct Context {
   PowTable spec;  // phong only
   bool greyColour = false;  // grey mode: colour = grey level / 255
   std::int64_t valueBytes = 4;
+  bool rowsAhead = true;  // shadeRow fetches the row 4 on (false: shadeBoxes fetches the next pieces' rows)
 };
 
 // Asks for the lines that shading row (j, k) of `x` reads (its values and
@@ -242,7 +243,7 @@ void shadeRow(const Context& c, std::int64_t j, std::int64_t k, std::int64_t x0,
   const float fx[3] = {0.0f, c.oneSided.x, c.central.x};
   const std::uint8_t *const rym = row(jm, k), *const ryp = row(jp, k), *const rzm = row(j, km),
                      *const rzp = row(j, kp);
-  if (x1 > x0) {
+  if (x1 > x0 && c.rowsAhead) {
     // Rows run along x: in a slab thin in x each row is a few cache lines a
     // kilobyte or more from the last, which the hardware does not fetch ahead.
     // Fetch the row four ahead (the next rows of a box are j + 1, j + 2, ...).
@@ -379,11 +380,18 @@ struct Work {
 // Every voxel of `boxes` (disjoint, inside the grid). Rows are grouped into
 // pieces of about kPieceVoxels so that small boxes are not split across
 // threads and large ones are; the split never changes a voxel's value.
-void shadeBoxes(const Context& c, RowFn fn, const std::vector<Box3>& boxes, int threads,
+void shadeBoxes(const Context& context, RowFn fn, const std::vector<Box3>& boxes, int threads,
                 std::vector<std::int64_t>* changed) {
   constexpr std::int64_t kPieceVoxels = 8192;
   std::vector<Work> work;
   std::uint64_t total = 0;
+  // Boxes one row tall (the runs of an update) are pieces of one row, whose
+  // rows the loop below fetches ahead: shadeRow's own fetch of the row 4 on
+  // in the same box would be of a row that is not shaded.
+  Context c = context;
+  c.rowsAhead = std::any_of(boxes.begin(), boxes.end(), [](const Box3& x) {
+    return x.hi.y - x.lo.y > 1 || x.hi.z - x.lo.z > 1;
+  });
   for (std::size_t b = 0; b < boxes.size(); ++b) {
     const Box3& x = boxes[b];
     if (x.empty()) continue;
@@ -594,7 +602,9 @@ void shade(const Volume& values, const TransferFunction& tf, const ShadeSettings
   }
   const std::size_t had = changed ? changed->size() : 0;
   shadeAll(values, tf, s, view, clipped, out, changed);
-  if (changed) std::sort(changed->begin() + static_cast<std::ptrdiff_t>(had), changed->end());
+  // One thread lists the voxels in the boxes' order, for runs ascending already.
+  const auto from = changed ? changed->begin() + static_cast<std::ptrdiff_t>(had) : std::vector<std::int64_t>::iterator{};
+  if (changed && !std::is_sorted(from, changed->end())) std::sort(from, changed->end());
 }
 
 void shade(const Volume& values, const TransferFunction& tf, const ShadeSettings& s, const Camera& view,
