@@ -306,4 +306,47 @@ TEST(Tracker, FloatScanListsTheRunsOfTheScalarScan) {
   EXPECT_GT(listed, 30);
 }
 
+// A change to water next to one voxel of tissue, from each of its four face
+// neighbour rows in turn (the rows that a row of water's change matters to
+// only through a neighbour): the tissue's gradient, so its shade, changes,
+// and the reported form, listed and as one box, shades it as a full
+// re-shade does.
+TEST(Tracker, AChangeInWaterReachesTissueInEveryNeighbourRow) {
+  const Grid g = smallGrid();
+  Volume v;
+  v.allocate(g, ScalarType::F32);
+  for (std::size_t i = 0; i < g.voxelCount(); ++i) v.setValue(i, 5.0);  // water: below the ramp
+  const std::int64_t i0 = 11, j0 = 8, k0 = 6;
+  v.setValue(g.linear(i0, j0, k0), 200.0);
+  const TransferFunction tf;
+  ASSERT_TRUE(tf.transparentUpTo(19.0f));
+  ASSERT_FALSE(tf.transparentUpTo(200.0f));
+  ShadeSettings s;
+  s.threads = 1;
+  const Camera cam = cameraFor(g);
+  const Box3 all{Index3(0), g.dims};
+  ShadeBuffer listed(g), boxed(g);
+  shade(v, tf, s, cam, all, listed);
+  shade(v, tf, s, cam, all, boxed);
+  ChangeTracker told(v, listed, false), toldBox(v, boxed, false);
+  const std::int64_t offsets[4][2] = {{-1, 0}, {1, 0}, {0, -1}, {0, 1}};
+  for (const auto& o : offsets) {
+    const std::int64_t j = j0 + o[0], k = k0 + o[1];
+    const ShadeVoxel before = listed.at(g.linear(i0, j0, k0));
+    v.setValue(g.linear(i0, j, k), 19.0);  // still water
+    const std::vector<RowRun> reported{{static_cast<std::int32_t>(j), static_cast<std::int32_t>(k),
+                                        static_cast<std::int32_t>(i0), static_cast<std::int32_t>(i0), 19.0f}};
+    std::vector<std::int64_t> changed, changedB;
+    shade(v, tf, s, cam, told.shadingRuns(v, reported, std::span<const Box3>(&all, 1), &tf), listed, &changed);
+    told.setShadeChanges(changed, listed);
+    shade(v, tf, s, cam, toldBox.shadingRuns(v, reported, all, &tf), boxed, &changedB);
+    toldBox.setShadeChanges(changedB, boxed);
+    ShadeBuffer full(g);
+    shade(v, tf, s, cam, all, full);
+    ASSERT_FALSE(full.at(g.linear(i0, j0, k0)) == before) << "the change reaches the tissue's shade";
+    ASSERT_EQ(std::memcmp(full.data(), listed.data(), g.voxelCount() * sizeof(ShadeVoxel)), 0) << o[0] << " " << o[1];
+    ASSERT_EQ(std::memcmp(full.data(), boxed.data(), g.voxelCount() * sizeof(ShadeVoxel)), 0) << o[0] << " " << o[1];
+  }
+}
+
 }  // namespace

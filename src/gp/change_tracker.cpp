@@ -261,6 +261,23 @@ std::int64_t lastSetBit(const std::vector<std::uint64_t>& bits, std::int64_t fro
   return -1;
 }
 
+// The least value that `tf` does not make transparent (transparentUpTo is
+// false from it on, true below it; +infinity when every value is
+// transparent, -infinity when none is), found over the bits of the floats
+// in [0, 255], which order as integers there.
+float firstVisible(const TransferFunction& tf) {
+  constexpr float kInf = std::numeric_limits<float>::infinity();
+  if (tf.transparentUpTo(kInf)) return kInf;
+  if (!tf.transparentUpTo(0.0f)) return -kInf;
+  std::uint32_t lo = std::bit_cast<std::uint32_t>(0.0f), hi = std::bit_cast<std::uint32_t>(255.0f);  // lo transparent, hi not
+  while (hi - lo > 1) {
+    const std::uint32_t mid = lo + (hi - lo) / 2;
+    if (tf.transparentUpTo(std::bit_cast<float>(mid))) lo = mid;
+    else hi = mid;
+  }
+  return std::bit_cast<float>(hi);
+}
+
 // Narrows [a, z] of the row at `row` (its first voxel's bytes) to its first
 // and last voxel for which keep(value, x) holds (a > z: none).
 template <class T, class Keep>
@@ -378,22 +395,47 @@ void ChangeTracker::noteReported(const Volume& values, std::span<const RowRun> c
   PP5_CHECK(values.grid.dims == grid_.dims);
   PP5_CHECK(values.type == type_);
   const Index3 d = grid_.dims;
+  // A run clipped to the grid, or none (a > z).
+  auto clip = [&](const RowRun& c, std::int64_t& row, std::int64_t& a, std::int64_t& z) {
+    a = 1;
+    z = 0;
+    if (c.j < 0 || c.j >= d.y || c.k < 0 || c.k >= d.z) return;
+    a = std::max<std::int64_t>(c.i0, 0);
+    z = std::min<std::int64_t>(c.i1, d.x - 1);
+    row = std::int64_t{c.k} * d.y + c.j;
+  };
+  // First every row's bound, so that the second pass sees each row's bound
+  // after this call.
   for (const RowRun& c : changed) {
-    if (c.j < 0 || c.j >= d.y || c.k < 0 || c.k >= d.z) continue;
-    std::int64_t a = std::max<std::int64_t>(c.i0, 0), z = std::min<std::int64_t>(c.i1, d.x - 1);
+    std::int64_t row = 0, a, z;
+    clip(c, row, a, z);
     if (a > z) continue;
-    const std::int64_t row = std::int64_t{c.k} * d.y + c.j;
-    const auto lo = static_cast<std::int32_t>(a), hi = static_cast<std::int32_t>(z);
     float& bound = rowMax_[static_cast<std::size_t>(row)];
-    const float was = bound;
     if (!(c.newMax <= bound)) bound = std::isnan(c.newMax) ? std::numeric_limits<float>::infinity() : c.newMax;
+  }
+  // A bound (never NaN) is transparent exactly when it is below
+  // `visibleFrom`: one compare a row.
+  const float visibleFrom = tf ? firstVisible(*tf) : -std::numeric_limits<float>::infinity();
+  auto transparent = [&](std::int64_t r) { return rowMax_[static_cast<std::size_t>(r)] < visibleFrom; };
+  for (const RowRun& c : changed) {
+    std::int64_t row = 0, a, z;
+    clip(c, row, a, z);
+    if (a > z) continue;
+    // A row of water (its bound transparent) whose four face neighbours
+    // are water too matters to no voxel: it has no visible voxel to shade,
+    // and had none (its bound was lower), and no neighbour reads its
+    // changes for a visible voxel's gradient. Most of a frame's rows are.
+    const bool water = transparent(row);
+    if (water && (c.j == 0 || transparent(row - 1)) && (c.j + 1 == d.y || transparent(row + 1)) &&
+        (c.k == 0 || transparent(row - d.y)) && (c.k + 1 == d.z || transparent(row + d.y)))
+      continue;
+    const auto lo = static_cast<std::int32_t>(a), hi = static_cast<std::int32_t>(z);
     // Of the changed voxels, those shaded before: the ones visible now are
     // in this row's range of changes, which runsWithin narrows to them. A
     // voxel shaded before had a visible value then, which the row's bound
-    // was at least: a row whose bound was transparent had none (most of a
-    // frame's rows: water), and its bits need not be read.
+    // was at least: a row of water had none, and its bits need not be read.
     std::int32_t sLo = lo, sHi = hi;
-    if (tf && tf->transparentUpTo(was)) {
+    if (water) {
       sLo = kNone;
       sHi = -1;
     } else if (tf) {
