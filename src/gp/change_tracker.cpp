@@ -413,8 +413,10 @@ void ChangeTracker::noteReported(const Volume& values, std::span<const RowRun> c
     float& bound = rowMax_[static_cast<std::size_t>(row)];
     if (!(c.newMax <= bound)) bound = std::isnan(c.newMax) ? std::numeric_limits<float>::infinity() : c.newMax;
   }
-  // A bound (never NaN) is transparent exactly when it is below
-  // `visibleFrom`: one compare a row.
+  // A bound (never NaN) is transparent when it is below `visibleFrom`: one
+  // compare a row, the same answer as transparentUpTo but for a bound of
+  // +infinity under a function that makes everything transparent, which it
+  // takes for visible (a row kept that could be left out).
   const float visibleFrom = tf ? firstVisible(*tf) : -std::numeric_limits<float>::infinity();
   auto transparent = [&](std::int64_t r) { return rowMax_[static_cast<std::size_t>(r)] < visibleFrom; };
   for (const RowRun& c : changed) {

@@ -20,9 +20,10 @@
 //  2. Shades. shade() reports the voxels whose shade it changed. A ray
 //     sample reads the 8 voxels of one cell (gp/stencil.hpp), so only a
 //     sample whose cell has a changed voxel can differ from what the PP's
-//     cache holds: changedCells() marks those cells, and changedBricks()
-//     holds the kBrick^3-voxel bricks with a changed shade for the D-buffer and
-//     the empty-space map.
+//     cache holds: changedCells() marks those cells, changedBricks()
+//     holds the kBrick^3-voxel bricks with a changed shade for the D-buffer,
+//     and changedRuns() the voxels themselves, as runs, for the empty-space
+//     map.
 // Skipping the rest is exact: a voxel whose inputs did not change shades to
 // the same bits, and a sample whose voxels did not change interpolates to
 // the same bits (no state but the values and the settings, which are fixed
@@ -101,7 +102,8 @@ public:
   // call's marks are left where they are.
   CellMarks changedCells() const { return {cells_.data(), mark_}; }
   const DirtyRegion& changedBricks() const { return bricks_; }
-  // The same voxels as one-row boxes (runs along x), ascending.
+  // The same voxels as one-row boxes (runs along x), in the order they
+  // were given (ascending as shade() reports them).
   std::span<const Box3> changedRuns() const { return runs_; }
   std::size_t changedShades() const { return changed_.size(); }
 

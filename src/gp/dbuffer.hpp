@@ -65,7 +65,8 @@ public:
   void addBoxes(std::span<const WorldBox> boxes) {
     for (const auto& b : boxes) addBox(b);
   }
-  // Sorts the touched pixels; call after the last addBox.
+  // Lists the touched pixels in ascending order: call once, after the last
+  // addBox (it clears what addBox noted per row).
   void finish();
   // reset + addBoxes + finish.
   void build(const Camera& camera, std::span<const WorldBox> boxes);

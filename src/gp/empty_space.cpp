@@ -186,7 +186,7 @@ bool EmptySpaceMap::lowerDistances(std::span<const Index3> filled) {
   // from them over the 26 neighbours, through the bricks it lowers only (a
   // brick it does not lower is no farther than the walk's level from an
   // occupied brick already, and so are the bricks beyond it, by one per
-  // step). Its work is the lowered bricks'; past a quarter of the map the
+  // step). Its work is the lowered bricks'; past a 32nd of the map the
   // caller recomputes everything instead (false).
   if (filled.empty()) return true;
   const std::int64_t X = bdims_.x, Y = bdims_.y, Z = bdims_.z;

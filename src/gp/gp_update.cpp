@@ -25,7 +25,7 @@ GpUpdate::GpUpdate(const Grid& grid, const GpUpdateSettings& settings, const Cam
 bool GpUpdate::shadeChanged(const DirtyRegion& dirty, std::span<const RowRun> changedRuns) {
   // The dirty bricks and their gradient margin (what shade(dirty) shades)
   // bound the work; within them the tracker finds the voxels whose shade can
-  // change, and from their new shades the cells and bricks that the
+  // change, and from their new shades the voxels, cells and bricks that the
   // empty-space map, the D-buffer and the sampler then limit themselves to.
   // With the changes reported and a share of one box, the tracker visits
   // the rows next to the changes in that box, and the shading boxes are not
