@@ -263,10 +263,15 @@ std::int64_t lastSetBit(const std::vector<std::uint64_t>& bits, std::int64_t fro
 
 // The least value that `tf` does not make transparent (transparentUpTo is
 // false from it on, true below it; +infinity when every value is
-// transparent, -infinity when none is), found over the bits of the floats
-// in [0, 255], which order as integers there.
-float firstVisible(const TransferFunction& tf) {
+// transparent, -infinity when none is or there is no `tf`), found over the
+// bits of the floats in [0, 255], which order as integers there. A value
+// (never NaN) compared with it gets transparentUpTo's answer, but for
+// +infinity under a function that makes everything transparent, which it
+// takes for visible (a row kept that could be left out).
+float visibleFrom(const TransferFunction* f) {
   constexpr float kInf = std::numeric_limits<float>::infinity();
+  if (!f) return -kInf;
+  const TransferFunction& tf = *f;
   if (tf.transparentUpTo(kInf)) return kInf;
   if (!tf.transparentUpTo(0.0f)) return -kInf;
   std::uint32_t lo = std::bit_cast<std::uint32_t>(0.0f), hi = std::bit_cast<std::uint32_t>(255.0f);  // lo transparent, hi not
@@ -413,12 +418,8 @@ void ChangeTracker::noteReported(const Volume& values, std::span<const RowRun> c
     float& bound = rowMax_[static_cast<std::size_t>(row)];
     if (!(c.newMax <= bound)) bound = std::isnan(c.newMax) ? std::numeric_limits<float>::infinity() : c.newMax;
   }
-  // A bound (never NaN) is transparent when it is below `visibleFrom`: one
-  // compare a row, the same answer as transparentUpTo but for a bound of
-  // +infinity under a function that makes everything transparent, which it
-  // takes for visible (a row kept that could be left out).
-  const float visibleFrom = tf ? firstVisible(*tf) : -std::numeric_limits<float>::infinity();
-  auto transparent = [&](std::int64_t r) { return rowMax_[static_cast<std::size_t>(r)] < visibleFrom; };
+  const float from = visibleFrom(tf);
+  auto transparent = [&](std::int64_t r) { return transparentRow(r, from); };
   for (const RowRun& c : changed) {
     std::int64_t row = 0, a, z;
     clip(c, row, a, z);
@@ -459,6 +460,7 @@ std::vector<Box3> ChangeTracker::runsWithin(const Volume& values, std::span<cons
   const Index3 d = grid_.dims;
   const std::int64_t B = scalarBytes(values.type);
   const Box3 all{Index3(0), d};
+  const float from = visibleFrom(tf);
   std::vector<Box3> out;
   // Row (j, k) with x clipped to [x0, x1]: its run, if any.
   auto visit = [&](std::int64_t j, std::int64_t k, std::int64_t x0, std::int64_t x1) {
@@ -482,7 +484,7 @@ std::vector<Box3> ChangeTracker::runsWithin(const Volume& values, std::span<cons
     // visible.
     const auto r = static_cast<std::size_t>(k * d.y + j);
     std::int64_t a = std::max<std::int64_t>(lo - 1, x0), z = std::min<std::int64_t>(hi + 1, x1);
-    if (tf && transparentRow(static_cast<std::int64_t>(r), *tf)) {
+    if (transparentRow(static_cast<std::int64_t>(r), from)) {
       a = 1;  // no visible voxel in the row
       z = 0;
     } else if (tf) {
@@ -520,7 +522,7 @@ std::vector<Box3> ChangeTracker::runsWithin(const Volume& values, std::span<cons
       const RowRanges& e = ranges_[static_cast<std::size_t>(row)];
       if (e.selfLo <= e.selfHi) mark(row);
       for (const std::int64_t r : {row, row - 1, row + 1, row - d.y, row + d.y})
-        if (r >= 0 && r < rows && !(tf && transparentRow(r, *tf))) mark(r);
+        if (r >= 0 && r < rows && !transparentRow(r, from)) mark(r);
     }
     if (last >= 0) {
       std::int64_t j = first % d.y, k = first / d.y;
@@ -544,7 +546,7 @@ std::vector<Box3> ChangeTracker::runsWithin(const Volume& values, std::span<cons
         for (std::int64_t j = w.lo.y; j < w.hi.y; ++j) {
           // The values a few rows on, which the narrowing may read (as in the
           // comparing pass, the hardware does not fetch them ahead).
-          if (tf && j + kAhead < w.hi.y && !transparentRow(k * d.y + j + kAhead, *tf)) {
+          if (tf && j + kAhead < w.hi.y && !transparentRow(k * d.y + j + kAhead, from)) {
             const std::uint8_t* ahead = values.bytes.data() + ((k * d.y + j + kAhead) * d.x + w.lo.x) * B;
             for (std::int64_t o = 0; o < len + 63; o += 64) __builtin_prefetch(ahead + std::min(o, len - 1), 0, 3);
           }

@@ -118,9 +118,12 @@ private:
   // its values need not be read.
   std::vector<std::uint64_t> shadedBits_;
   std::vector<float> rowMax_;
-  // Whether row `row` (k * dims.y + j) holds only values `tf` makes transparent, by rowMax_ (reported form).
-  bool transparentRow(std::int64_t row, const TransferFunction& tf) const {
-    return !compare_ && tf.transparentUpTo(rowMax_[static_cast<std::size_t>(row)]);
+  // Whether row `row` (k * dims.y + j) holds only transparent values, by
+  // rowMax_ (reported form): its bound is below `visibleFrom`, the least
+  // value the transfer function shows (visibleFrom() in the .cpp; -infinity
+  // without one, when nothing is transparent).
+  bool transparentRow(std::int64_t row, float visibleFrom) const {
+    return !compare_ && rowMax_[static_cast<std::size_t>(row)] < visibleFrom;
   }
   // Per row (j, k), ranges of x in this call (lo > hi: none): the voxels
   // whose value changed, and of those the ones visible before or now (one

@@ -196,7 +196,7 @@ bool EmptySpaceMap::lowerDistances(std::span<const Index3> filled) {
     const std::int64_t id = (o.z * Y + o.y) * X + o.x;
     dist_[static_cast<std::size_t>(id)] = 0;
     level.push_back(id);
-    const Box3 cells{o * Index3(kBrickCells), glm::min((o + Index3(1)) * Index3(kBrickCells), cellDims())};
+    const Box3 cells = cellsOfBricks({o, o + Index3(1)});
     occupiedCells_ = occupiedCells_.empty() ? cells
                                             : Box3{glm::min(occupiedCells_.lo, cells.lo), glm::max(occupiedCells_.hi, cells.hi)};
   }
@@ -294,7 +294,7 @@ void EmptySpaceMap::computeDistances() {
           b.lo = glm::min(b.lo, Index3(x, y, z));
           b.hi = glm::max(b.hi, Index3(x, y, z) + Index3(1));
         }
-  occupiedCells_ = b.empty() ? Box3{} : Box3{b.lo * Index3(kBrickCells), glm::min(b.hi * Index3(kBrickCells), cellDims())};
+  occupiedCells_ = b.empty() ? Box3{} : cellsOfBricks(b);
 }
 
 std::vector<Box3> EmptySpaceMap::visibleVoxelBoxes(const Box3& within) const {

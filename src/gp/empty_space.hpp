@@ -82,6 +82,10 @@ private:
   // distances they lower, and the occupied box; false when that would cost
   // more than recomputing them (left half done: the caller recomputes).
   bool lowerDistances(std::span<const Index3> filled);
+  // The cells of a box of bricks, clipped to the grid's.
+  Box3 cellsOfBricks(const Box3& bricks) const {
+    return {bricks.lo * Index3(kBrickCells), glm::min(bricks.hi * Index3(kBrickCells), cellDims())};
+  }
   // Voxels [first, last) (linear) into voxelBits_.
   void packVoxels(const ShadeBuffer& shade, std::int64_t first, std::int64_t last);
   // cellBits_ words [w0, w1) from voxelBits_.
