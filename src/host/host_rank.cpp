@@ -603,6 +603,7 @@ int HostRank::run() {
   const bool liveSource = j_.source.live || j_.paceFps > 0.0;
   Clock::time_point firstSent{}, lastLog = start;
   bool stopping = false;
+  Clock::time_point interruptedAt{};
   lastHeard_.assign(static_cast<std::size_t>(L_.worldSize()), Clock::now());
   comm::IdleBackoff idle;
   for (;;) {
@@ -623,6 +624,7 @@ int HostRank::run() {
       spdlog::warn("run: interrupted; finishing the {} frames acquired", sent_);
       acq.stop();
       stopping = true;
+      interruptedAt = Clock::now();
     }
     AcquiredFrame a;
     if (acq.tryPop(a)) {
@@ -779,6 +781,10 @@ int HostRank::run() {
     std::printf("  constant-interval capture (every %g mm) left out %llu frames\n", j_.captureIntervalMm,
                 static_cast<unsigned long long>(acq.skipped()));
   writeSummary(streamS, totalS, acq.dropped(), acq.skipped(), wrote);
+  // SIGTERM sent to mpirun reaches the host odls_base_sigkill_timeout seconds
+  // before mpirun's SIGKILL (docs/cluster.md): say how long the ending took.
+  if (stopping)
+    spdlog::info("run: every output written {:.2f} s after the interruption", msBetween(interruptedAt, Clock::now()) / 1e3);
   std::printf("wrote to %s\n", fs::absolute(dir).string().c_str());
   for (const auto& n : wrote) std::printf("  %s\n", n.c_str());
   return 0;

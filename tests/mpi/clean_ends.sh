@@ -101,14 +101,23 @@ done
 
 # 6. SIGTERM to mpirun itself (as a batch system sends it): mpirun passes it to
 #    every rank, the host finishes the frames it has and writes every output;
-#    mpirun's own status for a signalled job is non-zero.
+#    mpirun's own status for a signalled job is non-zero. Open MPI 4.1's mpirun
+#    sends its ranks SIGCONT, waits odls_base_sigkill_timeout seconds (GRACE_S),
+#    sends SIGTERM, waits as long again and sends SIGKILL: the host has GRACE_S
+#    seconds to write everything. mpirun's default, 1 s, unless PP5_MPIRUN_GRACE_S
+#    says otherwise (scripts/sanitize.sh: its build runs several times slower).
+#    The sweep is paced at 15 frames/s, 12 s in all, so that the SIGTERM
+#    reaches a host still streaming, which the first check asserts.
+grace=${PP5_MPIRUN_GRACE_S:-1}
 log="$out/term-mpirun.log"
-mpirun -n 4 "$bin" run "${long[@]}" -o "$out/term-mpirun" > "$log" 2>&1 &
+mpirun -n 4 --mca odls_base_sigkill_timeout "$grace" "$bin" run "${long[@]}" \
+  --set 'run.pace_fps=15' -o "$out/term-mpirun" > "$log" 2>&1 &
 mp=$!
 wait_for "$log" "run: frame" 60
 kill -TERM "$mp"
 timeout 120 tail --pid="$mp" -f /dev/null; wait "$mp"; st=$?
 check "SIGTERM to mpirun: the host finishes" "$(grep -q 'interrupted; finishing the' "$log"; echo $?)" "$(tail -5 "$log")"
+grep -h 'after the interruption' "$log"
 for f in buildup.gif final_over.png volume.mha summary.json; do
   check "SIGTERM to mpirun: wrote $f" "$([[ -s "$out/term-mpirun/$f" ]]; echo $?)" "missing"
 done
