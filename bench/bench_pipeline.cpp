@@ -69,7 +69,7 @@ void BM_PipelineIncremental(benchmark::State& state) {
   std::size_t i = 0;
   // The first third of the sweep, so that later frames land next to data.
   for (; i < w.frames.size() / 3; ++i) pipe.insert(w.frames[i], w.poses[i], w.frames[i].timestamp);
-  std::uint64_t samples = 0, n = 0, dirty = 0, shaded = 0, pixels = 0;
+  std::uint64_t samples = 0, n = 0, dirty = 0, shaded = 0, pixels = 0, rays = 0, blocks = 0;
   double shadeMs = 0.0, sampleMs = 0.0, compositeMs = 0.0;
   for (auto _ : state) {
     if (i == w.frames.size()) {
@@ -83,6 +83,8 @@ void BM_PipelineIncremental(benchmark::State& state) {
     dirty += st.dirtyVoxels;
     shaded += st.shadedVoxels;
     pixels += st.dbufferPixels;
+    rays += st.raysComposited;
+    blocks += st.blocksComposited;
     shadeMs += st.shadeMs;
     sampleMs += st.sampleMs;
     compositeMs += st.compositeMs;
@@ -95,6 +97,9 @@ void BM_PipelineIncremental(benchmark::State& state) {
   state.counters["dirty_voxels"] = static_cast<double>(dirty) / frames;
   state.counters["shaded_voxels"] = static_cast<double>(shaded) / frames;
   state.counters["dbuffer_pixels"] = static_cast<double>(pixels) / frames;
+  // Compositing's work: rays walked, block partials recomputed.
+  state.counters["rays_composited"] = static_cast<double>(rays) / frames;
+  state.counters["blocks_composited"] = static_cast<double>(blocks) / frames;
   // Where the time goes: shading (and the empty-space map), D-buffer and
   // sampling, putting and compositing; ms per frame.
   state.counters["shade_ms"] = shadeMs / frames;
