@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
 # Configures and builds pp5echo with CMake and Ninja.
-# Usage: scripts/build.sh [--asan] [--debug]
-#   --asan   Debug build with AddressSanitizer + UndefinedBehaviorSanitizer in build-asan/
-#   --debug  plain Debug build in build-debug/
+# Usage: scripts/build.sh [--asan] [--debug] [--only pp5echo]
+#   --asan          Debug build with AddressSanitizer + UndefinedBehaviorSanitizer in build-asan/
+#   --debug         plain Debug build in build-debug/
+#   --only TARGET   build that target alone (scripts/main.sh: pp5echo, without the
+#                   tests and benchmarks, about half of a first build)
 # Shows the configure and build progress on stderr, so that a caller that
 # captures stdout still shows it; prints the build folder as its last line on
 # stdout.
@@ -10,19 +12,25 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 type=Release dir=build sanitize=OFF
-for a in "$@"; do
-  case "$a" in
+target=()
+while [ $# -gt 0 ]; do
+  case "$1" in
     --asan) type=Debug dir=build-asan sanitize=ON ;;
     --debug) type=Debug dir=build-debug ;;
-    *) echo "build.sh: unknown option '$a' (use --asan or --debug)" >&2; exit 2 ;;
+    --only)
+      [ $# -ge 2 ] || { echo "build.sh: --only needs a target (e.g. pp5echo)" >&2; exit 2; }
+      target=(--target "$2")
+      shift ;;
+    *) echo "build.sh: unknown option '$1' (use --asan, --debug or --only TARGET)" >&2; exit 2 ;;
   esac
+  shift
 done
 
 jobs=$(nproc 2>/dev/null || echo 2)
 echo "build.sh: configuring $dir ($type build)" >&2
 cmake -S . -B "$dir" -G Ninja -DCMAKE_BUILD_TYPE="$type" -DPP5_SANITIZE="$sanitize" \
   -DMPIEXEC_PREFLAGS="--allow-run-as-root;--oversubscribe" >&2
-echo "build.sh: building $dir with $jobs jobs (a few minutes the first time; [done/total] below)" >&2
-cmake --build "$dir" -j "$jobs" >&2
+echo "build.sh: building ${target[1]:-everything} in $dir with $jobs jobs (a few minutes the first time; [done/total] below)" >&2
+cmake --build "$dir" -j "$jobs" "${target[@]}" >&2
 echo "build.sh: built $dir" >&2
 echo "$dir"

@@ -17,7 +17,7 @@ out="${1:-out/doll}"
 ranks="${2:-4}"
 port="${3:-8080}"
 bash scripts/install-deps.sh
-dir=$(bash scripts/build.sh | tail -n 1)
+dir=$(bash scripts/build.sh --only pp5echo | tail -n 1)
 args=(run configs/doll.toml -o "$out" --view "127.0.0.1:$port")
 if [ -t 0 ]; then
   # Interactive: keep the final volume live until Enter (or Ctrl-C).
