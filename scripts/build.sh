@@ -13,14 +13,14 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 type=Release dir=build sanitize=OFF
-target=()
+only=""
 while [ $# -gt 0 ]; do
   case "$1" in
     --asan) type=Debug dir=build-asan sanitize=ON ;;
     --debug) type=Debug dir=build-debug ;;
     --only)
       [ $# -ge 2 ] || { echo "build.sh: --only needs a target (e.g. pp5echo)" >&2; exit 2; }
-      target=(--target "$2")
+      only=$2
       shift ;;
     *) echo "build.sh: unknown option '$1' (use --asan, --debug or --only TARGET)" >&2; exit 2 ;;
   esac
@@ -31,7 +31,7 @@ jobs=$(nproc 2>/dev/null || echo 2)
 echo "build.sh: configuring $dir ($type build)" >&2
 cmake -S . -B "$dir" -G Ninja -DCMAKE_BUILD_TYPE="$type" -DPP5_SANITIZE="$sanitize" \
   -DMPIEXEC_PREFLAGS="--allow-run-as-root;--oversubscribe" >&2
-echo "build.sh: building ${target[1]:-everything} in $dir with $jobs jobs (a few minutes the first time; [done/total] below)" >&2
-cmake --build "$dir" -j "$jobs" "${target[@]}" >&2
+echo "build.sh: building ${only:-everything} in $dir with $jobs jobs (a few minutes the first time; [done/total] below)" >&2
+cmake --build "$dir" -j "$jobs" ${only:+--target "$only"} >&2
 echo "build.sh: built $dir" >&2
 echo "$dir"

@@ -1,6 +1,7 @@
 #include "host/host_rank.hpp"
 
 #include <algorithm>
+#include <optional>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -602,8 +603,7 @@ int HostRank::run() {
   dropped_ = [&acq] { return acq.dropped(); };
   const bool liveSource = j_.source.live || j_.paceFps > 0.0;
   Clock::time_point firstSent{}, lastLog = start;
-  bool stopping = false;
-  Clock::time_point interruptedAt{};
+  std::optional<Clock::time_point> interruptedAt;  // set when interrupted: acquisition stopped
   lastHeard_.assign(static_cast<std::size_t>(L_.worldSize()), Clock::now());
   comm::IdleBackoff idle;
   for (;;) {
@@ -612,7 +612,7 @@ int HostRank::run() {
     bool viewerActed = false;
     const bool paused = serveViewer(lockstep, viewerActed);
     if (viewerActed) idle.reset();
-    if (paused && !stopping) {
+    if (paused && !interruptedAt) {
       // Paused: a live source's frames go by unused; a file's wait.
       AcquiredFrame skipped;
       if (liveSource && acq.tryPop(skipped)) ++pausedFrames_;
@@ -620,10 +620,9 @@ int HostRank::run() {
       else std::this_thread::sleep_for(std::chrono::milliseconds(2));
       continue;
     }
-    if (!stopping && j_.interrupt && j_.interrupt->load()) {
+    if (!interruptedAt && j_.interrupt && j_.interrupt->load()) {
       spdlog::warn("run: interrupted; finishing the {} frames acquired", sent_);
       acq.stop();
-      stopping = true;
       interruptedAt = Clock::now();
     }
     AcquiredFrame a;
@@ -783,8 +782,8 @@ int HostRank::run() {
   writeSummary(streamS, totalS, acq.dropped(), acq.skipped(), wrote);
   // SIGTERM sent to mpirun reaches the host odls_base_sigkill_timeout seconds
   // before mpirun's SIGKILL (docs/cluster.md): say how long the ending took.
-  if (stopping)
-    spdlog::info("run: every output written {:.2f} s after the interruption", msBetween(interruptedAt, Clock::now()) / 1e3);
+  if (interruptedAt)
+    spdlog::info("run: every output written {:.2f} s after the interruption", msBetween(*interruptedAt, Clock::now()) / 1e3);
   std::printf("wrote to %s\n", fs::absolute(dir).string().c_str());
   for (const auto& n : wrote) std::printf("  %s\n", n.c_str());
   return 0;
