@@ -2,6 +2,7 @@
 // == from-scratch bit for bit, dirty tracking, tiles, the storage format's
 // error (the figures behind the default), options.
 #include <gtest/gtest.h>
+#include <sys/resource.h>
 
 #include <algorithm>
 #include <cmath>
@@ -902,6 +903,69 @@ TEST(Output, EightBitOverBackgroundAndStraightAlpha) {
   EXPECT_EQ(rgba[1], 255);
   EXPECT_EQ(rgba[3], 128);
   EXPECT_EQ(rgba[7], 0);
+}
+
+// Neighbouring rays share their storage by depth (RayCache::Ray::at). Each
+// ray must still hold its own samples: every ray of a tile with uneven
+// counts (some empty, a strided row and column of them, groups cut short at
+// the tile's edges) composites to what the same samples give in a cache of
+// that one pixel, where the layout is a plain run.
+TEST(Layout, EveryRayKeepsItsOwnSamples) {
+  const TileRect tile{3, 2, 21, 13};
+  const int imageWidth = 30;
+  std::mt19937 rng(56);
+  const std::size_t n = static_cast<std::size_t>(tile.width) * tile.height;
+  std::vector<std::uint16_t> counts(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    const std::size_t x = i % tile.width, y = i / tile.width;
+    // Columns 5 and 11 and row 7 hold no rays, as a strided view's do.
+    counts[i] = (x == 5 || x == 11 || y == 7 || rng() % 7 == 0) ? 0 : static_cast<std::uint16_t>(1 + rng() % 300);
+  }
+  std::uniform_real_distribution<float> a(0.0f, 0.08f);
+  for (auto f : kFormats)
+    for (int bs : {1, 8, 32, 256}) {
+      const RayCacheSettings s = settingsFor(f, bs, false);
+      RayCache cache(tile, imageWidth, counts, s, CompositeMode::Over);
+      std::vector<std::vector<RaySample>> own(n);
+      std::vector<RaySample> all;
+      for (std::size_t i = 0; i < n; ++i) {
+        const auto pixel = static_cast<std::uint32_t>((tile.y0 + i / tile.width) * imageWidth + tile.x0 + i % tile.width);
+        for (std::uint32_t k = 0; k < counts[i]; ++k) own[i].push_back(sample(pixel, k, a(rng), 0.3f + 0.001f * k));
+        all.insert(all.end(), own[i].begin(), own[i].end());
+      }
+      std::shuffle(all.begin(), all.end(), rng);
+      cache.put(all);
+      cache.composite();
+      for (std::size_t i = 0; i < n; ++i) {
+        const int x = tile.x0 + static_cast<int>(i % tile.width), y = tile.y0 + static_cast<int>(i / tile.width);
+        const std::uint16_t one[1] = {counts[i]};
+        RayCache alone(TileRect{x, y, 1, 1}, imageWidth, one, s, CompositeMode::Over);
+        alone.put(own[i]);
+        alone.composite();
+        ASSERT_EQ(std::memcmp(alone.image().pixel(0, 0), cache.image().pixel(x - tile.x0, y - tile.y0), 4 * sizeof(float)), 0)
+            << pp5::pp::sampleFormatName(f) << " block " << bs << " ray " << i;
+      }
+    }
+}
+
+// What the layout is for: a surface that comes into view behind 8 x 8
+// neighbouring pixels at one depth writes a few fresh pages of memory, where
+// a ray after ray layout wrote one a ray (each fresh page is zeroed by the
+// kernel at its first write: a minor page fault).
+TEST(Layout, NeighbouringRaysShareFreshPages) {
+  const TileRect tile{0, 0, 64, 64};
+  const std::vector<std::uint16_t> counts(64 * 64, 512);  // 4 KiB of half samples a ray
+  RayCache cache(tile, 64, counts, settingsFor(SampleFormat::Half), CompositeMode::Over);
+  std::vector<RaySample> surface;
+  for (std::uint32_t y = 16; y < 24; ++y)
+    for (std::uint32_t x = 16; x < 24; ++x) surface.push_back(sample(y * 64 + x, 300 + (x + y) % 3, 0.5f));
+  surface.reserve(surface.size() + 1);
+  rusage before{}, after{};
+  getrusage(RUSAGE_SELF, &before);
+  cache.put(surface);
+  getrusage(RUSAGE_SELF, &after);
+  // 64 rays in 4 groups of 4 x 4: 4 pages, and the dirty-ray list's growth.
+  EXPECT_LE(after.ru_minflt - before.ru_minflt, 12) << "fresh pages for 64 neighbouring rays";
 }
 
 TEST(Memory, CountsSamplesPartialsAndFlags) {

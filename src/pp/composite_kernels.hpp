@@ -162,9 +162,11 @@ template <SampleFormat F, CompositeMode M>
   return p;
 }
 
+// A ray's samples (RayCache::Ray::at): block b's first sample is
+// sample + b * stride.
 struct RayView {
   std::uint64_t sample, block;
-  std::uint32_t count;
+  std::uint32_t count, stride;
 };
 
 // Walks the ray's blocks front to back, stopping before the first block at
@@ -191,7 +193,7 @@ template <SampleFormat F, CompositeMode M>
     } else if (state == kBlockDirty) {
       const std::uint32_t first = b << blockShift;
       const int n = static_cast<int>(std::min<std::uint32_t>(static_cast<std::uint32_t>(blockSize), ray.count - first));
-      p = blockPartial<F, M>(samples + 4 * (ray.sample + first), n, scratch);
+      p = blockPartial<F, M>(samples + 4 * (ray.sample + static_cast<std::uint64_t>(b) * ray.stride), n, scratch);
       ++computed;
       if (partials) {
         partials[ray.block + b] = p;

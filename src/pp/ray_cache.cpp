@@ -180,7 +180,7 @@ struct RayCacheAccess {
         const std::int64_t l = localOf(nearPixel);
         if (l >= 0) {
           const RayCache::Ray& r = c.rays_[static_cast<std::size_t>(l)];
-          __builtin_prefetch(store + 4 * (r.sample + a.k), 1);
+          __builtin_prefetch(store + 4 * r.at(a.k, shift), 1);
           __builtin_prefetch(dirty + r.block + (a.k >> shift), 1);
         }
       }
@@ -193,7 +193,7 @@ struct RayCacheAccess {
         lastPixel = s.pixel;
       }
       if (s.k >= ray->count) beyondRay(s, ray->count);
-      const std::uint64_t at = ray->sample + s.k;
+      const std::uint64_t at = ray->at(s.k, shift);
       Enc::encode(s, store + 4 * at);
       if constexpr (Concurrent) {
         if (storedNonzero(store + 4 * at)) {
@@ -288,36 +288,84 @@ void RayCache::setValueWindow(double lo, double hi) {
   if (compositesGreyValues(live_)) invalidate();
 }
 
-void RayCache::reset(std::span<const std::uint16_t> sampleCounts) {
-  const std::size_t n = static_cast<std::size_t>(tile_.width) * static_cast<std::size_t>(tile_.height);
+void RayCache::layOut(std::span<const std::uint16_t> sampleCounts) {
+  const std::size_t w = static_cast<std::size_t>(tile_.width), h = static_cast<std::size_t>(tile_.height);
+  const std::size_t n = w * h;
   PP5_CHECK_EQ(sampleCounts.size(), n);
+  // A group is gx x gy rays whose block row is about a page. Groups are cut
+  // from the columns and rows that hold rays with samples (a strided view's
+  // others have none), so that neighbours on the lattice share a group.
+  constexpr std::size_t kGroupBytes = 4096;
+  const std::size_t blockBytes = static_cast<std::size_t>(blockSize_) * sampleFormatBytes(format_);
+  const std::size_t rays = std::max<std::size_t>(1, kGroupBytes / blockBytes);  // a power of two
+  const std::size_t gx = std::size_t{1} << ((std::countr_zero(rays) + 1) / 2), gy = rays / gx;
+  std::vector<std::int64_t> col(w, -1), row(h, -1);
+  for (std::size_t y = 0; y < h; ++y)
+    for (std::size_t x = 0; x < w; ++x)
+      if (sampleCounts[y * w + x] > 0) col[x] = row[y] = 0;
+  std::int64_t cols = 0, rowsUsed = 0;
+  for (auto& c : col)
+    if (c == 0) c = cols++;
+  for (auto& r : row)
+    if (r == 0) r = rowsUsed++;
+  const std::size_t ngx = (static_cast<std::size_t>(cols) + gx - 1) / gx;
+  const std::size_t ngy = (static_cast<std::size_t>(rowsUsed) + gy - 1) / gy;
+  std::vector<std::uint64_t> members(ngx * ngy, 0), depth(ngx * ngy, 0);
   sampleTotal_ = 0;
   blockTotal_ = 0;
   rays_.resize(n);
+  // First pass: each ray's group and its place in it (row by row), and the
+  // blocks of each group's deepest ray.
+  std::vector<std::uint32_t> groupOf(n, 0);
   for (std::size_t i = 0; i < n; ++i) {
     Ray& r = rays_[i];
     r = Ray{};
-    r.sample = sampleTotal_;
     r.block = static_cast<std::uint32_t>(blockTotal_);
     r.count = sampleCounts[i];
     // An untouched ray is transparent; "over" never reaches the limit on it.
     r.end = blocksOf(r.count);
+    r.stride = static_cast<std::uint16_t>(blockSize_);
     sampleTotal_ += r.count;
     blockTotal_ += r.end;
     // A ray records its first block in 32 bits.
     PP5_CHECK_LE(blockTotal_, std::uint64_t{0xffffffffu});
+    if (r.count == 0) continue;
+    const auto cx = static_cast<std::size_t>(col[i % w]), cy = static_cast<std::size_t>(row[i / w]);
+    const std::size_t g = (cy / gy) * ngx + cx / gx;
+    groupOf[i] = static_cast<std::uint32_t>(g);
+    r.sample = members[g]++;
+    depth[g] = std::max<std::uint64_t>(depth[g], r.end);
   }
+  // Groups one after the other, row by row.
+  std::vector<std::uint64_t> base(ngx * ngy, 0);
+  std::uint64_t total = 0;
+  for (std::size_t g = 0; g < base.size(); ++g) {
+    base[g] = total;
+    total += members[g] * depth[g] * static_cast<std::uint64_t>(blockSize_);
+  }
+  storageSamples_ = total;
+  for (std::size_t i = 0; i < n; ++i) {
+    Ray& r = rays_[i];
+    if (r.count == 0) continue;
+    const std::uint32_t g = groupOf[i];
+    r.sample = base[g] + r.sample * static_cast<std::uint64_t>(blockSize_);
+    r.stride = static_cast<std::uint16_t>(members[g] * static_cast<std::uint64_t>(blockSize_));
+  }
+}
+
+void RayCache::reset(std::span<const std::uint16_t> sampleCounts) {
+  layOut(sampleCounts);
   // The storage is kept, and is all zero but for the pages put() wrote:
   // zeroing those costs what the last view wrote, not the cache's size; a
   // larger view gets new zeroed address space (ZeroedArray).
   zeroTouched();
-  const std::size_t values = 4 * static_cast<std::size_t>(sampleTotal_);
+  const std::size_t values = 4 * static_cast<std::size_t>(storageSamples_);
   switch (format_) {
     case SampleFormat::Rgba8: samples8_.resize(values); break;
     case SampleFormat::Half: samples16_.resize(values); break;
     case SampleFormat::Float: samples32_.resize(values); break;
   }
-  touched_.assign((sampleTotal_ >> kPageShift) + 1, 0);
+  touched_.assign((storageSamples_ >> kPageShift) + 1, 0);
   // A block of transparent samples composites to the identity exactly, so
   // blocks start transparent (no partial stored: the storage only grows, and
   // what it holds is written before it is read) and nothing is dirty until
@@ -328,7 +376,7 @@ void RayCache::reset(std::span<const std::uint16_t> sampleCounts) {
   for (auto& l : laneRays_) l.clear();
   image_.width = tile_.width;
   image_.height = tile_.height;
-  image_.rgba.assign(4 * n, 0.0f);
+  image_.rgba.assign(4 * rays_.size(), 0.0f);
 }
 
 void RayCache::put(const RaySample* samples, std::size_t n) { RayCacheAccess::put<false>(*this, samples, n, dirtyRays_); }
@@ -394,19 +442,23 @@ CompositeStats RayCache::compositeDirty() {
       if (i + 2 * kAhead < nd) __builtin_prefetch(rays + list[i + 2 * kAhead]);
       if (i + kAhead < nd) {
         const Ray& a = rays[list[i + kAhead]];
-        const std::uint64_t first = a.sample + (static_cast<std::uint64_t>(a.firstDirty) << shift);
-        const std::uint64_t last = std::min<std::uint64_t>(
-            a.sample + a.count, a.sample + (static_cast<std::uint64_t>(a.lastDirty + 1) << shift));
-        const char* p = reinterpret_cast<const char*>(store + 4 * first);
-        const std::size_t bytes = std::min<std::size_t>((last - first) * sampleBytes, kPrefetchBytes);
-        for (std::size_t o = 0; o < bytes; o += kLine) __builtin_prefetch(p + o);
+        // The dirty blocks' samples, block by block (Ray::at).
+        std::size_t left = kPrefetchBytes;
+        for (std::uint32_t b = a.firstDirty; b <= a.lastDirty && left > 0; ++b) {
+          const std::uint32_t k = b << shift;
+          const char* p = reinterpret_cast<const char*>(store + 4 * a.at(k, shift));
+          const std::size_t bytes =
+              std::min<std::size_t>(std::min<std::size_t>(a.count - k, static_cast<std::size_t>(bs)) * sampleBytes, left);
+          for (std::size_t o = 0; o < bytes; o += kLine) __builtin_prefetch(p + o);
+          left -= bytes;
+        }
         __builtin_prefetch(partials + a.block);
         __builtin_prefetch(dirty + a.block);
       }
       const std::uint32_t local = list[i];
       Ray& r = rays[local];
       std::uint32_t end = 0;
-      const Partial acc = walkRay<F, M>(RayView{r.sample, r.block, r.count}, store, bs, shift, partials, dirty, limit,
+      const Partial acc = walkRay<F, M>(RayView{r.sample, r.block, r.count, r.stride}, store, bs, shift, partials, dirty, limit,
                                         end, blocks, scratch);
       r.end = static_cast<std::uint16_t>(end);
       finish<M>(acc, fin, image + 4 * static_cast<std::size_t>(local));
@@ -521,7 +573,7 @@ void RayCache::compositeAll(TileImage& out) const {
         const Ray& r = rays[local];
         std::uint32_t end = 0;
         std::uint64_t computed = 0;
-        const Partial acc = walkRay<F, M>(RayView{r.sample, r.block, r.count}, store, bs, shift, nullptr, nullptr,
+        const Partial acc = walkRay<F, M>(RayView{r.sample, r.block, r.count, r.stride}, store, bs, shift, nullptr, nullptr,
                                           limit, end, computed, scratch);
         finish<M>(acc, fin, image + 4 * local);
       }

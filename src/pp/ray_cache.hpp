@@ -205,15 +205,27 @@ public:
   };
 
 private:
+  // Where a ray's samples are stored: the rays of a small square of the
+  // tile (a group) share their storage by depth, block b of every member
+  // side by side, then block b + 1: sample k of a ray lies at
+  // sample + (k / block_size) * stride + k % block_size. A group's block row
+  // fills about one page of memory (4 KiB), so a surface that comes into view
+  // behind a few neighbouring pixels writes to one fresh page, not to one per
+  // ray: a fresh page is zeroed by the kernel on its first write, which cost
+  // the incremental update more than the writes (docs/benchmarks.md).
   struct Ray {
     std::uint64_t sample;  // index of the ray's first sample
-    std::uint32_t block;   // index of its first block
+    std::uint32_t block;   // index of its first block (partials_, dirty_: ray by ray)
     std::uint16_t count;   // lattice samples
     std::uint16_t end;     // blocks folded by its last walk: the termination point
     // While listed: the first and last dirty blocks in front of `end`, where
     // composite() prefetches, since a walk waits on memory for its samples.
     std::uint16_t firstDirty, lastDirty;
-    std::uint8_t listed;  // in dirtyRays_
+    std::uint16_t stride;  // samples from one of its blocks to the next
+    std::uint8_t listed;   // in dirtyRays_
+    std::uint64_t at(std::uint32_t k, int blockShift) const {
+      return sample + static_cast<std::uint64_t>(k >> blockShift) * stride + (k & ((1u << blockShift) - 1));
+    }
   };
 
   TileRect tile_;
@@ -228,6 +240,7 @@ private:
   int threads_;
 
   std::uint64_t sampleTotal_ = 0, blockTotal_ = 0;
+  std::uint64_t storageSamples_ = 0;  // the storage's size in samples (>= sampleTotal_)
   std::vector<Ray> rays_;
   // One of these holds the samples, 4 values each, by format_.
   ZeroedArray<std::uint8_t> samples8_;
@@ -251,6 +264,8 @@ private:
   std::uint16_t blocksOf(std::uint16_t count) const {
     return static_cast<std::uint16_t>((count + (1u << blockShift_) - 1) >> blockShift_);
   }
+  // Lays out the rays' storage (Ray::at) for new sample counts.
+  void layOut(std::span<const std::uint16_t> sampleCounts);
   // Zeroes the touched pages and clears their flags.
   void zeroTouched();
   // The lanes' dirty rays onto dirtyRays_.
