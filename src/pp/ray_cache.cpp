@@ -458,8 +458,8 @@ CompositeStats RayCache::compositeDirty() {
       const std::uint32_t local = list[i];
       Ray& r = rays[local];
       std::uint32_t end = 0;
-      const Partial acc = walkRay<F, M>(RayView{r.sample, r.block, r.count, r.stride}, store, bs, shift, partials, dirty, limit,
-                                        end, blocks, scratch);
+      const Partial acc = walkRay<F, M>(RayView{r.sample, r.block, r.count, r.stride}, store, bs, shift, partials,
+                                        dirty, limit, end, blocks, scratch);
       r.end = static_cast<std::uint16_t>(end);
       finish<M>(acc, fin, image + 4 * static_cast<std::size_t>(local));
       r.listed = 0;
@@ -573,8 +573,8 @@ void RayCache::compositeAll(TileImage& out) const {
         const Ray& r = rays[local];
         std::uint32_t end = 0;
         std::uint64_t computed = 0;
-        const Partial acc = walkRay<F, M>(RayView{r.sample, r.block, r.count, r.stride}, store, bs, shift, nullptr, nullptr,
-                                          limit, end, computed, scratch);
+        const Partial acc = walkRay<F, M>(RayView{r.sample, r.block, r.count, r.stride}, store, bs, shift, nullptr,
+                                          nullptr, limit, end, computed, scratch);
         finish<M>(acc, fin, image + 4 * local);
       }
     }
