@@ -310,47 +310,57 @@ void RayCache::layOut(std::span<const std::uint16_t> sampleCounts) {
     if (r == 0) r = rowsUsed++;
   const std::size_t ngx = (static_cast<std::size_t>(cols) + gx - 1) / gx;
   const std::size_t ngy = (static_cast<std::size_t>(rowsUsed) + gy - 1) / gy;
+  // Each group's rays and its deepest ray's blocks, from the counts alone
+  // (small and read in order), so that the rays are written in one pass.
   std::vector<std::uint64_t> members(ngx * ngy, 0), depth(ngx * ngy, 0);
-  sampleTotal_ = 0;
-  blockTotal_ = 0;
-  rays_.resize(n);
-  // First pass: each ray's group and its place in it (row by row), and the
-  // blocks of each group's deepest ray.
-  std::vector<std::uint32_t> groupOf(n, 0);
-  for (std::size_t i = 0; i < n; ++i) {
-    Ray& r = rays_[i];
-    r = Ray{};
-    r.block = static_cast<std::uint32_t>(blockTotal_);
-    r.count = sampleCounts[i];
-    // An untouched ray is transparent; "over" never reaches the limit on it.
-    r.end = blocksOf(r.count);
-    r.stride = static_cast<std::uint16_t>(blockSize_);
-    sampleTotal_ += r.count;
-    blockTotal_ += r.end;
-    // A ray records its first block in 32 bits.
-    PP5_CHECK_LE(blockTotal_, std::uint64_t{0xffffffffu});
-    if (r.count == 0) continue;
-    const auto cx = static_cast<std::size_t>(col[i % w]), cy = static_cast<std::size_t>(row[i / w]);
-    const std::size_t g = (cy / gy) * ngx + cx / gx;
-    groupOf[i] = static_cast<std::uint32_t>(g);
-    r.sample = members[g]++;
-    depth[g] = std::max<std::uint64_t>(depth[g], r.end);
+  // A ray's group: its row's first group plus its column's group.
+  std::vector<std::size_t> colGroup(w, 0), rowGroup(h, 0);
+  for (std::size_t x = 0; x < w; ++x)
+    if (col[x] >= 0) colGroup[x] = static_cast<std::size_t>(col[x]) / gx;
+  for (std::size_t y = 0; y < h; ++y)
+    if (row[y] >= 0) rowGroup[y] = static_cast<std::size_t>(row[y]) / gy * ngx;
+  auto groupOf = [&](std::size_t x, std::size_t y) { return rowGroup[y] + colGroup[x]; };
+  for (std::size_t y = 0; y < h; ++y) {
+    if (row[y] < 0) continue;
+    for (std::size_t x = 0; x < w; ++x) {
+      const std::uint16_t count = sampleCounts[y * w + x];
+      if (count == 0) continue;
+      const std::size_t g = groupOf(x, y);
+      ++members[g];
+      depth[g] = std::max<std::uint64_t>(depth[g], blocksOf(count));
+    }
   }
-  // Groups one after the other, row by row.
-  std::vector<std::uint64_t> base(ngx * ngy, 0);
+  // Groups one after the other, row by row; `next`: each group's next
+  // ray's first sample as the rays are laid out, row by row.
+  std::vector<std::uint64_t> next(ngx * ngy, 0);
   std::uint64_t total = 0;
-  for (std::size_t g = 0; g < base.size(); ++g) {
-    base[g] = total;
+  for (std::size_t g = 0; g < next.size(); ++g) {
+    next[g] = total;
     total += members[g] * depth[g] * static_cast<std::uint64_t>(blockSize_);
   }
   storageSamples_ = total;
-  for (std::size_t i = 0; i < n; ++i) {
-    Ray& r = rays_[i];
-    if (r.count == 0) continue;
-    const std::uint32_t g = groupOf[i];
-    r.sample = base[g] + r.sample * static_cast<std::uint64_t>(blockSize_);
-    r.stride = static_cast<std::uint16_t>(members[g] * static_cast<std::uint64_t>(blockSize_));
-  }
+  sampleTotal_ = 0;
+  blockTotal_ = 0;
+  rays_.resize(n);
+  for (std::size_t y = 0, i = 0; y < h; ++y)
+    for (std::size_t x = 0; x < w; ++x, ++i) {
+      Ray& r = rays_[i];
+      r = Ray{};
+      r.block = static_cast<std::uint32_t>(blockTotal_);
+      r.count = sampleCounts[i];
+      // An untouched ray is transparent; "over" never reaches the limit on it.
+      r.end = blocksOf(r.count);
+      r.stride = static_cast<std::uint16_t>(blockSize_);
+      sampleTotal_ += r.count;
+      blockTotal_ += r.end;
+      // A ray records its first block in 32 bits.
+      PP5_CHECK_LE(blockTotal_, std::uint64_t{0xffffffffu});
+      if (r.count == 0) continue;
+      const std::size_t g = groupOf(x, y);
+      r.sample = next[g];
+      next[g] += static_cast<std::uint64_t>(blockSize_);
+      r.stride = static_cast<std::uint16_t>(members[g] * static_cast<std::uint64_t>(blockSize_));
+    }
 }
 
 void RayCache::reset(std::span<const std::uint16_t> sampleCounts) {
