@@ -299,29 +299,25 @@ void RayCache::layOut(std::span<const std::uint16_t> sampleCounts) {
   const std::size_t blockBytes = static_cast<std::size_t>(blockSize_) * sampleFormatBytes(format_);
   const std::size_t rays = std::max<std::size_t>(1, kGroupBytes / blockBytes);  // a power of two
   const std::size_t gx = std::size_t{1} << ((std::countr_zero(rays) + 1) / 2), gy = rays / gx;
-  std::vector<std::int64_t> col(w, -1), row(h, -1);
+  // Each column's and row's group along its axis, counting only those that
+  // hold a ray with samples; the others are never asked.
+  std::vector<std::uint8_t> colUsed(w, 0), rowUsed(h, 0);
   for (std::size_t y = 0; y < h; ++y)
     for (std::size_t x = 0; x < w; ++x)
-      if (sampleCounts[y * w + x] > 0) col[x] = row[y] = 0;
-  std::int64_t cols = 0, rowsUsed = 0;
-  for (auto& c : col)
-    if (c == 0) c = cols++;
-  for (auto& r : row)
-    if (r == 0) r = rowsUsed++;
-  const std::size_t ngx = (static_cast<std::size_t>(cols) + gx - 1) / gx;
-  const std::size_t ngy = (static_cast<std::size_t>(rowsUsed) + gy - 1) / gy;
+      if (sampleCounts[y * w + x] > 0) colUsed[x] = rowUsed[y] = 1;
+  std::vector<std::size_t> colGroup(w, 0), rowGroup(h, 0);
+  std::size_t cols = 0, rowsUsed = 0;
+  for (std::size_t x = 0; x < w; ++x)
+    if (colUsed[x]) colGroup[x] = cols++ / gx;
+  for (std::size_t y = 0; y < h; ++y)
+    if (rowUsed[y]) rowGroup[y] = rowsUsed++ / gy;
+  const std::size_t ngx = (cols + gx - 1) / gx, ngy = (rowsUsed + gy - 1) / gy;
   // Each group's rays and its deepest ray's blocks, from the counts alone
   // (small and read in order), so that the rays are written in one pass.
   std::vector<std::uint64_t> members(ngx * ngy, 0), depth(ngx * ngy, 0);
-  // A ray's group: its row's first group plus its column's group.
-  std::vector<std::size_t> colGroup(w, 0), rowGroup(h, 0);
-  for (std::size_t x = 0; x < w; ++x)
-    if (col[x] >= 0) colGroup[x] = static_cast<std::size_t>(col[x]) / gx;
-  for (std::size_t y = 0; y < h; ++y)
-    if (row[y] >= 0) rowGroup[y] = static_cast<std::size_t>(row[y]) / gy * ngx;
-  auto groupOf = [&](std::size_t x, std::size_t y) { return rowGroup[y] + colGroup[x]; };
+  auto groupOf = [&](std::size_t x, std::size_t y) { return rowGroup[y] * ngx + colGroup[x]; };
   for (std::size_t y = 0; y < h; ++y) {
-    if (row[y] < 0) continue;
+    if (!rowUsed[y]) continue;
     for (std::size_t x = 0; x < w; ++x) {
       const std::uint16_t count = sampleCounts[y * w + x];
       if (count == 0) continue;
