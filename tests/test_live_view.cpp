@@ -9,6 +9,7 @@
 #include <thread>
 #include <vector>
 
+#include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
 #include "core/error.hpp"
@@ -16,6 +17,7 @@
 #include "host/live_view.hpp"
 #include "host/slices.hpp"
 #include "parallel/parallel_settings.hpp"
+#include "viewer/drag_stride.hpp"
 #include "viewer/rate_limit.hpp"
 #include "ws_client.hpp"
 
@@ -417,4 +419,58 @@ TEST(LiveImages, AnEpochIsLabelledWithThePresetItShows) {
   v.live->image(rgba, 64, 64, 3, 0);
   ASSERT_TRUE(w.waitForImages(3));
   EXPECT_EQ(w.got().back()["preset"], "run");
+}
+
+// A drag's stride follows how long its views take against 1 / view.drag_rate_hz.
+TEST(DragStride, CoarserWhenSlowFinerWhenWellUnderNeverPastItsBounds) {
+  viewer::DragStride d(2, 15);  // a budget of 66.7 ms
+  EXPECT_EQ(d.stride(), 2);
+  d.observe(2, 0.060);  // within the budget: kept
+  EXPECT_EQ(d.stride(), 2);
+  d.observe(2, 0.070);
+  EXPECT_EQ(d.stride(), 4);
+  d.observe(2, 0.500);  // a view asked for before the change: says nothing of stride 4
+  EXPECT_EQ(d.stride(), 4);
+  d.observe(4, 0.100);
+  EXPECT_EQ(d.stride(), 8);
+  d.observe(8, 0.300);  // as coarse as tiles allow
+  EXPECT_EQ(d.stride(), 8);
+  d.observe(8, 0.020);  // over a quarter of the budget: a finer one might not keep up
+  EXPECT_EQ(d.stride(), 8);
+  d.observe(8, 0.015);
+  EXPECT_EQ(d.stride(), 4);
+  d.observe(4, 0.001);
+  EXPECT_EQ(d.stride(), 2);
+  d.observe(2, 0.001);  // never finer than it started
+  EXPECT_EQ(d.stride(), 2);
+
+  viewer::DragStride fixed(4, 0);  // view.drag_rate_hz = 0
+  fixed.observe(4, 10.0);
+  EXPECT_EQ(fixed.stride(), 4);
+}
+
+// The host times a drag's view from the pipeline taking it to its image, and
+// the page's next drag views get the stride that timing asks for; the image
+// when the mouse stops is the full one whatever the stride.
+TEST(DragStride, ASlowDragViewMakesTheNextOnesCoarser) {
+  Viewer v;
+  ImageWatcher w(*v.live);  // images are only made while a browser watches
+  ASSERT_TRUE(w.watched);
+  const std::vector<float> rgba(64 * 64 * 4, 0.5f);
+  const auto drag = [&](int seq, bool interactive) {
+    return v.live->control(fmt::format(R"({{"type": "view", "seq": {}, "azimuth": {}, "elevation": 5, "distance": 2.5,
+                                          "pan": [0, 0], "interactive": {}}})",
+                                       seq, 10 + seq, interactive ? "true" : "false"));
+  };
+  ASSERT_EQ(drag(1, true), "");
+  EXPECT_EQ(v.live->wanted().state.pixelStride, 2);  // view.drag_pixel_stride
+  v.live->epochStarted(1, v.live->wanted().state);
+  std::this_thread::sleep_for(std::chrono::milliseconds(80));  // longer than 1 / 15 s
+  v.live->image(rgba, 64, 64, 1, 0);
+  ASSERT_EQ(drag(2, true), "");
+  EXPECT_EQ(v.live->wanted().state.pixelStride, 4);
+  ASSERT_EQ(drag(3, false), "");  // the mouse stops
+  EXPECT_EQ(v.live->wanted().state.pixelStride, 1);
+  ASSERT_EQ(drag(4, true), "");  // the next drag starts where the last one ended
+  EXPECT_EQ(v.live->wanted().state.pixelStride, 4);
 }

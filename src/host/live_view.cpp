@@ -25,6 +25,7 @@
 #include "host/slices.hpp"
 #include "parallel/parallel_settings.hpp"
 #include "pp/ray_cache.hpp"
+#include "viewer/drag_stride.hpp"
 #include "viewer/jpeg.hpp"
 #include "viewer/rate_limit.hpp"
 #include "viewer/viewer_server.hpp"
@@ -59,7 +60,13 @@ void registerOptions(ConfigSchema& c, ViewSettings& s) {
   c.option("view.drag_pixel_stride", &s.dragPixelStride, 2, 1, 8,
            "While the user drags the view, a ray for every n-th pixel (1, 2, 4 or 8) along x and y only: an image n times "
            "coarser, sent n x n times smaller and scaled up by the page (as ParaViewWeb does while one "
-           "interacts); the full one follows when the mouse stops.");
+           "interacts); the full one follows when the mouse stops. The stride a drag starts at, and the finest "
+           "view.drag_rate_hz goes back to.");
+  c.option("view.drag_rate_hz", &s.dragRateHz, 15.0, 0.0, 120.0,
+           "The views a second a drag aims at (15, VTK's interactor's desired update rate): a drag's view whose image "
+           "takes longer than 1/rate makes the next ones twice as coarse (up to a stride of 8), one under a quarter of "
+           "it twice as fine again (down to view.drag_pixel_stride); the stride carries over to the next drag. "
+           "0: always view.drag_pixel_stride.");
   c.option("view.web_root", &s.webRoot, "", "The page's folder; \"\" = the one in the source tree (src/viewer/web).");
 }
 
@@ -184,6 +191,14 @@ struct LiveView::Impl {
   LiveWanted want;
   std::uint64_t wantSeq = 0;  // the newest view message's seq
   bool wantInteractive = false;
+  // A drag's stride (view.drag_rate_hz), and the drag's view being timed:
+  // from the pipeline taking it (epochStarted) to its image.
+  viewer::DragStride dragStride;
+  struct DragTiming {
+    std::uint32_t epoch = 0;
+    int stride = 0;  // 0 = none timed
+    Clock::time_point started{};
+  } dragTiming;
   bool pageChange = false;  // the page changed `want` and the pipeline has not caught up
   Clock::time_point pageChangeAt{};  // when it last did
   std::atomic<std::uint64_t> version{1};  // bumped with every change of `want`
@@ -244,7 +259,8 @@ struct LiveView::Impl {
 
   Impl(const ViewSettings& settings, const Grid& g, const RenderSettings& b, const gp::ReconSettings& recon,
        const TransferFunctionSettings& tf)
-      : s(settings), grid(g), base(b), runTf(tf), coverage(g, recon) {}
+      : s(settings), grid(g), base(b), runTf(tf), dragStride(settings.dragPixelStride, settings.dragRateHz),
+        coverage(g, recon) {}
 
   // ---- control messages (the server's thread) ----
   std::string control(const std::string& textIn) {
@@ -283,7 +299,7 @@ struct LiveView::Impl {
         }
         const bool interactive = boolean(msg, "interactive");
         c.stepScale = interactive ? s.dragStepScale : 1.0;
-        c.pixelStride = static_cast<std::uint8_t>(interactive ? s.dragPixelStride : 1);
+        c.pixelStride = static_cast<std::uint8_t>(interactive ? dragStride.stride() : 1);
         c.orbitValid = 0;
         wantSeq = std::max(wantSeq, seq);
         wantInteractive = interactive;
@@ -706,6 +722,7 @@ void LiveView::epochStarted(std::uint32_t epoch, const comm::ControlState& state
         break;
       }
   }
+  if (interactive) I.dragTiming = {epoch, std::max(1, static_cast<int>(state.pixelStride)), Clock::now()};
   I.epochs.push_back({epoch, parallel::controlCamera(state, I.base, I.grid), seq, interactive,
                       std::max(1, static_cast<int>(state.pixelStride)), std::string(enumName(parallel::liveMode(state))),
                       std::move(preset), std::move(opacity)});
@@ -716,6 +733,11 @@ void LiveView::image(const std::vector<float>& rgba, int width, int height, std:
   Impl& I = *impl_;
   if (I.server->clients() == 0) return;
   const std::lock_guard lock(I.m);
+  if (I.dragTiming.stride > 0 && epoch == I.dragTiming.epoch) {
+    I.dragStride.observe(I.dragTiming.stride,
+                         std::chrono::duration<double>(Clock::now() - I.dragTiming.started).count());
+    I.dragTiming.stride = 0;
+  }
   I.needImage = false;
   I.pendingImage.assign(rgba.begin(), rgba.end());
   I.imageW = width;

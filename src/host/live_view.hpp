@@ -42,7 +42,8 @@ struct ViewSettings {
   double sliceHz = 2.0;      // the volume fetched for the slices at most this often
   int sliceSize = 384;       // the slices' longer side, pixels
   double dragStepScale = 2.0;  // the ray step times this while the user drags
-  int dragPixelStride = 2;     // and a ray for every n-th pixel along x and y
+  int dragPixelStride = 2;     // and a ray for every n-th pixel along x and y (the finest a drag uses)
+  double dragRateHz = 15.0;    // a drag's stride coarsens until its views come this often (0: fixed)
   std::string webRoot;       // the page's folder; "" = the one built in
   // Control messages accepted per second, more are answered with an error (not
   // a TOML option: the fuzz target of tests/fuzz raises it).
