@@ -64,9 +64,9 @@ void registerOptions(ConfigSchema& c, ViewSettings& s) {
            "view.drag_rate_hz goes back to.");
   c.option("view.drag_rate_hz", &s.dragRateHz, 15.0, 0.0, 120.0,
            "The views a second a drag aims at (15, VTK's interactor's desired update rate): a drag's view whose image "
-           "takes longer than 1/rate makes the next ones twice as coarse (up to a stride of 8), one under a quarter of "
-           "it twice as fine again (down to view.drag_pixel_stride); the stride carries over to the next drag. "
-           "0: always view.drag_pixel_stride.");
+           "takes longer than 1/rate makes the next ones twice as coarse (up to a stride of 8), three in a row under a "
+           "quarter of it twice as fine again (down to view.drag_pixel_stride); the stride carries over to the next "
+           "drag. 0: always view.drag_pixel_stride.");
   c.option("view.web_root", &s.webRoot, "", "The page's folder; \"\" = the one in the source tree (src/viewer/web).");
 }
 
@@ -192,8 +192,12 @@ struct LiveView::Impl {
   std::uint64_t wantSeq = 0;  // the newest view message's seq
   bool wantInteractive = false;
   // A drag's stride (view.drag_rate_hz), and the drag's view being timed:
-  // from the pipeline taking it (epochStarted) to its image.
+  // from its message's arrival, or the drag's last image if that came later
+  // (the host sends a view once the last one's image is in), to its image:
+  // the time between a drag's images on the page.
   viewer::DragStride dragStride;
+  Clock::time_point wantAt{};         // the newest view message's arrival
+  Clock::time_point lastDragImage{};  // the last image of a drag's view
   struct DragTiming {
     std::uint32_t epoch = 0;
     int stride = 0;  // 0 = none timed
@@ -303,6 +307,7 @@ struct LiveView::Impl {
         c.orbitValid = 0;
         wantSeq = std::max(wantSeq, seq);
         wantInteractive = interactive;
+        wantAt = now;
       } else if (type == "tf") {
         if (msg.contains("preset")) {
           onlyKeys(msg, {"preset"});
@@ -722,7 +727,8 @@ void LiveView::epochStarted(std::uint32_t epoch, const comm::ControlState& state
         break;
       }
   }
-  if (interactive) I.dragTiming = {epoch, std::max(1, static_cast<int>(state.pixelStride)), Clock::now()};
+  if (interactive)
+    I.dragTiming = {epoch, std::max(1, static_cast<int>(state.pixelStride)), std::max(I.wantAt, I.lastDragImage)};
   I.epochs.push_back({epoch, parallel::controlCamera(state, I.base, I.grid), seq, interactive,
                       std::max(1, static_cast<int>(state.pixelStride)), std::string(enumName(parallel::liveMode(state))),
                       std::move(preset), std::move(opacity)});
@@ -734,9 +740,10 @@ void LiveView::image(const std::vector<float>& rgba, int width, int height, std:
   if (I.server->clients() == 0) return;
   const std::lock_guard lock(I.m);
   if (I.dragTiming.stride > 0 && epoch == I.dragTiming.epoch) {
-    I.dragStride.observe(I.dragTiming.stride,
-                         std::chrono::duration<double>(Clock::now() - I.dragTiming.started).count());
+    const auto now = Clock::now();
+    I.dragStride.observe(I.dragTiming.stride, std::chrono::duration<double>(now - I.dragTiming.started).count());
     I.dragTiming.stride = 0;
+    I.lastDragImage = now;
   }
   I.needImage = false;
   I.pendingImage.assign(rgba.begin(), rgba.end());

@@ -2,11 +2,13 @@
 // How coarse a drag's images are: the pixel stride (a ray for every n-th pixel
 // along x and y) chosen so that the view keeps up with the hand. A drag starts
 // at the finest stride it is given; a view whose image took longer than the
-// budget (1 / the rate aimed at) makes the next views twice as coarse, and one
-// that took under a quarter of it (a stride twice as fine has four times the
-// rays) makes them twice as fine again, never finer than the start. The
-// stride carries over from one drag to the next. The full image follows when
-// the mouse stops, whatever the stride.
+// budget (1 / the rate aimed at) makes the next views twice as coarse, and
+// three in a row that took under a quarter of it (a stride twice as fine has
+// four times the rays) make them twice as fine again, never finer than the
+// start. (One such view is not enough: a view's time also holds the frame
+// update it waited for, and a single quick one made the stride go back and
+// forth in the browser test.) The stride carries over from one drag to the
+// next. The full image follows when the mouse stops, whatever the stride.
 #include <algorithm>
 
 namespace pp5::viewer {
@@ -14,6 +16,7 @@ namespace pp5::viewer {
 class DragStride {
 public:
   static constexpr int kCoarsest = 8;  // tiles are multiples of 8 pixels (live_view.cpp)
+  static constexpr int kQuickViews = 3;  // views in a row under a quarter of the budget to refine
   // `finest`: 1, 2, 4 or 8; `rateHz` <= 0: always `finest`.
   DragStride(int finest, double rateHz)
       : finest_(finest), stride_(finest), budgetS_(rateHz > 0 ? 1.0 / rateHz : 0.0) {}
@@ -25,14 +28,17 @@ public:
   // was asked for before the last change) says nothing about this one.
   void observe(int stride, double seconds) {
     if (budgetS_ <= 0 || stride != stride_) return;
-    if (seconds > budgetS_)
+    quick_ = 4 * seconds < budgetS_ ? quick_ + 1 : 0;
+    if (seconds > budgetS_) {
       stride_ = std::min(kCoarsest, stride_ * 2);
-    else if (4 * seconds < budgetS_ && stride_ > finest_)
+    } else if (quick_ >= kQuickViews && stride_ > finest_) {
       stride_ /= 2;
+      quick_ = 0;
+    }
   }
 
 private:
-  int finest_, stride_;
+  int finest_, stride_, quick_ = 0;
   double budgetS_;
 };
 
