@@ -421,6 +421,13 @@ TEST(LiveImages, AnEpochIsLabelledWithThePresetItShows) {
   EXPECT_EQ(w.got().back()["preset"], "run");
 }
 
+// A page's view message: a drag's (interactive) or the one when the mouse stops.
+std::string viewMessage(int seq, bool interactive) {
+  return fmt::format(R"({{"type": "view", "seq": {}, "azimuth": {}, "elevation": 5, "distance": 2.5, "pan": [0, 0],
+                         "interactive": {}}})",
+                     seq, 10 + seq, interactive ? "true" : "false");
+}
+
 // A drag's stride follows how long its views take against 1 / view.drag_rate_hz.
 TEST(DragStride, CoarserWhenSlowFinerWhenWellUnderNeverPastItsBounds) {
   viewer::DragStride d(2, 15);  // a budget of 66.7 ms
@@ -464,11 +471,7 @@ TEST(DragStride, ASlowDragViewMakesTheNextOnesCoarser) {
   ImageWatcher w(*v.live);  // images are only made while a browser watches
   ASSERT_TRUE(w.watched);
   const std::vector<float> rgba(64 * 64 * 4, 0.5f);
-  const auto drag = [&](int seq, bool interactive) {
-    return v.live->control(fmt::format(R"({{"type": "view", "seq": {}, "azimuth": {}, "elevation": 5, "distance": 2.5,
-                                          "pan": [0, 0], "interactive": {}}})",
-                                       seq, 10 + seq, interactive ? "true" : "false"));
-  };
+  const auto drag = [&](int seq, bool interactive) { return v.live->control(viewMessage(seq, interactive)); };
   ASSERT_EQ(drag(1, true), "");
   EXPECT_EQ(v.live->wanted().state.pixelStride, 2);  // view.drag_pixel_stride
   // 80 ms in all, longer than 1 / 15 s, but only 30 of them after the
@@ -483,4 +486,25 @@ TEST(DragStride, ASlowDragViewMakesTheNextOnesCoarser) {
   EXPECT_EQ(v.live->wanted().state.pixelStride, 1);
   ASSERT_EQ(drag(4, true), "");  // the next drag starts where the last one ended
   EXPECT_EQ(v.live->wanted().state.pixelStride, 4);
+}
+
+// The page sends a view message every animation frame, so a newer one often
+// comes while the host waits to send the one it fetched: that view is still
+// the drag's, labelled with its own message and timed from its arrival.
+TEST(DragStride, AViewThePageHasMovedOnFromIsStillTheDragsAndTimed) {
+  Viewer v;
+  ImageWatcher w(*v.live);
+  ASSERT_TRUE(w.watched);
+  const std::vector<float> rgba(64 * 64 * 4, 0.5f);
+  ASSERT_EQ(v.live->control(viewMessage(1, true)), "");
+  const comm::ControlState taken = v.live->wanted().state;  // the host fetches it ...
+  std::this_thread::sleep_for(std::chrono::milliseconds(80));  // ... and waits for the GPs
+  ASSERT_EQ(v.live->control(viewMessage(2, true)), "");  // the mouse moved on meanwhile
+  v.live->epochStarted(1, taken);
+  v.live->image(rgba, 64, 64, 1, 0);
+  ASSERT_TRUE(w.waitForImages(1));
+  EXPECT_EQ(w.got().back()["view_seq"], 1);
+  EXPECT_EQ(w.got().back()["interactive"], true);
+  ASSERT_EQ(v.live->control(viewMessage(3, true)), "");
+  EXPECT_EQ(v.live->wanted().state.pixelStride, 4) << "the view's 80 ms were not counted";
 }

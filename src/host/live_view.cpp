@@ -191,13 +191,22 @@ struct LiveView::Impl {
   LiveWanted want;
   std::uint64_t wantSeq = 0;  // the newest view message's seq
   bool wantInteractive = false;
+  // What the host last fetched (wanted()): a page's message newer than it
+  // may come before the pipeline starts the epoch that answers it.
+  struct Handed {
+    comm::ControlState state;
+    std::uint64_t seq = 0;
+    bool interactive = false;
+    Clock::time_point at{};  // its view message's arrival
+  } handed;
   // A drag's stride (view.drag_rate_hz), and the drag's view being timed:
-  // from its message's arrival, or the drag's last image if that came later
-  // (the host sends a view once the last one's image is in), to its image:
-  // the time between a drag's images on the page.
+  // from its message's arrival, or the last view's first image if that came
+  // later (the host sends a view once the last one's image is in), to its
+  // image: the time between a drag's images on the page.
   viewer::DragStride dragStride;
   Clock::time_point wantAt{};         // the newest view message's arrival
-  Clock::time_point lastDragImage{};  // the last image of a drag's view
+  Clock::time_point lastViewImage{};  // the first image of the newest epoch that has one
+  std::uint32_t lastImagedEpoch = 0;
   struct DragTiming {
     std::uint32_t epoch = 0;
     int stride = 0;  // 0 = none timed
@@ -701,12 +710,20 @@ void LiveView::epochStarted(std::uint32_t epoch, const comm::ControlState& state
   Impl& I = *impl_;
   const std::lock_guard lock(I.m);
   const bool asked = parallel::controlChanges(state, I.want.state) == 0;
+  // The page's state as the host fetched it, when the page has sent a newer
+  // one since: still the page's view (a drag's, most often).
+  const bool handed = !asked && I.pageChange && parallel::controlChanges(state, I.handed.state) == 0;
   std::uint64_t seq = I.epochs.empty() ? 0 : I.epochs.back().seq;
   bool interactive = false;
+  Clock::time_point askedAt = I.wantAt;
   if (asked) {
     seq = I.wantSeq;
     interactive = I.wantInteractive;
     I.pageChange = false;
+  } else if (handed) {
+    seq = I.handed.seq;
+    interactive = I.handed.interactive;
+    askedAt = I.handed.at;
   } else if (!I.pageChange && lasting) {
     // A change of the run's own (run.script, the final images, the orbit):
     // the page's next changes start from it. One the page asked for and the
@@ -728,7 +745,7 @@ void LiveView::epochStarted(std::uint32_t epoch, const comm::ControlState& state
       }
   }
   if (interactive)
-    I.dragTiming = {epoch, std::max(1, static_cast<int>(state.pixelStride)), std::max(I.wantAt, I.lastDragImage)};
+    I.dragTiming = {epoch, std::max(1, static_cast<int>(state.pixelStride)), std::max(askedAt, I.lastViewImage)};
   I.epochs.push_back({epoch, parallel::controlCamera(state, I.base, I.grid), seq, interactive,
                       std::max(1, static_cast<int>(state.pixelStride)), std::string(enumName(parallel::liveMode(state))),
                       std::move(preset), std::move(opacity)});
@@ -739,11 +756,14 @@ void LiveView::image(const std::vector<float>& rgba, int width, int height, std:
   Impl& I = *impl_;
   if (I.server->clients() == 0) return;
   const std::lock_guard lock(I.m);
-  if (I.dragTiming.stride > 0 && epoch == I.dragTiming.epoch) {
+  if (epoch != I.lastImagedEpoch) {  // an epoch's first image: the host may send the next view
     const auto now = Clock::now();
-    I.dragStride.observe(I.dragTiming.stride, std::chrono::duration<double>(now - I.dragTiming.started).count());
-    I.dragTiming.stride = 0;
-    I.lastDragImage = now;
+    I.lastImagedEpoch = epoch;
+    I.lastViewImage = now;
+    if (I.dragTiming.stride > 0 && epoch == I.dragTiming.epoch) {
+      I.dragStride.observe(I.dragTiming.stride, std::chrono::duration<double>(now - I.dragTiming.started).count());
+      I.dragTiming.stride = 0;
+    }
   }
   I.needImage = false;
   I.pendingImage.assign(rgba.begin(), rgba.end());
@@ -810,8 +830,10 @@ void LiveView::servingFinal() {
 std::uint64_t LiveView::version() const { return impl_->version.load(); }
 
 LiveWanted LiveView::wanted() const {
-  const std::lock_guard lock(impl_->m);
-  return impl_->want;
+  Impl& I = *impl_;
+  const std::lock_guard lock(I.m);
+  I.handed = {I.want.state, I.wantSeq, I.wantInteractive, I.wantAt};
+  return I.want;
 }
 
 std::string LiveView::control(const std::string& json) { return impl_->control(json); }

@@ -23,12 +23,13 @@ public:
 
   int stride() const { return stride_; }
 
-  // A drag's view rendered at `stride` took `seconds` from the pipeline taking
-  // it to its image. A view made at another stride than the current one (it
-  // was asked for before the last change) says nothing about this one.
+  // A drag's view rendered at `stride` took `seconds` (host/live_view: from its
+  // message's arrival, or the last view's image if later, to its own image).
+  // A view made at another stride than the current one (it was asked for
+  // before the last change) says nothing about this one.
   void observe(int stride, double seconds) {
     if (budgetS_ <= 0 || stride != stride_) return;
-    quick_ = 4 * seconds < budgetS_ ? quick_ + 1 : 0;
+    quick_ = 4 * seconds < budgetS_ ? std::min(quick_ + 1, kQuickViews) : 0;
     if (seconds > budgetS_) {
       stride_ = std::min(kCoarsest, stride_ * 2);
     } else if (quick_ >= kQuickViews && stride_ > finest_) {
