@@ -189,24 +189,23 @@ struct LiveView::Impl {
 
   // What the browsers want (guarded by m).
   LiveWanted want;
-  std::uint64_t wantSeq = 0;  // the newest view message's seq
-  bool wantInteractive = false;
-  // What the host last fetched (wanted()): a page's message newer than it
-  // may come before the pipeline starts the epoch that answers it.
-  struct Handed {
-    comm::ControlState state;
+  // A page's view message, as an epoch that answers it is labelled and timed.
+  struct ViewAsked {
     std::uint64_t seq = 0;
     bool interactive = false;
-    Clock::time_point at{};  // its view message's arrival
-  } handed;
+    Clock::time_point at{};  // its arrival
+  };
+  ViewAsked wantView;  // the newest view message (its seq: the largest yet)
+  // What the host last fetched (wanted()): a page's message newer than it
+  // may come before the pipeline starts the epoch that answers it.
+  comm::ControlState handedState;
+  ViewAsked handedView;
   // A drag's stride (view.drag_rate_hz), and the drag's view being timed:
   // from its message's arrival, or the last view's first image if that came
   // later (the host sends a view once the last one's image is in), to its
   // image: the time between a drag's images on the page.
   viewer::DragStride dragStride;
-  Clock::time_point wantAt{};         // the newest view message's arrival
   Clock::time_point lastViewImage{};  // the first image of the newest epoch that has one
-  std::uint32_t lastImagedEpoch = 0;
   struct DragTiming {
     std::uint32_t epoch = 0;
     int stride = 0;  // 0 = none timed
@@ -314,9 +313,7 @@ struct LiveView::Impl {
         c.stepScale = interactive ? s.dragStepScale : 1.0;
         c.pixelStride = static_cast<std::uint8_t>(interactive ? dragStride.stride() : 1);
         c.orbitValid = 0;
-        wantSeq = std::max(wantSeq, seq);
-        wantInteractive = interactive;
-        wantAt = now;
+        wantView = {std::max(wantView.seq, seq), interactive, now};
       } else if (type == "tf") {
         if (msg.contains("preset")) {
           onlyKeys(msg, {"preset"});
@@ -712,19 +709,14 @@ void LiveView::epochStarted(std::uint32_t epoch, const comm::ControlState& state
   const bool asked = parallel::controlChanges(state, I.want.state) == 0;
   // The page's state as the host fetched it, when the page has sent a newer
   // one since: still the page's view (a drag's, most often).
-  const bool handed = !asked && I.pageChange && parallel::controlChanges(state, I.handed.state) == 0;
-  std::uint64_t seq = I.epochs.empty() ? 0 : I.epochs.back().seq;
-  bool interactive = false;
-  Clock::time_point askedAt = I.wantAt;
+  const bool handed = !asked && I.pageChange && parallel::controlChanges(state, I.handedState) == 0;
+  // The view message it answers; none for a change of the run's own.
+  const Impl::ViewAsked* answers = asked ? &I.wantView : handed ? &I.handedView : nullptr;
+  const std::uint64_t seq = answers ? answers->seq : I.epochs.empty() ? 0 : I.epochs.back().seq;
+  const bool interactive = answers && answers->interactive;
   if (asked) {
-    seq = I.wantSeq;
-    interactive = I.wantInteractive;
     I.pageChange = false;
-  } else if (handed) {
-    seq = I.handed.seq;
-    interactive = I.handed.interactive;
-    askedAt = I.handed.at;
-  } else if (!I.pageChange && lasting) {
+  } else if (!I.pageChange && lasting) {  // (a handed view leaves pageChange set)
     // A change of the run's own (run.script, the final images, the orbit):
     // the page's next changes start from it. One the page asked for and the
     // pipeline has not yet made stays wanted.
@@ -745,7 +737,7 @@ void LiveView::epochStarted(std::uint32_t epoch, const comm::ControlState& state
       }
   }
   if (interactive)
-    I.dragTiming = {epoch, std::max(1, static_cast<int>(state.pixelStride)), std::max(askedAt, I.lastViewImage)};
+    I.dragTiming = {epoch, std::max(1, static_cast<int>(state.pixelStride)), std::max(answers->at, I.lastViewImage)};
   I.epochs.push_back({epoch, parallel::controlCamera(state, I.base, I.grid), seq, interactive,
                       std::max(1, static_cast<int>(state.pixelStride)), std::string(enumName(parallel::liveMode(state))),
                       std::move(preset), std::move(opacity)});
@@ -756,9 +748,8 @@ void LiveView::image(const std::vector<float>& rgba, int width, int height, std:
   Impl& I = *impl_;
   if (I.server->clients() == 0) return;
   const std::lock_guard lock(I.m);
-  if (epoch != I.lastImagedEpoch) {  // an epoch's first image: the host may send the next view
+  if (epoch != I.imageEpoch) {  // an epoch's first image: the host may send the next view
     const auto now = Clock::now();
-    I.lastImagedEpoch = epoch;
     I.lastViewImage = now;
     if (I.dragTiming.stride > 0 && epoch == I.dragTiming.epoch) {
       I.dragStride.observe(I.dragTiming.stride, std::chrono::duration<double>(now - I.dragTiming.started).count());
@@ -832,7 +823,8 @@ std::uint64_t LiveView::version() const { return impl_->version.load(); }
 LiveWanted LiveView::wanted() const {
   Impl& I = *impl_;
   const std::lock_guard lock(I.m);
-  I.handed = {I.want.state, I.wantSeq, I.wantInteractive, I.wantAt};
+  I.handedState = I.want.state;
+  I.handedView = I.wantView;
   return I.want;
 }
 
