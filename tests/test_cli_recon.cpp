@@ -218,6 +218,36 @@ TEST_F(ReconCli, InfoShowsAHeaderThatIsNotUtf8AndNamesIt) {
 // An error over nothing is refused, never reported as a perfect score
 // (issue 20): a truth volume elsewhere in space, one with a NaN voxel, a
 // leave-out whose held-out pixels have no value all around them.
+// `evaluate speckle`: the resolution cell and the frame spacing, and a clear
+// refusal where there is no pair of frames to difference.
+TEST_F(ReconCli, EvaluateSpeckleMeasuresTheFramesAndRefusesASingleFrame) {
+  const fs::path js = dir() / "speckle.json";
+  Result r = run("evaluate speckle " + seq() + " --plus-config " + xml() + " -c " + toml() + " --json " + js.string());
+  ASSERT_EQ(r.status, 0) << r.out;
+  const auto j = readJson(js);
+  EXPECT_EQ(j["protocol"], "speckle");
+  EXPECT_GE(j["pairs"].get<int>(), 1);
+  EXPECT_LE(j["pairs"].get<int>(), 7);  // 8 frames
+  EXPECT_NEAR(j["pixel_mm"][0].get<double>(), 98.0 / 64.0, 1e-6);  // paper35's 98 mm over 64 pixels
+  EXPECT_NEAR(j["frame_spacing_mm"].get<double>(), 2.0, 0.2);       // captured every 2 mm
+  ASSERT_TRUE(j["lateral_px"].is_number()) << r.out;
+  EXPECT_NEAR(j["lateral_mm"].get<double>(), j["lateral_px"].get<double>() * j["pixel_mm"][0].get<double>(), 1e-9);
+  EXPECT_DOUBLE_EQ(j["autocorrelation_lateral"][0].get<double>(), 1.0);
+  EXPECT_NE(r.out.find("lateral (x)"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("frame spacing"), std::string::npos) << r.out;
+
+  const fs::path one = dir() / "one";
+  r = run("simulate " + toml() + " -o " + one.string() +
+          " --set sim.sweep.max_frames=1 --set sim.probe.width_px=64 --set sim.probe.height_px=96"
+          " --set output.preview_frames=0");
+  ASSERT_EQ(r.status, 0) << r.out;
+  r = run("evaluate speckle " + (one / "doll_sweep.igs.mha").string() + " --plus-config " +
+          (one / "doll_config.xml").string() + " -c " + toml());
+  EXPECT_EQ(r.status, 1) << r.out;
+  EXPECT_NE(r.out.find("no two consecutive frames"), std::string::npos) << r.out;
+  EXPECT_EQ(r.out.find("lateral (x)"), std::string::npos) << r.out;
+}
+
 TEST_F(ReconCli, EvaluateRefusesToScoreNothing) {
   const pp5::Volume truth = pp5::readVolume((dir() / "doll_truth.mha").string());
   pp5::Volume far = truth;

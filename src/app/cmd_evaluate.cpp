@@ -1,4 +1,6 @@
-// `pp5echo evaluate truth|leave-out ...`: reconstruction accuracy.
+// `pp5echo evaluate truth|leave-out|speckle ...`: reconstruction accuracy, and
+// the resolution cell that a recording's frames show.
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <fstream>
@@ -13,6 +15,7 @@
 #include "core/error.hpp"
 #include "core/volume_io.hpp"
 #include "gp/evaluation.hpp"
+#include "gp/speckle_cell.hpp"
 
 namespace pp5::app {
 
@@ -75,10 +78,30 @@ std::string describe(const gp::ReconSettings& rs) {
   return d + " (" + std::string(enumName(rs.arithmetic)) + ")";
 }
 
+// The clip rectangle and fan as pixel runs, for the frames' size (computed again
+// only when the size changes).
+class FrameRuns {
+ public:
+  explicit FrameRuns(const gp::ReconSettings& rs) : rs_(rs) {}
+  const std::vector<gp::PixelRun>& of(const Frame& f) {
+    if (f.width != width_ || f.height != height_) {
+      runs_ = gp::pixelRuns(f.width, f.height, rs_);
+      width_ = f.width;
+      height_ = f.height;
+    }
+    return runs_;
+  }
+
+ private:
+  const gp::ReconSettings& rs_;
+  std::vector<gp::PixelRun> runs_;
+  int width_ = -1, height_ = -1;
+};
+
 }  // namespace
 
 void addEvaluateCommand(CLI::App& app, int& exitCode) {
-  auto* eval = app.add_subcommand("evaluate", "Measure reconstruction accuracy (ground truth or leave-out)");
+  auto* eval = app.add_subcommand("evaluate", "Measure reconstruction accuracy (ground truth or leave-out), or a recording's speckle");
   eval->require_subcommand(1);
 
   // --- ground truth ---
@@ -203,16 +226,10 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     const auto cov = [&](std::size_t i) { return recon->hasValue(i); };
     gp::LeaveOutMetrics m;
     Frame f;
-    std::vector<gp::PixelRun> runs;  // the clip rectangle and fan, per frame size
-    int runsW = -1, runsH = -1;
+    FrameRuns runs(rs);
     for (std::uint64_t i = 0; reader->next(f); ++i) {
       if (i % k == 0 || !seq.poses[i]) continue;
-      if (f.width != runsW || f.height != runsH) {
-        runs = gp::pixelRuns(f.width, f.height, rs);
-        runsW = f.width;
-        runsH = f.height;
-      }
-      gp::compareHeldOutFrame(recon->output(), cov, f, *seq.poses[i], runs, m, reading);
+      gp::compareHeldOutFrame(recon->output(), cov, f, *seq.poses[i], runs.of(f), m, reading);
     }
     m.finish();
     if (m.framesHeldOut == 0) inputError(l->sequence, "has no placeable frame to hold out with --keep-every {}", k);
@@ -254,6 +271,109 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     j["pixels_skipped"] = m.pixelsSkipped;
     j["compared_fraction"] = compared;
     emitJson(l->json, j);
+    exitCode = 0;
+  });
+
+  // The resolution cell the frames show (gp/speckle_cell.hpp).
+  struct SpeckleOpts : CommonOpts {
+    int maxPairs = 32;
+    int maxLag = 64;
+  };
+  auto sp = std::make_shared<SpeckleOpts>();
+  auto* speckle = eval->add_subcommand(
+      "speckle", "Measure the probe's in-plane resolution cell from the speckle of consecutive frames' differences");
+  addCommon(speckle, *sp);
+  speckle->add_option("--max-pairs", sp->maxPairs, "Measure at most this many pairs, spread over the recording")
+      ->check(CLI::Range(1, 100000));
+  speckle->add_option("--max-lag", sp->maxLag, "Largest lag of the autocorrelation, pixels")->check(CLI::Range(2, 1024));
+  speckle->callback([sp, &exitCode] {
+    PosedSequence seq = openPosedSequence(sp->sequence, sp->plusConfig);
+    Settings s;
+    Vec3 spacing;
+    double margin = 0;
+    const gp::ReconSettings rs = reconSettings(*sp, seq, s, &spacing, &margin);
+    // Pairs of consecutive frames that can both be placed.
+    std::vector<std::uint64_t> pairs;  // the second frame's index
+    std::vector<double> steps;         // mm between the image centres, every pair
+    const auto& info = seq.reader->info();
+    const glm::dvec4 centre(0.5 * info.width, 0.5 * info.height, 0.0, 1.0);
+    for (std::uint64_t i = 1; i < seq.poses.size(); ++i)
+      if (seq.poses[i] && seq.poses[i - 1]) {
+        pairs.push_back(i);
+        steps.push_back(glm::length(Vec3(*seq.poses[i] * centre) - Vec3(*seq.poses[i - 1] * centre)));
+      }
+    if (pairs.empty())
+      inputError(sp->sequence, "has no two consecutive frames that can both be placed: no speckle difference to measure");
+    // At most --max-pairs of them, spread evenly.
+    const std::size_t want = std::min<std::size_t>(pairs.size(), static_cast<std::size_t>(sp->maxPairs));
+    std::vector<std::uint8_t> chosen(seq.poses.size(), 0);
+    for (std::size_t j = 0; j < want; ++j) chosen[pairs[j * pairs.size() / want]] = 1;
+
+    gp::SpeckleCellMeter meter(sp->maxLag);
+    auto reader = SequenceReader::open(sp->sequence);
+    Frame prev, cur;
+    bool havePrev = false;
+    FrameRuns runs(rs);
+    glm::dvec2 pixelMm(0.0);
+    for (std::uint64_t i = 0; reader->next(cur); ++i) {
+      if (havePrev && chosen[i]) {
+        if (meter.add(prev, cur, runs.of(cur)) && pixelMm.x == 0.0)
+          pixelMm = {glm::length(Vec3((*seq.poses[i])[0])), glm::length(Vec3((*seq.poses[i])[1]))};
+      }
+      std::swap(prev, cur);
+      havePrev = true;
+    }
+    const gp::SpeckleCell c = meter.result();
+    if (c.pairs == 0)
+      inputError(sp->sequence, "none of the {} pairs measured shows speckle inside the clip rectangle and fan (their "
+                 "differences are zero, or white noise): no resolution cell to measure", want);
+    // About how many independent cells the estimate rests on (a cell spans
+    // twice its half width each way): under a thousand, its half widths are
+    // uncertain to tens of per cent (NwirePhantomFreehand's mostly black
+    // frames leave about 50).
+    const double cellPx = 4.0 * std::max(1.0, c.lateralPx.value_or(sp->maxLag)) * std::max(1.0, c.axialPx.value_or(sp->maxLag));
+    const double cells = static_cast<double>(c.pixels) / cellPx;
+    if (cells < 1000.0)
+      spdlog::warn("evaluate speckle: only about {:.0f} independent speckle cells in {} pixels of {} pairs (the frames "
+                   "are mostly dark or noise): the cell below is uncertain", cells, c.pixels, c.pairs);
+    std::nth_element(steps.begin(), steps.begin() + static_cast<std::ptrdiff_t>(steps.size() / 2), steps.end());
+    const double step = steps[steps.size() / 2];
+
+    std::printf("speckle: %s\n", sp->sequence.c_str());
+    std::printf("  pairs             %llu measured of %zu pairs of consecutive placed frames\n",
+                static_cast<unsigned long long>(c.pairs), pairs.size());
+    std::printf("  pixel             %.4f x %.4f mm\n", pixelMm.x, pixelMm.y);
+    auto line = [&](const char* what, const std::optional<double>& px, double mmPerPx) {
+      if (px)
+        std::printf("  %-17s %.3f mm (%.2f px)%s\n", what, *px * mmPerPx, *px,
+                    *px < 1.0 ? "  under a pixel: the images sample the speckle too coarsely to measure it here" : "");
+      else
+        std::printf("  %-17s wider than %d px (the largest lag measured, --max-lag)\n", what, sp->maxLag);
+    };
+    line("lateral (x)", c.lateralPx, pixelMm.x);
+    line("axial (y)", c.axialPx, pixelMm.y);
+    std::printf("  (half width at half maximum of the autocorrelation of the frames' differences, over the %llu "
+                "pixels of speckle: inside, non-zero in both frames, in blocks that are not white noise)\n",
+                static_cast<unsigned long long>(c.pixels));
+    std::printf("  frame spacing     %.3f mm (median distance between consecutive image centres)\n", step);
+    nlohmann::ordered_json j;
+    j["protocol"] = "speckle";
+    j["sequence"] = sp->sequence;
+    j["pairs"] = c.pairs;
+    j["pixels"] = c.pixels;
+    j["pixel_mm"] = {pixelMm.x, pixelMm.y};
+    auto opt = [](const std::optional<double>& v, double k) {
+      return v ? nlohmann::ordered_json(*v * k) : nlohmann::ordered_json(nullptr);
+    };
+    j["lateral_px"] = opt(c.lateralPx, 1.0);
+    j["axial_px"] = opt(c.axialPx, 1.0);
+    j["lateral_mm"] = opt(c.lateralPx, pixelMm.x);
+    j["axial_mm"] = opt(c.axialPx, pixelMm.y);
+    j["frame_spacing_mm"] = step;
+    j["independent_cells"] = cells;
+    j["autocorrelation_lateral"] = c.lateral;
+    j["autocorrelation_axial"] = c.axial;
+    emitJson(sp->json, j);
     exitCode = 0;
   });
 }

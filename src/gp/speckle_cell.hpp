@@ -1,0 +1,66 @@
+#pragma once
+// The probe's in-plane resolution cell, measured from the frames themselves
+// (`pp5echo evaluate speckle`; issue 18's "kernels from the data").
+//
+// One frame's autocorrelation measures its anatomy as much as its speckle:
+// its width grows with the window it is taken over. Two consecutive frames of
+// a sweep show nearly the same anatomy but speckle that has partly or wholly
+// decorrelated, so their difference keeps the speckle and cancels the
+// anatomy. The speckle's in-plane correlation is the beam's (for a Gaussian
+// beam of two-way amplitude FWHM w, the speckle's intensity autocorrelation
+// has a half width at half maximum of about w / 2), so the half width at half
+// maximum of the difference's autocorrelation, along the image's rows
+// (lateral) and its columns (axial), is the cell.
+//
+// Only pixels inside the clip rectangle and fan that are non-zero in both
+// frames take part, in blocks of 32 x 32 pixels whose difference is
+// correlated between horizontal neighbours: a water bath or a shadow holds
+// electronic noise, white, which time-gain compensation can make as bright
+// as tissue, and which would read as a cell of under a pixel
+// (docs/quality.md, "What the leave-out protocol rewards").
+#include <cstdint>
+#include <optional>
+#include <vector>
+
+#include "core/frame.hpp"
+#include "gp/fan_mask.hpp"
+
+namespace pp5::gp {
+
+struct SpeckleCell {
+  // Half width at half maximum of the autocorrelation, pixels; nullopt when it
+  // stays above one half up to the largest lag measured.
+  std::optional<double> lateralPx, axialPx;
+  // The normalised autocorrelation at lags 0, 1, ... (1 at lag 0).
+  std::vector<double> lateral, axial;
+  std::uint64_t pairs = 0;   // frame pairs measured
+  std::uint64_t pixels = 0;  // difference pixels taken, over every pair
+};
+
+class SpeckleCellMeter {
+ public:
+  // maxLagPx: the largest lag measured, pixels (1 or more).
+  explicit SpeckleCellMeter(int maxLagPx = 64);
+
+  // Adds the difference of two frames of the same size (a pair of another
+  // size than the first pair's is an InputError). `runs` are the clip
+  // rectangle and fan (pixelRuns). Returns whether any pixel took part.
+  bool add(const Frame& previous, const Frame& current, const std::vector<PixelRun>& runs);
+
+  // The cell from every pair added so far.
+  SpeckleCell result() const;
+
+ private:
+  int maxLag_;
+  int width_ = -1, height_ = -1;
+  std::uint64_t pairs_ = 0, pixels_ = 0;
+  // Sums of products and their counts per lag, along rows and along columns.
+  std::vector<double> sumX_, sumY_;
+  std::vector<std::uint64_t> countX_, countY_;
+};
+
+// Where a normalised autocorrelation (1 at lag 0) first falls below one half,
+// interpolated linearly between the lags around it; nullopt if it never does.
+std::optional<double> halfWidthAtHalfMaximum(const std::vector<double>& r);
+
+}  // namespace pp5::gp
