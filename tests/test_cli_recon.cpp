@@ -218,6 +218,28 @@ TEST_F(ReconCli, InfoShowsAHeaderThatIsNotUtf8AndNamesIt) {
 // An error over nothing is refused, never reported as a perfect score
 // (issue 20): a truth volume elsewhere in space, one with a NaN voxel, a
 // leave-out whose held-out pixels have no value all around them.
+// --held-out-in-volume: the held-out frames are inserted too and still scored,
+// which can only bring the volume closer to them.
+TEST_F(ReconCli, LeaveOutWithTheHeldOutFramesInTheVolumeComesCloser) {
+  const fs::path a = dir() / "leave_a.json", b = dir() / "leave_b.json";
+  Result r = run("evaluate leave-out " + seq() + " --plus-config " + xml() + " -c " + toml() +
+                 " --keep-every 2 --json " + a.string());
+  ASSERT_EQ(r.status, 0) << r.out;
+  EXPECT_EQ(r.out.find("what the grid holds of them, not a leave-out"), std::string::npos) << r.out;
+  r = run("evaluate leave-out " + seq() + " --plus-config " + xml() + " -c " + toml() +
+          " --keep-every 2 --held-out-in-volume --json " + b.string());
+  ASSERT_EQ(r.status, 0) << r.out;
+  EXPECT_NE(r.out.find("what the grid holds of them, not a leave-out"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("8 inserted, 4 of them scored"), std::string::npos) << r.out;
+  const auto out = readJson(a), in = readJson(b);
+  EXPECT_FALSE(out["held_out_in_volume"].get<bool>());
+  EXPECT_TRUE(in["held_out_in_volume"].get<bool>());
+  EXPECT_EQ(out["frames_kept"], 4);
+  EXPECT_EQ(in["frames_kept"], 8);
+  EXPECT_EQ(in["frames_held_out"], 4);
+  EXPECT_LT(in["rmse"].get<double>(), out["rmse"].get<double>());
+}
+
 // `evaluate speckle`: the resolution cell and the frame spacing, and a clear
 // refusal where there is no pair of frames to difference.
 TEST_F(ReconCli, EvaluateSpeckleMeasuresTheFramesAndRefusesASingleFrame) {

@@ -194,6 +194,7 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
   struct LeaveOpts : CommonOpts {
     int keepEvery = 2;
     std::string reading = "trilinear";
+    bool heldOutInVolume = false;
   };
   auto l = std::make_shared<LeaveOpts>();
   auto* leave = eval->add_subcommand(
@@ -206,6 +207,9 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
                     "plus (as PLUS's volume is read: the trilinear value rounded to a grey level, and a pixel whose "
                     "value is 0 not compared; docs/quality.md)")
       ->check(CLI::IsMember({"trilinear", "plus"}));
+  leave->add_flag("--held-out-in-volume", l->heldOutInVolume,
+                  "Insert the held-out frames too, and still score them: not a leave-out, but what the grid holds "
+                  "of those frames when it is given them, to set a leave-out against (docs/quality.md)");
   leave->callback([l, &exitCode] {
     const gp::LeaveOutReading reading =
         l->reading == "plus" ? gp::LeaveOutReading::PlusGreyLevels : gp::LeaveOutReading::Trilinear;
@@ -219,7 +223,7 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     const auto k = static_cast<std::uint64_t>(l->keepEvery);
     const Grid grid = chooseGrid(seq, rs, spacing, margin, true);
     auto recon = gp::makeReconstructor(grid, rs, 0, l->plusConfig);
-    const ReconRunStats st = runReconstruction(seq, *recon, [k](std::uint64_t i) { return i % k == 0; });
+    const ReconRunStats st = runReconstruction(seq, *recon, [k, every = l->heldOutInVolume](std::uint64_t i) { return every || i % k == 0; });
 
     // Second pass over the file for the held-out frames.
     auto reader = SequenceReader::open(l->sequence);
@@ -242,7 +246,10 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
                 static_cast<unsigned long long>(k), k == 2 ? "nd" : "th", 100.0 * (1.0 - 1.0 / static_cast<double>(k)));
     std::printf("  method            %s\n", describe(rs).c_str());
     std::printf("  reading           %s\n", l->reading.c_str());
-    std::printf("  frames            %llu kept, %llu held out, %llu skipped\n",
+    if (l->heldOutInVolume)
+      std::printf("  held-out frames   inserted too (--held-out-in-volume): what the grid holds of them, not a leave-out\n");
+    std::printf(l->heldOutInVolume ? "  frames            %llu inserted, %llu of them scored, %llu skipped\n"
+                                   : "  frames            %llu kept, %llu held out, %llu skipped\n",
                 static_cast<unsigned long long>(st.inserted), static_cast<unsigned long long>(m.framesHeldOut),
                 static_cast<unsigned long long>(st.skipped));
     const double compared = static_cast<double>(m.pixelsCompared) /
@@ -261,6 +268,7 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     j["sequence"] = l->sequence;
     j["method"] = describe(rs);
     j["reading"] = l->reading;
+    j["held_out_in_volume"] = l->heldOutInVolume;
     j["keep_every"] = k;
     j["frames_kept"] = st.inserted;
     j["frames_held_out"] = m.framesHeldOut;
