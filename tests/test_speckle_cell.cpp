@@ -173,6 +173,19 @@ TEST(SpeckleCell, RefusesFramesOfAnotherSizeAndSkipsDarkPairs) {
   EXPECT_THROW(meter.add(other, other, {}), InputError);  // a size other than the first pair's
 }
 
+TEST(SpeckleCell, KernelScaledFromTheCellAndTheSpacing) {
+  SpeckleCell c;
+  c.lateralPx = 3.0;
+  c.axialPx = 0.6;  // under a pixel: the pixel's
+  const auto k = kernelFromCell(c, 0.4, 0.5, 2.0);
+  ASSERT_TRUE(k);
+  EXPECT_DOUBLE_EQ(k->lateralMm, kKernelPerLateralCell * 3.0 * 0.4);
+  EXPECT_DOUBLE_EQ(k->axialMm, kKernelPerAxialCell * 1.0 * 0.5);
+  EXPECT_DOUBLE_EQ(k->elevationMm, kKernelPerFrameSpacing * 2.0);
+  c.axialPx.reset();  // not measured: no suggestion
+  EXPECT_FALSE(kernelFromCell(c, 0.4, 0.5, 2.0));
+}
+
 // The simulator's beams: the speckle's half width (about 1.18 sigma of the
 // two-way amplitude beam, sigma = FWHM / 2.355) lies between the focus's and
 // the widest, at the image's far end.

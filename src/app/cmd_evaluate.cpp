@@ -364,6 +364,13 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
                 "pixels of speckle: inside, non-zero in both frames, in blocks that are not white noise)\n",
                 static_cast<unsigned long long>(c.pixels));
     std::printf("  frame spacing     %.3f mm (median distance between consecutive image centres)\n", step);
+    const auto kernel = gp::kernelFromCell(c, pixelMm.x, pixelMm.y, step);
+    if (kernel)
+      std::printf("  tent kernel       --set recon.kernel_lateral_mm=%.2f --set recon.kernel_axial_mm=%.2f "
+                  "--set recon.kernel_elevation_mm=%.2f\n"
+                  "                    (a suggestion: scaled from this cell and spacing as the default is from the "
+                  "simulated paper35 probe's; docs/quality.md)\n",
+                  kernel->lateralMm, kernel->axialMm, kernel->elevationMm);
     nlohmann::ordered_json j;
     j["protocol"] = "speckle";
     j["sequence"] = sp->sequence;
@@ -379,6 +386,10 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     j["axial_mm"] = opt(c.axialPx, pixelMm.y);
     j["frame_spacing_mm"] = step;
     j["independent_cells"] = cells;
+    if (kernel)
+      j["suggested_kernel_mm"] = {kernel->lateralMm, kernel->axialMm, kernel->elevationMm};
+    else
+      j["suggested_kernel_mm"] = nullptr;
     j["autocorrelation_lateral"] = c.lateral;
     j["autocorrelation_axial"] = c.axial;
     emitJson(sp->json, j);

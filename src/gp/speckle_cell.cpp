@@ -163,6 +163,16 @@ SpeckleCell SpeckleCellMeter::result() const {
   return c;
 }
 
+std::optional<KernelHalfWidths> kernelFromCell(const SpeckleCell& cell, double pixelXMm, double pixelYMm,
+                                               double frameSpacingMm) {
+  if (!cell.lateralPx || !cell.axialPx) return std::nullopt;
+  KernelHalfWidths k;
+  k.lateralMm = kKernelPerLateralCell * std::max(*cell.lateralPx, 1.0) * pixelXMm;
+  k.axialMm = kKernelPerAxialCell * std::max(*cell.axialPx, 1.0) * pixelYMm;
+  k.elevationMm = kKernelPerFrameSpacing * frameSpacingMm;
+  return k;
+}
+
 std::optional<double> halfWidthAtHalfMaximum(const std::vector<double>& r) {
   for (std::size_t lag = 1; lag < r.size(); ++lag)
     if (r[lag] < 0.5) {

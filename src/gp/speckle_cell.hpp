@@ -59,6 +59,23 @@ class SpeckleCellMeter {
   std::vector<std::uint64_t> countX_, countY_;
 };
 
+// A tent kernel scaled from the measured cell as the default kernel (2, 1, 3 mm)
+// is from the simulated paper35 probe's frames, 2 mm apart: half-widths of
+// twice the lateral cell, twice the axial cell or the pixel where that is
+// larger (an axial cell under a pixel is the pixel's), and 1.5 times the
+// median spacing of consecutive frames. Chosen on that sweep alone; checked
+// on others in docs/quality.md. A suggestion that `evaluate speckle` prints:
+// no default uses it.
+struct KernelHalfWidths {
+  double lateralMm = 0.0, axialMm = 0.0, elevationMm = 0.0;
+};
+inline constexpr double kKernelPerLateralCell = 2.0;
+inline constexpr double kKernelPerAxialCell = 2.0;
+inline constexpr double kKernelPerFrameSpacing = 1.5;
+// nullopt when either half width was not measured.
+std::optional<KernelHalfWidths> kernelFromCell(const SpeckleCell& cell, double pixelXMm, double pixelYMm,
+                                               double frameSpacingMm);
+
 // Where a normalised autocorrelation (1 at lag 0) first falls below one half,
 // interpolated linearly between the lags around it; nullopt if it never does.
 std::optional<double> halfWidthAtHalfMaximum(const std::vector<double>& r);
