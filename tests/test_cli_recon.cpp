@@ -257,6 +257,9 @@ TEST_F(ReconCli, EvaluateSpeckleMeasuresTheFramesAndRefusesASingleFrame) {
   EXPECT_DOUBLE_EQ(j["autocorrelation_lateral"][0].get<double>(), 1.0);
   EXPECT_NE(r.out.find("lateral (x)"), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("frame spacing"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("  elevation  "), std::string::npos) << r.out;
+  EXPECT_TRUE(j.contains("elevation_mm") && j.contains("elevation_variance_ratio")) << r.out;
+  EXPECT_LE(j["triples"].get<int>(), 6);  // 8 frames
   // The suggested kernel, as --set flags to copy.
   ASSERT_TRUE(j["suggested_kernel_mm"].is_array()) << r.out;
   EXPECT_NEAR(j["suggested_kernel_mm"][2].get<double>(), 1.5 * j["frame_spacing_mm"].get<double>(), 1e-9);

@@ -186,6 +186,77 @@ TEST(SpeckleCell, KernelScaledFromTheCellAndTheSpacing) {
   EXPECT_FALSE(kernelFromCell(c, 0.4, 0.5, 2.0));
 }
 
+// Frames as slices 1 mm apart through white noise filtered by a Gaussian of
+// sigmas (2, 1.5) pixels in plane and sz slices along the sweep: the speckle's
+// correlation between slices d apart is exp(-d^2 / (4 sz^2)), whose half width
+// at half maximum is 2 sz sqrt(ln 2) mm.
+std::vector<Frame> sweepThroughSpeckle(double sz, int slices, unsigned seed) {
+  const int n = kW * kH;
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> n01(0.0, 1.0);
+  std::vector<double> v(static_cast<std::size_t>(n) * slices);
+  for (double& x : v) x = n01(rng);
+  auto blur = [&](int stride, int count, int len, double sigma) {  // along one axis, wrapping around
+    const int r = static_cast<int>(std::ceil(4.0 * sigma));
+    std::vector<double> taps(2 * r + 1), line(len);
+    for (int i = -r; i <= r; ++i) taps[i + r] = std::exp(-0.5 * i * i / (sigma * sigma));
+    for (int base = 0; base < count; ++base) {
+      const std::size_t start = stride == 1 ? static_cast<std::size_t>(base) * len
+                                            : (stride == kW ? static_cast<std::size_t>(base / kW) * n + base % kW
+                                                            : static_cast<std::size_t>(base));
+      for (int j = 0; j < len; ++j) {
+        double acc = 0.0;
+        for (int i = -r; i <= r; ++i) acc += taps[i + r] * v[start + static_cast<std::size_t>((j + i + len) % len) * stride];
+        line[j] = acc;
+      }
+      for (int j = 0; j < len; ++j) v[start + static_cast<std::size_t>(j) * stride] = line[j];
+    }
+  };
+  blur(1, kH * slices, kW, 2.0);      // rows
+  blur(kW, kW * slices, kH, 1.5);     // columns, in every slice
+  blur(n, n, slices, sz);             // along the sweep
+  double var = 0.0;
+  for (const double x : v) var += x * x;
+  const double sd = std::sqrt(var / static_cast<double>(v.size()));
+  std::vector<Frame> frames;
+  const std::vector<double> a = anatomy();
+  for (int z = 0; z < slices; ++z) {
+    std::vector<double> noise(v.begin() + static_cast<std::ptrdiff_t>(z) * n, v.begin() + static_cast<std::ptrdiff_t>(z + 1) * n);
+    for (double& x : noise) x /= sd;
+    frames.push_back(frame(a, noise, static_cast<std::uint64_t>(z)));
+  }
+  return frames;
+}
+
+TEST(SpeckleCell, ElevationHalfWidthOfSpeckleOfAKnownCorrelation) {
+  for (const double sz : {0.8, 1.2}) {
+    // 16 slices, so that wrapping around joins slices far enough apart not to matter.
+    const std::vector<Frame> f = sweepThroughSpeckle(sz, 16, 7u);
+    SpeckleCellMeter meter;
+    for (int i = 0; i + 2 < 8; ++i) EXPECT_TRUE(meter.addTriple(f[i], f[i + 1], f[i + 2], 1.0, 2.0, wholeFrame()));
+    const SpeckleCell c = meter.result();
+    EXPECT_EQ(c.triples, 6u);
+    EXPECT_DOUBLE_EQ(c.nearMm, 1.0);
+    EXPECT_DOUBLE_EQ(c.farMm, 2.0);
+    ASSERT_TRUE(c.elevationMm) << "sz " << sz << ", variance ratio " << c.varianceRatio;
+    const double want = 2.0 * sz * std::sqrt(std::log(2.0));
+    EXPECT_NEAR(*c.elevationMm, want, 0.1 * want) << "sz " << sz;
+  }
+  // Decorrelated frames (independent speckle in each): nothing to read.
+  SpeckleCellMeter apart;
+  const std::vector<double> a = anatomy();
+  EXPECT_TRUE(apart.addTriple(frame(a, speckle(2.0, 1.5, 1u), 0), frame(a, speckle(2.0, 1.5, 2u), 1),
+                              frame(a, speckle(2.0, 1.5, 3u), 2), 1.0, 2.0, wholeFrame()));
+  const SpeckleCell c = apart.result();
+  EXPECT_EQ(c.triples, 1u);
+  EXPECT_NEAR(c.varianceRatio, 1.0, 0.1);
+  EXPECT_FALSE(c.elevationMm);
+  // Not three frames in a row: refused without counting.
+  EXPECT_FALSE(apart.addTriple(frame(a, speckle(2.0, 1.5, 1u), 0), frame(a, speckle(2.0, 1.5, 2u), 1),
+                               frame(a, speckle(2.0, 1.5, 3u), 2), 1.0, 1.0, wholeFrame()));
+  EXPECT_EQ(apart.result().triples, 1u);
+}
+
 // The simulator's beams: the speckle's half width (about 1.18 sigma of the
 // two-way amplitude beam, sigma = FWHM / 2.355) lies between the focus's and
 // the widest, at the image's far end.

@@ -319,17 +319,21 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
 
     gp::SpeckleCellMeter meter(sp->maxLag);
     auto reader = SequenceReader::open(sp->sequence);
-    Frame prev, cur;
-    bool havePrev = false;
+    Frame prev2, prev, cur;  // frames i - 2, i - 1 and i
     FrameRuns runs(rs);
     glm::dvec2 pixelMm(0.0);
+    auto at = [&](std::uint64_t i) { return Vec3(*seq.poses[i] * centre); };
     for (std::uint64_t i = 0; reader->next(cur); ++i) {
-      if (havePrev && chosen[i]) {
+      if (i >= 1 && chosen[i]) {
         if (meter.add(prev, cur, runs.of(cur)) && pixelMm.x == 0.0)
           pixelMm = {glm::length(Vec3((*seq.poses[i])[0])), glm::length(Vec3((*seq.poses[i])[1]))};
+        // Along the sweep: this pair's first frame, with the frames on either side of it.
+        if (i >= 2 && seq.poses[i - 2])
+          meter.addTriple(prev2, prev, cur, glm::length(at(i - 1) - at(i - 2)), glm::length(at(i) - at(i - 2)),
+                          runs.of(cur));
       }
+      std::swap(prev2, prev);
       std::swap(prev, cur);
-      havePrev = true;
     }
     const gp::SpeckleCell c = meter.result();
     if (c.pairs == 0)
@@ -363,6 +367,20 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     std::printf("  (half width at half maximum of the autocorrelation of the frames' differences, over the %llu "
                 "pixels of speckle: inside, non-zero in both frames, in blocks that are not white noise)\n",
                 static_cast<unsigned long long>(c.pixels));
+    if (c.elevationMm)
+      std::printf("  elevation         %.3f mm (from %llu triples of consecutive frames: the speckle's decorrelation "
+                  "over %.3f and %.3f mm, variance ratio %.3f)\n",
+                  *c.elevationMm, static_cast<unsigned long long>(c.triples), c.nearMm, c.farMm, c.varianceRatio);
+    else if (c.triples > 0)
+      std::printf("  elevation         not measured: over %llu triples of consecutive frames the variance ratio is "
+                  "%.3f, too near %s to read (the frames are %s)\n",
+                  static_cast<unsigned long long>(c.triples), c.varianceRatio,
+                  c.varianceRatio < 2.0 ? "1" : "its top", c.varianceRatio < 2.0 ? "farther apart than their speckle "
+                  "stays correlated" : "too close for their speckle to decorrelate");
+    else
+      std::printf("  elevation         not measured: no three consecutive frames with speckle\n");
+    std::printf("  (a probe that turns as it moves reads short here: the image centres' distance is not the distance "
+                "along the beam)\n");
     std::printf("  frame spacing     %.3f mm (median distance between consecutive image centres)\n", step);
     const auto kernel = gp::kernelFromCell(c, pixelMm.x, pixelMm.y, step);
     if (kernel)
@@ -385,6 +403,9 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     j["lateral_mm"] = opt(c.lateralPx, pixelMm.x);
     j["axial_mm"] = opt(c.axialPx, pixelMm.y);
     j["frame_spacing_mm"] = step;
+    j["elevation_mm"] = c.elevationMm ? nlohmann::ordered_json(*c.elevationMm) : nlohmann::ordered_json(nullptr);
+    j["triples"] = c.triples;
+    j["elevation_variance_ratio"] = c.varianceRatio;
     j["independent_cells"] = cells;
     if (kernel)
       j["suggested_kernel_mm"] = {kernel->lateralMm, kernel->axialMm, kernel->elevationMm};

@@ -1,6 +1,7 @@
 #include "gp/speckle_cell.hpp"
 
 #include <algorithm>
+#include <cmath>
 #include <cstddef>
 
 #include <fmt/format.h>
@@ -16,6 +17,10 @@ namespace {
 // the simulated doll in its water bath, docs/quality.md).
 constexpr int kBlock = 32;
 constexpr double kMinNeighbourCorrelation = 0.2;
+// The variance ratio of a triple is read only where it is more than this share
+// of its range away from either end (for evenly spaced frames: rho, the
+// correlation over one spacing, under about 0.13 or over 0.96).
+constexpr double kElevationReadMargin = 0.05;
 
 std::vector<float> values(const Frame& f) {
   const std::size_t n = static_cast<std::size_t>(f.width) * static_cast<std::size_t>(f.height);
@@ -30,35 +35,16 @@ std::vector<float> values(const Frame& f) {
 }
 
 
-}  // namespace
 
-SpeckleCellMeter::SpeckleCellMeter(int maxLagPx) : maxLag_(std::max(1, maxLagPx)) {
-  sumX_.assign(static_cast<std::size_t>(maxLag_) + 1, 0.0);
-  sumY_ = sumX_;
-  countX_.assign(static_cast<std::size_t>(maxLag_) + 1, 0);
-  countY_ = countX_;
-}
-
-bool SpeckleCellMeter::add(const Frame& previous, const Frame& current, const std::vector<PixelRun>& runs) {
-  if (previous.width != current.width || previous.height != current.height)
-    throw InputError(fmt::format("frames {} and {} differ in size ({}x{} and {}x{}): no speckle difference between them",
-                                 previous.index, current.index, previous.width, previous.height, current.width,
-                                 current.height));
-  if (width_ < 0) {
-    width_ = current.width;
-    height_ = current.height;
-  } else if (current.width != width_ || current.height != height_) {
-    throw InputError(fmt::format("frame {} is {}x{}, the frames before it {}x{}: the speckle is measured on one size",
-                                 current.index, current.width, current.height, width_, height_));
-  }
-  const int w = current.width, h = current.height;
-  const std::vector<float> a = values(previous), b = values(current);
-
+// The difference a - b over the pixels inside the clip rectangle and fan that
+// are non-zero in both, in `d`, and which of them are speckle, in `in`.
+void speckleDifference(const std::vector<float>& a, const std::vector<float>& b, const std::vector<PixelRun>& runs,
+                       int w, int h, std::vector<float>& d, std::vector<std::uint8_t>& in) {
   // The difference over the non-zero pixels of both frames inside the clip
   // rectangle and fan.
   const std::size_t n = a.size();
-  std::vector<float> d(n, 0.0f);
-  std::vector<std::uint8_t> in(n, 0);
+  d.assign(n, 0.0f);
+  in.assign(n, 0);
   for (const PixelRun& r : runs)
     for (int x = r.x0; x <= r.x1; ++x) {
       const std::size_t i = static_cast<std::size_t>(r.y) * static_cast<std::size_t>(w) + static_cast<std::size_t>(x);
@@ -102,6 +88,30 @@ bool SpeckleCellMeter::add(const Frame& previous, const Frame& current, const st
           std::fill_n(in.begin() + static_cast<std::ptrdiff_t>(static_cast<std::size_t>(y) * static_cast<std::size_t>(w) + bx),
                       ex - bx, std::uint8_t{0});
     }
+}
+
+}  // namespace
+
+SpeckleCellMeter::SpeckleCellMeter(int maxLagPx) : maxLag_(std::max(1, maxLagPx)) {
+  sumX_.assign(static_cast<std::size_t>(maxLag_) + 1, 0.0);
+  sumY_ = sumX_;
+  countX_.assign(static_cast<std::size_t>(maxLag_) + 1, 0);
+  countY_ = countX_;
+}
+
+bool SpeckleCellMeter::add(const Frame& previous, const Frame& current, const std::vector<PixelRun>& runs) {
+  if (previous.width != current.width || previous.height != current.height)
+    throw InputError(fmt::format("frames {} and {} differ in size ({}x{} and {}x{}): no speckle difference between them",
+                                 previous.index, current.index, previous.width, previous.height, current.width,
+                                 current.height));
+  checkSize(current);
+  const int w = current.width, h = current.height;
+  const std::vector<float> a = values(previous), b = values(current);
+
+  const std::size_t n = a.size();
+  std::vector<float> d;
+  std::vector<std::uint8_t> in;
+  speckleDifference(a, b, runs, w, h, d, in);
   // Less the mean of what is left.
   double mean = 0.0;
   std::uint64_t count = 0;
@@ -144,6 +154,49 @@ bool SpeckleCellMeter::add(const Frame& previous, const Frame& current, const st
   return true;
 }
 
+void SpeckleCellMeter::checkSize(const Frame& f) {
+  if (width_ < 0) {
+    width_ = f.width;
+    height_ = f.height;
+  } else if (f.width != width_ || f.height != height_) {
+    throw InputError(fmt::format("frame {} is {}x{}, the frames before it {}x{}: the speckle is measured on one size",
+                                 f.index, f.width, f.height, width_, height_));
+  }
+}
+
+bool SpeckleCellMeter::addTriple(const Frame& a, const Frame& b, const Frame& c, double abMm, double acMm,
+                                 const std::vector<PixelRun>& runs) {
+  for (const Frame* f : {&a, &b})
+    if (f->width != c.width || f->height != c.height)
+      throw InputError(fmt::format("frames {} and {} differ in size ({}x{} and {}x{}): no speckle difference between "
+                                   "them", f->index, c.index, f->width, f->height, c.width, c.height));
+  checkSize(c);
+  if (!(acMm > abMm && abMm > 0.0)) return false;  // not three frames in a row along the sweep
+  const std::vector<float> va = values(a), vb = values(b), vc = values(c);
+  std::vector<float> d;
+  std::vector<std::uint8_t> in;
+  speckleDifference(va, vb, runs, c.width, c.height, d, in);
+  double s1 = 0.0, q1 = 0.0, s2 = 0.0, q2 = 0.0;
+  std::uint64_t n = 0;
+  for (std::size_t i = 0; i < in.size(); ++i)
+    if (in[i] && vc[i] > 0.0f) {
+      const double e1 = d[i], e2 = static_cast<double>(va[i]) - vc[i];
+      s1 += e1;
+      q1 += e1 * e1;
+      s2 += e2;
+      q2 += e2 * e2;
+      ++n;
+    }
+  if (n < 2) return false;
+  const double k = static_cast<double>(n);
+  nearVar_ += q1 / k - (s1 / k) * (s1 / k);
+  farVar_ += q2 / k - (s2 / k) * (s2 / k);
+  nearMm_ += abMm;
+  farMm_ += acMm;
+  ++triples_;
+  return true;
+}
+
 SpeckleCell SpeckleCellMeter::result() const {
   SpeckleCell c;
   c.pairs = pairs_;
@@ -160,6 +213,30 @@ SpeckleCell SpeckleCellMeter::result() const {
   c.axial = normalise(sumY_, countY_);
   c.lateralPx = halfWidthAtHalfMaximum(c.lateral);
   c.axialPx = halfWidthAtHalfMaximum(c.axial);
+
+  c.triples = triples_;
+  if (triples_ > 0 && nearVar_ > 0.0) {
+    const double t = static_cast<double>(triples_);
+    c.nearMm = nearMm_ / t;
+    c.farMm = farMm_ / t;
+    c.varianceRatio = farVar_ / nearVar_;
+    // (1 - rho(far)) / (1 - rho(near)) rises from 1 (s much shorter than the
+    // spacing) to (far / near)^2 (s much longer); read only well inside.
+    const double top = (c.farMm / c.nearMm) * (c.farMm / c.nearMm);
+    const double margin = kElevationReadMargin * (top - 1.0);
+    if (c.varianceRatio > 1.0 + margin && c.varianceRatio < top - margin) {
+      auto ratio = [&](double s) {
+        return (1.0 - std::exp(-c.farMm * c.farMm / (2.0 * s * s))) /
+               (1.0 - std::exp(-c.nearMm * c.nearMm / (2.0 * s * s)));
+      };
+      double lo = std::log(1e-3 * c.nearMm), hi = std::log(1e3 * c.nearMm);
+      for (int it = 0; it < 100; ++it) {
+        const double mid = 0.5 * (lo + hi);
+        (ratio(std::exp(mid)) < c.varianceRatio ? lo : hi) = mid;
+      }
+      c.elevationMm = std::exp(0.5 * (lo + hi)) * std::sqrt(2.0 * std::log(2.0));
+    }
+  }
   return c;
 }
 

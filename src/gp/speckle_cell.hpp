@@ -10,7 +10,8 @@
 // beam of two-way amplitude FWHM w, the speckle's intensity autocorrelation
 // has a half width at half maximum of about w / 2), so the half width at half
 // maximum of the difference's autocorrelation, along the image's rows
-// (lateral) and its columns (axial), is the cell.
+// (lateral) and its columns (axial), is the cell. Along the sweep, three
+// consecutive frames tell how fast the speckle decorrelates (addTriple).
 //
 // Only pixels inside the clip rectangle and fan that are non-zero in both
 // frames take part, in blocks of 32 x 32 pixels whose difference is
@@ -35,6 +36,15 @@ struct SpeckleCell {
   std::vector<double> lateral, axial;
   std::uint64_t pairs = 0;   // frame pairs measured
   std::uint64_t pixels = 0;  // difference pixels taken, over every pair
+
+  // Along the sweep (addTriple): the half width at half maximum of the
+  // speckle's correlation between frames, mm; nullopt when no triple was
+  // measured, or when the frames are too far apart (the speckle of the nearer
+  // pair already decorrelated) or too close for it to be read.
+  std::optional<double> elevationMm;
+  std::uint64_t triples = 0;
+  double nearMm = 0.0, farMm = 0.0;  // mean spacing of a triple's first frame to its second, and to its third
+  double varianceRatio = 0.0;        // var(first - third) / var(first - second), pooled
 };
 
 class SpeckleCellMeter {
@@ -47,7 +57,16 @@ class SpeckleCellMeter {
   // rectangle and fan (pixelRuns). Returns whether any pixel took part.
   bool add(const Frame& previous, const Frame& current, const std::vector<PixelRun>& runs);
 
-  // The cell from every pair added so far.
+  // Adds three consecutive frames for the cell along the sweep, with the
+  // spacing (mm) of the first to the second and of the first to the third.
+  // The speckle's correlation between frames x apart falls as
+  // exp(-x^2 / (2 s^2)), so var(a - c) / var(a - b) = (1 - rho(ac)) / (1 - rho(ab))
+  // gives s with no need for the speckle's own variance. Over the blocks where
+  // a - b is speckle. Returns whether any pixel took part.
+  bool addTriple(const Frame& a, const Frame& b, const Frame& c, double abMm, double acMm,
+                 const std::vector<PixelRun>& runs);
+
+  // The cell from every pair and triple added so far.
   SpeckleCell result() const;
 
  private:
@@ -57,6 +76,10 @@ class SpeckleCellMeter {
   // Sums of products and their counts per lag, along rows and along columns.
   std::vector<double> sumX_, sumY_;
   std::vector<std::uint64_t> countX_, countY_;
+  // Triples: the sums of the two variances and of the spacings.
+  std::uint64_t triples_ = 0;
+  double nearVar_ = 0.0, farVar_ = 0.0, nearMm_ = 0.0, farMm_ = 0.0;
+  void checkSize(const Frame& f);
 };
 
 // A tent kernel scaled from the measured cell as the default kernel (2, 1, 3 mm)
