@@ -167,6 +167,7 @@ TEST(SpeckleCell, RefusesFramesOfAnotherSizeAndSkipsDarkPairs) {
   dark.allocate(kW, kH, PixelType::U8);  // all zero: nothing inside to measure
   EXPECT_FALSE(meter.add(dark, dark, wholeFrame()));
   EXPECT_EQ(meter.result().pairs, 0u);
+  EXPECT_EQ(meter.result().elevation, SpeckleCell::Elevation::NoTriple);
   EXPECT_TRUE(meter.add(a, frame(anatomy(), speckle(2.0, 2.0, 4u), 1), wholeFrame()));
   Frame other;
   other.allocate(128, 128, PixelType::U8);
@@ -239,6 +240,7 @@ TEST(SpeckleCell, ElevationHalfWidthOfSpeckleOfAKnownCorrelation) {
     EXPECT_DOUBLE_EQ(c.nearMm, 1.0);
     EXPECT_DOUBLE_EQ(c.farMm, 2.0);
     ASSERT_TRUE(c.elevationMm) << "sz " << sz << ", variance ratio " << c.varianceRatio;
+    EXPECT_EQ(c.elevation, SpeckleCell::Elevation::Measured);
     const double want = 2.0 * sz * std::sqrt(std::log(2.0));
     EXPECT_NEAR(*c.elevationMm, want, 0.1 * want) << "sz " << sz;
   }
@@ -251,6 +253,7 @@ TEST(SpeckleCell, ElevationHalfWidthOfSpeckleOfAKnownCorrelation) {
   EXPECT_EQ(c.triples, 1u);
   EXPECT_NEAR(c.varianceRatio, 1.0, 0.1);
   EXPECT_FALSE(c.elevationMm);
+  EXPECT_EQ(c.elevation, SpeckleCell::Elevation::Decorrelated);
   // Not three frames in a row: refused without counting.
   EXPECT_FALSE(apart.addTriple(frame(a, speckle(2.0, 1.5, 1u), 0), frame(a, speckle(2.0, 1.5, 2u), 1),
                                frame(a, speckle(2.0, 1.5, 3u), 2), 1.0, 1.0, wholeFrame()));

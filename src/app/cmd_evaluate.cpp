@@ -101,7 +101,8 @@ class FrameRuns {
 }  // namespace
 
 void addEvaluateCommand(CLI::App& app, int& exitCode) {
-  auto* eval = app.add_subcommand("evaluate", "Measure reconstruction accuracy (ground truth or leave-out), or a recording's speckle");
+  auto* eval = app.add_subcommand(
+      "evaluate", "Measure reconstruction accuracy (ground truth or leave-out), or a recording's speckle");
   eval->require_subcommand(1);
 
   // --- ground truth ---
@@ -223,7 +224,8 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     const auto k = static_cast<std::uint64_t>(l->keepEvery);
     const Grid grid = chooseGrid(seq, rs, spacing, margin, true);
     auto recon = gp::makeReconstructor(grid, rs, 0, l->plusConfig);
-    const ReconRunStats st = runReconstruction(seq, *recon, [k, every = l->heldOutInVolume](std::uint64_t i) { return every || i % k == 0; });
+    const ReconRunStats st = runReconstruction(
+        seq, *recon, [k, every = l->heldOutInVolume](std::uint64_t i) { return every || i % k == 0; });
 
     // Second pass over the file for the held-out frames.
     auto reader = SequenceReader::open(l->sequence);
@@ -289,7 +291,8 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
   };
   auto sp = std::make_shared<SpeckleOpts>();
   auto* speckle = eval->add_subcommand(
-      "speckle", "Measure the probe's in-plane resolution cell from the speckle of consecutive frames' differences");
+      "speckle", "Measure the probe's resolution cell, in plane and along the sweep, from the speckle of consecutive "
+      "frames, and suggest a tent kernel");
   addCommon(speckle, *sp);
   speckle->add_option("--max-pairs", sp->maxPairs, "Measure at most this many pairs, spread over the recording")
       ->check(CLI::Range(1, 100000));
@@ -343,7 +346,8 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     // twice its half width each way): under a thousand, its half widths are
     // uncertain to tens of per cent (NwirePhantomFreehand's mostly black
     // frames leave about 50).
-    const double cellPx = 4.0 * std::max(1.0, c.lateralPx.value_or(sp->maxLag)) * std::max(1.0, c.axialPx.value_or(sp->maxLag));
+    const double cellPx =
+        4.0 * std::max(1.0, c.lateralPx.value_or(sp->maxLag)) * std::max(1.0, c.axialPx.value_or(sp->maxLag));
     const double cells = static_cast<double>(c.pixels) / cellPx;
     if (cells < 1000.0)
       spdlog::warn("evaluate speckle: only about {:.0f} independent speckle cells in {} pixels of {} pairs (the frames "
@@ -367,20 +371,28 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     std::printf("  (half width at half maximum of the autocorrelation of the frames' differences, over the %llu "
                 "pixels of speckle: inside, non-zero in both frames, in blocks that are not white noise)\n",
                 static_cast<unsigned long long>(c.pixels));
-    if (c.elevationMm)
-      std::printf("  elevation         %.3f mm (from %llu triples of consecutive frames: the speckle's decorrelation "
-                  "over %.3f and %.3f mm, variance ratio %.3f)\n",
-                  *c.elevationMm, static_cast<unsigned long long>(c.triples), c.nearMm, c.farMm, c.varianceRatio);
-    else if (c.triples > 0)
-      std::printf("  elevation         not measured: over %llu triples of consecutive frames the variance ratio is "
-                  "%.3f, too near %s to read (the frames are %s)\n",
-                  static_cast<unsigned long long>(c.triples), c.varianceRatio,
-                  c.varianceRatio < 2.0 ? "1" : "its top", c.varianceRatio < 2.0 ? "farther apart than their speckle "
-                  "stays correlated" : "too close for their speckle to decorrelate");
-    else
-      std::printf("  elevation         not measured: no three consecutive frames with speckle\n");
-    std::printf("  (a probe that turns as it moves reads short here: the image centres' distance is not the distance "
-                "along the beam)\n");
+    switch (c.elevation) {
+      case gp::SpeckleCell::Elevation::Measured:
+        std::printf("  elevation         %.3f mm (from %llu triples of consecutive frames: the speckle's decorrelation "
+                    "over %.3f and %.3f mm, variance ratio %.3f)\n"
+                    "  (a probe that turns as it moves reads short here: the image centres' distance is not the "
+                    "distance along the beam)\n",
+                    *c.elevationMm, static_cast<unsigned long long>(c.triples), c.nearMm, c.farMm, c.varianceRatio);
+        break;
+      case gp::SpeckleCell::Elevation::Decorrelated:
+      case gp::SpeckleCell::Elevation::Correlated:
+        std::printf("  elevation         not measured: over %llu triples of consecutive frames the variance ratio is "
+                    "%.3f, too near %s (the frames are %s)\n",
+                    static_cast<unsigned long long>(c.triples), c.varianceRatio,
+                    c.elevation == gp::SpeckleCell::Elevation::Decorrelated ? "1 to read" : "its top to read",
+                    c.elevation == gp::SpeckleCell::Elevation::Decorrelated
+                        ? "farther apart than their speckle stays correlated"
+                        : "too close for their speckle to decorrelate");
+        break;
+      case gp::SpeckleCell::Elevation::NoTriple:
+        std::printf("  elevation         not measured: no three consecutive frames with speckle\n");
+        break;
+    }
     std::printf("  frame spacing     %.3f mm (median distance between consecutive image centres)\n", step);
     const auto kernel = gp::kernelFromCell(c, pixelMm.x, pixelMm.y, step);
     if (kernel)
@@ -403,7 +415,7 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     j["lateral_mm"] = opt(c.lateralPx, pixelMm.x);
     j["axial_mm"] = opt(c.axialPx, pixelMm.y);
     j["frame_spacing_mm"] = step;
-    j["elevation_mm"] = c.elevationMm ? nlohmann::ordered_json(*c.elevationMm) : nlohmann::ordered_json(nullptr);
+    j["elevation_mm"] = opt(c.elevationMm, 1.0);
     j["triples"] = c.triples;
     j["elevation_variance_ratio"] = c.varianceRatio;
     j["independent_cells"] = cells;

@@ -34,14 +34,17 @@ std::vector<float> values(const Frame& f) {
   return v;
 }
 
-
+// Frames whose pixels are differenced must have one size.
+void requireSameSize(const Frame& a, const Frame& b) {
+  if (a.width != b.width || a.height != b.height)
+    throw InputError(fmt::format("frames {} and {} differ in size ({}x{} and {}x{}): no speckle difference between them",
+                                 a.index, b.index, a.width, a.height, b.width, b.height));
+}
 
 // The difference a - b over the pixels inside the clip rectangle and fan that
 // are non-zero in both, in `d`, and which of them are speckle, in `in`.
 void speckleDifference(const std::vector<float>& a, const std::vector<float>& b, const std::vector<PixelRun>& runs,
                        int w, int h, std::vector<float>& d, std::vector<std::uint8_t>& in) {
-  // The difference over the non-zero pixels of both frames inside the clip
-  // rectangle and fan.
   const std::size_t n = a.size();
   d.assign(n, 0.0f);
   in.assign(n, 0);
@@ -100,10 +103,7 @@ SpeckleCellMeter::SpeckleCellMeter(int maxLagPx) : maxLag_(std::max(1, maxLagPx)
 }
 
 bool SpeckleCellMeter::add(const Frame& previous, const Frame& current, const std::vector<PixelRun>& runs) {
-  if (previous.width != current.width || previous.height != current.height)
-    throw InputError(fmt::format("frames {} and {} differ in size ({}x{} and {}x{}): no speckle difference between them",
-                                 previous.index, current.index, previous.width, previous.height, current.width,
-                                 current.height));
+  requireSameSize(previous, current);
   checkSize(current);
   const int w = current.width, h = current.height;
   const std::vector<float> a = values(previous), b = values(current);
@@ -166,10 +166,8 @@ void SpeckleCellMeter::checkSize(const Frame& f) {
 
 bool SpeckleCellMeter::addTriple(const Frame& a, const Frame& b, const Frame& c, double abMm, double acMm,
                                  const std::vector<PixelRun>& runs) {
-  for (const Frame* f : {&a, &b})
-    if (f->width != c.width || f->height != c.height)
-      throw InputError(fmt::format("frames {} and {} differ in size ({}x{} and {}x{}): no speckle difference between "
-                                   "them", f->index, c.index, f->width, f->height, c.width, c.height));
+  requireSameSize(a, c);
+  requireSameSize(b, c);
   checkSize(c);
   if (!(acMm > abMm && abMm > 0.0)) return false;  // not three frames in a row along the sweep
   const std::vector<float> va = values(a), vb = values(b), vc = values(c);
@@ -224,7 +222,11 @@ SpeckleCell SpeckleCellMeter::result() const {
     // spacing) to (far / near)^2 (s much longer); read only well inside.
     const double top = (c.farMm / c.nearMm) * (c.farMm / c.nearMm);
     const double margin = kElevationReadMargin * (top - 1.0);
-    if (c.varianceRatio > 1.0 + margin && c.varianceRatio < top - margin) {
+    if (c.varianceRatio <= 1.0 + margin) {
+      c.elevation = SpeckleCell::Elevation::Decorrelated;
+    } else if (c.varianceRatio >= top - margin) {
+      c.elevation = SpeckleCell::Elevation::Correlated;
+    } else {
       auto ratio = [&](double s) {
         return (1.0 - std::exp(-c.farMm * c.farMm / (2.0 * s * s))) /
                (1.0 - std::exp(-c.nearMm * c.nearMm / (2.0 * s * s)));
@@ -235,6 +237,7 @@ SpeckleCell SpeckleCellMeter::result() const {
         (ratio(std::exp(mid)) < c.varianceRatio ? lo : hi) = mid;
       }
       c.elevationMm = std::exp(0.5 * (lo + hi)) * std::sqrt(2.0 * std::log(2.0));
+      c.elevation = SpeckleCell::Elevation::Measured;
     }
   }
   return c;

@@ -42,6 +42,14 @@ struct SpeckleCell {
   // measured, or when the frames are too far apart (the speckle of the nearer
   // pair already decorrelated) or too close for it to be read.
   std::optional<double> elevationMm;
+  // Why elevationMm is what it is.
+  enum class Elevation {
+    Measured,
+    NoTriple,      // no triple of consecutive frames with speckle
+    Decorrelated,  // the variance ratio is near 1: the frames are farther apart than the speckle stays correlated
+    Correlated,    // near its top: the frames are too close for the speckle to decorrelate
+  };
+  Elevation elevation = Elevation::NoTriple;
   std::uint64_t triples = 0;
   double nearMm = 0.0, farMm = 0.0;  // mean spacing of a triple's first frame to its second, and to its third
   double varianceRatio = 0.0;        // var(first - third) / var(first - second), pooled
