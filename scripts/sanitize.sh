@@ -19,9 +19,10 @@ jobs=$(nproc 2>/dev/null || echo 2)
 start=$(date +%s)
 
 echo "sanitize.sh: configuring $dir (clang, ASan + UBSan, fuzzer coverage)" >&2
+mkdir -p "$dir"  # the configure log goes inside it, not beside it in the checkout
 cmake -S . -B "$dir" -G Ninja -DCMAKE_CXX_COMPILER="$cxx" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DPP5_FUZZ=ON \
-  -DPP5_BUILD_TESTS=ON -DPP5_BUILD_BENCH=OFF -DMPIEXEC_PREFLAGS="--allow-run-as-root;--oversubscribe" >"$dir.configure.log" 2>&1 ||
-  { cat "$dir.configure.log" >&2; exit 1; }
+  -DPP5_BUILD_TESTS=ON -DPP5_BUILD_BENCH=OFF -DMPIEXEC_PREFLAGS="--allow-run-as-root;--oversubscribe" >"$dir/configure.log" 2>&1 ||
+  { cat "$dir/configure.log" >&2; exit 1; }
 echo "sanitize.sh: building the sanitized pp5echo and tests with $jobs jobs (several minutes the first time)" >&2
 cmake --build "$dir" -j "$jobs" --target pp5echo test_io test_plus_config test_calibration test_cli test_igtl >&2
 
