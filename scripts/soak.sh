@@ -49,7 +49,9 @@ while kill -0 "$mp" 2>/dev/null; do
   # How far the stream is (the host logs "run: frame N/M" every 2 s).
   n=$(grep -o 'run: frame [0-9]*' "$out/run.log" 2>/dev/null | tail -1 | grep -o '[0-9]*$' || true)
   for p in $(pgrep -P "$mp" || true); do
-    r=$(tr '\0' '\n' < "/proc/$p/environ" 2>/dev/null | sed -n 's/^OMPI_COMM_WORLD_RANK=//p')
+    # A rank may exit between pgrep and here: the redirection then fails, so
+    # stderr is silenced before it and the failure must not stop the script.
+    r=$(tr '\0' '\n' 2>/dev/null < "/proc/$p/environ" | sed -n 's/^OMPI_COMM_WORLD_RANK=//p') || true
     kib=$(awk '/^VmRSS:/ {print $2}' "/proc/$p/status" 2>/dev/null || true)
     [ -n "$r" ] && [ -n "$kib" ] && echo "$(( $(date +%s) - t0 )),${n:-0},$r,$kib" >> "$out/rss.csv"
   done

@@ -26,7 +26,7 @@ long=("${small[@]}" --set 'sim.sweep.capture_interval_mm=1.0' --set 'run.script=
 rank_pid() {  # rank_pid MPIRUN_PID RANK
   local p
   for p in $(pgrep -P "$1"); do
-    if tr '\0' '\n' < "/proc/$p/environ" 2>/dev/null | grep -qx "OMPI_COMM_WORLD_RANK=$2"; then echo "$p"; return; fi
+    if tr '\0' '\n' 2>/dev/null < "/proc/$p/environ" | grep -qx "OMPI_COMM_WORLD_RANK=$2"; then echo "$p"; return; fi
   done
 }
 wait_for() {  # wait_for FILE PATTERN SECONDS

@@ -21,7 +21,7 @@ check() {  # check NAME CONDITION-STATUS MESSAGE
 rank_pid() {  # rank_pid MPIRUN_PID RANK
   local p
   for p in $(pgrep -P "$1"); do
-    if tr '\0' '\n' < "/proc/$p/environ" 2>/dev/null | grep -qx "OMPI_COMM_WORLD_RANK=$2"; then echo "$p"; return; fi
+    if tr '\0' '\n' 2>/dev/null < "/proc/$p/environ" | grep -qx "OMPI_COMM_WORLD_RANK=$2"; then echo "$p"; return; fi
   done
 }
 complete_frames() {  # what pp5echo reads from a journal now, while it is written
