@@ -279,6 +279,94 @@ TEST_F(ReconCli, EvaluateSpeckleMeasuresTheFramesAndRefusesASingleFrame) {
   EXPECT_EQ(r.out.find("lateral (x)"), std::string::npos) << r.out;
 }
 
+// recon.kernel_from_frames: the kernel `evaluate speckle` suggests is the one
+// `reconstruct` uses (the same volume, voxel for voxel, as that kernel set by
+// hand), a half-width set by hand wins, a leave-out derives it from the kept
+// frames alone, and what cannot use it refuses it.
+TEST_F(ReconCli, KernelFromFramesIsTheSpeckleSuggestionAndAHandSetWidthWins) {
+  const fs::path js = dir() / "kff_speckle.json";
+  Result r = run("evaluate speckle " + seq() + " --plus-config " + xml() + " -c " + toml() + " --json " + js.string());
+  ASSERT_EQ(r.status, 0) << r.out;
+  const auto k = readJson(js)["suggested_kernel_mm"];
+  ASSERT_TRUE(k.is_array()) << r.out;
+
+  const fs::path derived = dir() / "kff_derived.mha", byHand = dir() / "kff_by_hand.mha";
+  const std::string common = "reconstruct " + seq() + " --plus-config " + xml() + " -c " + toml() +
+                             " --type float32 --set grid.spacing=[2,2,2]";
+  r = run(common + " --set recon.kernel_from_frames=true -o " + derived.string());
+  ASSERT_EQ(r.status, 0) << r.out;
+  const char* keys[] = {"recon.kernel_lateral_mm", "recon.kernel_axial_mm", "recon.kernel_elevation_mm"};
+  for (int a = 0; a < 3; ++a)
+    EXPECT_NE(r.out.find(fmt::format("{:<26} {:.3f} mm, derived", keys[a], k[a].get<double>())), std::string::npos)
+        << r.out;
+  std::string set;
+  for (int a = 0; a < 3; ++a) set += fmt::format(" --set {}={:.17g}", keys[a], k[a].get<double>());
+  r = run(common + set + " -o " + byHand.string());
+  ASSERT_EQ(r.status, 0) << r.out;
+  const pp5::Volume dv = pp5::readVolume(derived.string()), hv = pp5::readVolume(byHand.string());
+  ASSERT_EQ(dv.grid.dims, hv.grid.dims);
+  std::size_t differ = 0, nonzero = 0;
+  for (std::size_t i = 0; i < dv.grid.voxelCount(); ++i) {
+    differ += dv.value(i) != hv.value(i) ? 1 : 0;
+    nonzero += dv.value(i) != 0.0 ? 1 : 0;
+  }
+  EXPECT_EQ(differ, 0u);
+  EXPECT_GT(nonzero, 0u);
+  // The default kernel gives another volume: the comparison above can fail.
+  const fs::path fixed = dir() / "kff_fixed.mha";
+  r = run(common + " -o " + fixed.string());
+  ASSERT_EQ(r.status, 0) << r.out;
+  const pp5::Volume fv = pp5::readVolume(fixed.string());
+  std::size_t differFixed = 0;
+  for (std::size_t i = 0; i < fv.grid.voxelCount(); ++i) differFixed += fv.value(i) != dv.value(i) ? 1 : 0;
+  EXPECT_GT(differFixed, 0u);
+
+  // By hand wins, even at the default's value; the others are still derived.
+  r = run(common + " --set recon.kernel_from_frames=true --set recon.kernel_axial_mm=1.0 -o " + derived.string());
+  ASSERT_EQ(r.status, 0) << r.out;
+  EXPECT_NE(r.out.find(fmt::format("recon.kernel_axial_mm      1.000 mm, as set (derived: {:.3f})", k[1].get<double>())),
+            std::string::npos)
+      << r.out;
+  EXPECT_NE(r.out.find(fmt::format("recon.kernel_lateral_mm    {:.3f} mm, derived", k[0].get<double>())),
+            std::string::npos)
+      << r.out;
+
+  // A leave-out derives it from the kept frames alone: every second frame of
+  // a real recording (the small sweep's frames, 4 mm apart, show no speckle
+  // to measure), about twice as far apart as all of them.
+  const std::string l14 = std::string(PP5_DATA_DIR) + "/BoneUltrasound_L14.igs.mha --plus-config " +
+                          std::string(PP5_DATA_DIR) + "/BoneUltrasound_L14_config.xml";
+  const fs::path l14js = dir() / "kff_l14.json";
+  r = run("evaluate speckle " + l14 + " --json " + l14js.string());
+  ASSERT_EQ(r.status, 0) << r.out;
+  const double allApart = readJson(l14js)["frame_spacing_mm"].get<double>();
+  const fs::path loJs = dir() / "kff_leave_out.json";
+  r = run("evaluate leave-out " + l14 + " --set grid.spacing=[0.5,0.5,0.5] --keep-every 2 --set recon.kernel_from_frames=true"
+          " --json " + loJs.string());
+  ASSERT_EQ(r.status, 0) << r.out;
+  const auto lo = readJson(loJs);
+  EXPECT_TRUE(lo["kernel_from_frames"].get<bool>());
+  const auto at = r.out.find("mm apart (median)");
+  ASSERT_NE(at, std::string::npos) << r.out;
+  const double apart = std::stod(r.out.substr(r.out.rfind("frames ", at) + 7));
+  EXPECT_GT(apart, 1.6 * allApart) << r.out;
+  EXPECT_LT(apart, 2.4 * allApart) << r.out;
+  const auto el = r.out.find("recon.kernel_elevation_mm  ");
+  ASSERT_NE(el, std::string::npos) << r.out;
+  EXPECT_NEAR(std::stod(r.out.substr(el + 27)), 1.5 * apart, 0.002) << r.out;
+  EXPECT_NEAR(lo["kernel_mm"][2].get<double>(), 1.5 * apart, 0.002) << r.out;  // the kernel it used
+  EXPECT_NE(r.out.find("RMSE"), std::string::npos) << r.out;
+
+  // Refused where it cannot apply, before any work.
+  r = run(common + " --set recon.kernel_from_frames=true --set recon.method=trilinear -o " + derived.string());
+  EXPECT_EQ(r.status, 1) << r.out;
+  EXPECT_NE(r.out.find("recon.kernel_from_frames derives the tent kernel"), std::string::npos) << r.out;
+  r = run("run " + toml() + " -o " + (dir() / "kff_run").string() + " --set recon.kernel_from_frames=true");
+  EXPECT_EQ(r.status, 1) << r.out;
+  EXPECT_NE(r.out.find("`run` streams them"), std::string::npos) << r.out;
+  EXPECT_FALSE(fs::exists(dir() / "kff_run" / "summary.json"));
+}
+
 TEST_F(ReconCli, EvaluateRefusesToScoreNothing) {
   const pp5::Volume truth = pp5::readVolume((dir() / "doll_truth.mha").string());
   pp5::Volume far = truth;

@@ -67,6 +67,25 @@ TEST_F(Fixture, LoadsEveryTypeFromTablesAndDottedKeys) {
   EXPECT_EQ(d.count, 3);
 }
 
+// What a file or override assigned, even to the default value, is known (a
+// value derived at run time must not replace it); a rejected value is not
+// assigned, and applyDefaults forgets them all.
+TEST_F(Fixture, RemembersWhichKeysWereAssigned) {
+  EXPECT_FALSE(schema.assigned("a.count"));
+  schema.loadString("[a]\ncount = 3\n[a.b]\nname = \"y\"\n", "cfg.toml");
+  schema.set("a.gain=0.25");
+  EXPECT_TRUE(schema.assigned("a.count"));  // the default value, but given
+  EXPECT_TRUE(schema.assigned("a.b.name"));
+  EXPECT_TRUE(schema.assigned("a.gain"));
+  EXPECT_FALSE(schema.assigned("a.flag"));
+  EXPECT_FALSE(schema.assigned("a.b"));  // a table, not an option
+  EXPECT_THROW(schema.set("a.b.dims=[0, 1, 1]"), pp5::InputError);
+  EXPECT_FALSE(schema.assigned("a.b.dims"));
+  schema.applyDefaults();
+  EXPECT_FALSE(schema.assigned("a.count"));
+  EXPECT_FALSE(schema.assigned("a.gain"));
+}
+
 TEST_F(Fixture, UnknownKeyNamesFileKeyAndLine) {
   const std::string e = errorOf("[a]\ncount = 2\n\ncuont = 3\n");
   EXPECT_NE(e.find("cfg.toml:4:"), std::string::npos) << e;

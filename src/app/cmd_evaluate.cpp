@@ -12,6 +12,7 @@
 #include "app/commands.hpp"
 #include "app/recon_run.hpp"
 #include "app/settings.hpp"
+#include "app/speckle_run.hpp"
 #include "core/error.hpp"
 #include "core/volume_io.hpp"
 #include "gp/evaluation.hpp"
@@ -38,8 +39,10 @@ void addCommon(CLI::App* cmd, CommonOpts& o) {
 }
 
 // Reconstruction settings: TOML when given, else the PLUS config's element.
+// With recon.kernel_from_frames, the kernel is derived from the frames `use`
+// selects (those the reconstruction is given).
 gp::ReconSettings reconSettings(const CommonOpts& o, const PosedSequence& seq, Settings& s, Vec3* spacing,
-                                double* margin) {
+                                double* margin, const std::function<bool(std::uint64_t)>& use = {}) {
   gp::ReconSettings rs;
   if (!o.config.empty() || !o.overrides.empty()) {
     ConfigSchema schema;
@@ -48,6 +51,7 @@ gp::ReconSettings reconSettings(const CommonOpts& o, const PosedSequence& seq, S
     rs = s.recon;
     *spacing = s.grid.spacing;
     *margin = s.grid.marginMm;
+    deriveKernelFromFrames(seq, rs, schema, use);
   } else {
     if (!seq.config.volumeReconstruction)
       inputError(o.plusConfig, "has no VolumeReconstruction element; give the settings with --config");
@@ -57,6 +61,13 @@ gp::ReconSettings reconSettings(const CommonOpts& o, const PosedSequence& seq, S
   }
   if (o.threads >= 0) rs.threads = o.threads;
   return rs;
+}
+
+// The tent kernel the reconstruction used (set, or derived from the frames).
+void addKernel(nlohmann::ordered_json& j, const gp::ReconSettings& rs) {
+  if (rs.method != gp::Method::Tent) return;
+  j["kernel_mm"] = {rs.kernelLateralMm, rs.kernelAxialMm, rs.kernelElevationMm};
+  j["kernel_from_frames"] = rs.kernelFromFrames;
 }
 
 void emitJson(const std::string& where, const nlohmann::ordered_json& j) {
@@ -77,26 +88,6 @@ std::string describe(const gp::ReconSettings& rs) {
   if (rs.fillHoles) d += "+holes";
   return d + " (" + std::string(enumName(rs.arithmetic)) + ")";
 }
-
-// The clip rectangle and fan as pixel runs, for the frames' size (computed again
-// only when the size changes).
-class FrameRuns {
- public:
-  explicit FrameRuns(const gp::ReconSettings& rs) : rs_(rs) {}
-  const std::vector<gp::PixelRun>& of(const Frame& f) {
-    if (f.width != width_ || f.height != height_) {
-      runs_ = gp::pixelRuns(f.width, f.height, rs_);
-      width_ = f.width;
-      height_ = f.height;
-    }
-    return runs_;
-  }
-
- private:
-  const gp::ReconSettings& rs_;
-  std::vector<gp::PixelRun> runs_;
-  int width_ = -1, height_ = -1;
-};
 
 }  // namespace
 
@@ -164,6 +155,7 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     j["sequence"] = t->sequence;
     j["truth"] = t->truth;
     j["method"] = describe(rs);
+    addKernel(j, rs);
     j["frames_inserted"] = st.inserted;
     j["frames_skipped"] = st.skipped;
     j["rmse"] = m.rmse;
@@ -218,14 +210,14 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     Settings s;
     Vec3 spacing;
     double margin = 0;
-    gp::ReconSettings rs = reconSettings(*l, seq, s, &spacing, &margin);
+    const auto k = static_cast<std::uint64_t>(l->keepEvery);
+    const auto inserted = [k, every = l->heldOutInVolume](std::uint64_t i) { return every || i % k == 0; };
+    gp::ReconSettings rs = reconSettings(*l, seq, s, &spacing, &margin, inserted);
     // The leave-out stride replaces SkipInterval: every frame not kept is held out.
     rs.skipInterval = 1;
-    const auto k = static_cast<std::uint64_t>(l->keepEvery);
     const Grid grid = chooseGrid(seq, rs, spacing, margin, true);
     auto recon = gp::makeReconstructor(grid, rs, 0, l->plusConfig);
-    const ReconRunStats st = runReconstruction(
-        seq, *recon, [k, every = l->heldOutInVolume](std::uint64_t i) { return every || i % k == 0; });
+    const ReconRunStats st = runReconstruction(seq, *recon, inserted);
 
     // Second pass over the file for the held-out frames.
     auto reader = SequenceReader::open(l->sequence);
@@ -269,6 +261,7 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     j["protocol"] = "leave-out";
     j["sequence"] = l->sequence;
     j["method"] = describe(rs);
+    addKernel(j, rs);
     j["reading"] = l->reading;
     j["held_out_in_volume"] = l->heldOutInVolume;
     j["keep_every"] = k;
@@ -303,61 +296,15 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     Vec3 spacing;
     double margin = 0;
     const gp::ReconSettings rs = reconSettings(*sp, seq, s, &spacing, &margin);
-    // Pairs of consecutive frames that can both be placed.
-    std::vector<std::uint64_t> pairs;  // the second frame's index
-    std::vector<double> steps;         // mm between the image centres, every pair
-    const auto& info = seq.reader->info();
-    const glm::dvec4 centre(0.5 * info.width, 0.5 * info.height, 0.0, 1.0);
-    for (std::uint64_t i = 1; i < seq.poses.size(); ++i)
-      if (seq.poses[i] && seq.poses[i - 1]) {
-        pairs.push_back(i);
-        steps.push_back(glm::length(Vec3(*seq.poses[i] * centre) - Vec3(*seq.poses[i - 1] * centre)));
-      }
-    if (pairs.empty())
-      inputError(sp->sequence, "has no two consecutive frames that can both be placed: no speckle difference to measure");
-    // At most --max-pairs of them, spread evenly.
-    const std::size_t want = std::min<std::size_t>(pairs.size(), static_cast<std::size_t>(sp->maxPairs));
-    std::vector<std::uint8_t> chosen(seq.poses.size(), 0);
-    for (std::size_t j = 0; j < want; ++j) chosen[pairs[j * pairs.size() / want]] = 1;
-
-    gp::SpeckleCellMeter meter(sp->maxLag);
-    auto reader = SequenceReader::open(sp->sequence);
-    Frame prev2, prev, cur;  // frames i - 2, i - 1 and i
-    FrameRuns runs(rs);
-    glm::dvec2 pixelMm(0.0);
-    auto at = [&](std::uint64_t i) { return Vec3(*seq.poses[i] * centre); };
-    for (std::uint64_t i = 0; reader->next(cur); ++i) {
-      if (i >= 1 && chosen[i]) {
-        if (meter.add(prev, cur, runs.of(cur)) && pixelMm.x == 0.0)
-          pixelMm = {glm::length(Vec3((*seq.poses[i])[0])), glm::length(Vec3((*seq.poses[i])[1]))};
-        // Along the sweep: this pair's first frame, with the frames on either side of it.
-        if (i >= 2 && seq.poses[i - 2])
-          meter.addTriple(prev2, prev, cur, glm::length(at(i - 1) - at(i - 2)), glm::length(at(i) - at(i - 2)),
-                          runs.of(cur));
-      }
-      std::swap(prev2, prev);
-      std::swap(prev, cur);
-    }
-    const gp::SpeckleCell c = meter.result();
-    if (c.pairs == 0)
-      inputError(sp->sequence, "none of the {} pairs measured shows speckle inside the clip rectangle and fan (their "
-                 "differences are zero, or white noise): no resolution cell to measure", want);
-    // About how many independent cells the estimate rests on (a cell spans
-    // twice its half width each way): under a thousand, its half widths are
-    // uncertain to tens of per cent (NwirePhantomFreehand's mostly black
-    // frames leave about 50).
-    const double cellPx =
-        4.0 * std::max(1.0, c.lateralPx.value_or(sp->maxLag)) * std::max(1.0, c.axialPx.value_or(sp->maxLag));
-    const double cells = static_cast<double>(c.pixels) / cellPx;
-    if (cells < 1000.0)
-      spdlog::warn("evaluate speckle: only about {:.0f} independent speckle cells in {} pixels of {} pairs (the frames "
-                   "are mostly dark or noise): the cell below is uncertain", cells, c.pixels, c.pairs);
-    std::nth_element(steps.begin(), steps.begin() + static_cast<std::ptrdiff_t>(steps.size() / 2), steps.end());
-    const double step = steps[steps.size() / 2];
+    const SpeckleRun m = measureSpeckle(seq, rs, sp->maxPairs, sp->maxLag);
+    const gp::SpeckleCell& c = m.cell;
+    const glm::dvec2 pixelMm = m.pixelMm;
+    const double step = m.frameSpacingMm;
+    const double cells = m.independentCells;
 
     std::printf("speckle: %s\n", sp->sequence.c_str());
     std::printf("  pairs             %llu measured of %zu pairs of consecutive placed frames\n",
-                static_cast<unsigned long long>(c.pairs), pairs.size());
+                static_cast<unsigned long long>(c.pairs), m.pairsAvailable);
     std::printf("  pixel             %.4f x %.4f mm\n", pixelMm.x, pixelMm.y);
     auto line = [&](const char* what, const std::optional<double>& px, double mmPerPx) {
       if (px)

@@ -8,6 +8,7 @@
 #include "app/commands.hpp"
 #include "app/recon_run.hpp"
 #include "app/settings.hpp"
+#include "app/speckle_run.hpp"
 #include "core/error.hpp"
 #include "core/volume_io.hpp"
 
@@ -51,6 +52,7 @@ void addReconstructCommand(CLI::App& app, int& exitCode) {
       spacing = s.grid.spacing;
       margin = s.grid.marginMm;
       configExtent = false;
+      deriveKernelFromFrames(seq, rs, schema);
     } else {
       if (!seq.config.volumeReconstruction)
         inputError(o->plusConfig, "has no VolumeReconstruction element; give the settings with --config");

@@ -75,6 +75,13 @@ extern "C" void onInterrupt(int) { gInterrupted = true; }
 void checkSettings(const Settings& s) {
   host::checkViewSettings(s.view);
   gp::checkReconSettings(s.recon);
+  // The batch commands measure the whole recording before the first frame
+  // goes in; a stream cannot be looked ahead in.
+  if (s.recon.kernelFromFrames)
+    throw InputError(
+        "recon.kernel_from_frames works in `reconstruct` and `evaluate`, which can read the frames before "
+        "reconstructing them; `run` streams them: measure a recording of the probe with `pp5echo evaluate speckle` "
+        "and set the three recon.kernel_*_mm it prints");
 }
 
 // The serial run's side of the live viewer: what the host rank does for the

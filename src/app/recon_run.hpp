@@ -11,6 +11,7 @@
 #include "core/plus_config.hpp"
 #include "core/posed_sequence.hpp"
 #include "core/sequence_io.hpp"
+#include "gp/fan_mask.hpp"
 #include "gp/reconstruction.hpp"
 
 namespace pp5::app {
@@ -39,6 +40,26 @@ void checkNoOutlierPose(const PosedSequence& seq);
 // The grid a run uses: OutputOrigin/OutputExtent when the PLUS config gives
 // both (PLUS's own tool ignores them; pp5echo honours them), otherwise PLUS's
 // automatic extent over every placeable frame, grown by `marginMm`.
+// The clip rectangle and fan as pixel runs, for the frames' size (computed again
+// only when the size changes).
+class FrameRuns {
+ public:
+  explicit FrameRuns(const gp::ReconSettings& rs) : rs_(rs) {}
+  const std::vector<gp::PixelRun>& of(const Frame& f) {
+    if (f.width != width_ || f.height != height_) {
+      runs_ = gp::pixelRuns(f.width, f.height, rs_);
+      width_ = f.width;
+      height_ = f.height;
+    }
+    return runs_;
+  }
+
+ private:
+  const gp::ReconSettings& rs_;
+  std::vector<gp::PixelRun> runs_;
+  int width_ = -1, height_ = -1;
+};
+
 Grid chooseGrid(const PosedSequence& seq, const gp::ReconSettings& s, const Vec3& spacing, double marginMm,
                 bool useConfigExtent);
 

@@ -324,6 +324,7 @@ void ConfigSchema::option(const std::string& key, glm::ivec2* field, glm::ivec2 
 
 void ConfigSchema::applyDefaults() const {
   for (const auto& e : entries_) e.reset();
+  assigned_.clear();
 }
 
 namespace {
@@ -331,6 +332,7 @@ namespace {
 struct Loader {
   const std::vector<ConfigSchema::Entry>& entries;
   const std::string& source;
+  std::set<std::string>& assigned;
 
   bool isTablePrefix(const std::string& path) const {
     const std::string p = path + ".";
@@ -349,6 +351,7 @@ struct Loader {
       if (const auto* e = find(key)) {
         const std::string why = e->assign(node);
         if (!why.empty()) inputErrorAt(source, lineOf(node), "key '{}' {}", key, why);
+        assigned.insert(key);
         continue;
       }
       if (const auto* sub = node.as_table(); sub && isTablePrefix(key)) {
@@ -369,7 +372,7 @@ void ConfigSchema::loadString(const std::string& text, const std::string& source
   } catch (const toml::parse_error& err) {
     inputErrorAt(sourceName, static_cast<long>(err.source().begin.line), "{}", err.description());
   }
-  Loader{entries_, sourceName}.walk(tbl, "");
+  Loader{entries_, sourceName, assigned_}.walk(tbl, "");
 }
 
 void ConfigSchema::loadFile(const std::string& path) const {
@@ -382,7 +385,7 @@ void ConfigSchema::loadFile(const std::string& path) const {
     if (err.source().begin.line == 0) inputError(path, "{}", err.description());
     inputErrorAt(path, static_cast<long>(err.source().begin.line), "{}", err.description());
   }
-  Loader{entries_, path}.walk(tbl, "");
+  Loader{entries_, path, assigned_}.walk(tbl, "");
 }
 
 void ConfigSchema::set(const std::string& assignment) const {

@@ -9,6 +9,7 @@
 // fields of that module's settings struct (e.g. sim::registerOptions).
 #include <cstdint>
 #include <functional>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -64,8 +65,11 @@ public:
   void option(const std::string& key, std::vector<std::string>* field, const std::vector<std::string>& def,
               const std::string& doc);
 
-  // Sets every field to its default.
+  // Sets every field to its default (and forgets which keys were assigned).
   void applyDefaults() const;
+  // Whether a file or an override assigned `key` since the last applyDefaults
+  // (a value derived at run time must not replace one the user gave).
+  bool assigned(const std::string& key) const { return assigned_.count(key) != 0; }
   // Parses a TOML file over the current values. Unknown keys, wrong types and
   // out-of-range values throw InputError naming the file, the key and the line.
   void loadFile(const std::string& path) const;
@@ -97,6 +101,7 @@ private:
   };
   std::vector<Section> sections_;
   std::vector<Entry> entries_;
+  mutable std::set<std::string> assigned_;
   void add(Entry e);
 };
 

@@ -36,6 +36,11 @@ void registerOptions(ConfigSchema& schema, ReconSettings& s) {
   schema.option("recon.kernel_elevation_mm", &s.kernelElevationMm, 3.0, 0.01, 50.0,
                 "Tent kernel half-width across the slice (elevation), mm. About the elevation beam width (FWHM) "
                 "less a little; when consecutive slices are farther apart than this reaches, fill-in interpolates.");
+  schema.option("recon.kernel_from_frames", &s.kernelFromFrames, false,
+                "Derive the tent kernel from the frames (`reconstruct` and `evaluate` only; `run` refuses it, as a live "
+                "source cannot be looked ahead in): twice the speckle's lateral and axial half widths (as `evaluate "
+                "speckle` measures them) and 1.5 times the median spacing of the frames that are inserted. A kernel "
+                "half-width set in the file or with --set wins over the derived one. Printed before the reconstruction.");
   schema.option("recon.fill_in", &s.fillIn, true,
                 "Interpolate intermediate slices between consecutive frames that are farther apart than the "
                 "kernel reaches (tent method).");
