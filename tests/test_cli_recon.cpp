@@ -293,7 +293,8 @@ TEST_F(ReconCli, KernelFromFramesIsTheSpeckleSuggestionAndAHandSetWidthWins) {
   const fs::path derived = dir() / "kff_derived.mha", byHand = dir() / "kff_by_hand.mha";
   const std::string common = "reconstruct " + seq() + " --plus-config " + xml() + " -c " + toml() +
                              " --type float32 --set grid.spacing=[2,2,2]";
-  r = run(common + " --set recon.kernel_from_frames=true -o " + derived.string());
+  const fs::path used = dir() / "kff_used.toml";
+  r = run(common + " --set recon.kernel_from_frames=true -o " + derived.string() + " --write-settings " + used.string());
   ASSERT_EQ(r.status, 0) << r.out;
   const char* keys[] = {"recon.kernel_lateral_mm", "recon.kernel_axial_mm", "recon.kernel_elevation_mm"};
   for (int a = 0; a < 3; ++a)
@@ -312,6 +313,19 @@ TEST_F(ReconCli, KernelFromFramesIsTheSpeckleSuggestionAndAHandSetWidthWins) {
   }
   EXPECT_EQ(differ, 0u);
   EXPECT_GT(nonzero, 0u);
+  // The settings it wrote give the same volume again, the derived kernel now set in them.
+  const fs::path again = dir() / "kff_again.mha";
+  r = run("reconstruct " + seq() + " --plus-config " + xml() + " -c " + used.string() + " --type float32 -o " +
+          again.string());
+  ASSERT_EQ(r.status, 0) << r.out;
+  EXPECT_NE(r.out.find(fmt::format("recon.kernel_lateral_mm    {:.3f} mm, as set", k[0].get<double>())),
+            std::string::npos)
+      << r.out;
+  const pp5::Volume av = pp5::readVolume(again.string());
+  ASSERT_EQ(av.grid.dims, dv.grid.dims);
+  std::size_t differAgain = 0;
+  for (std::size_t i = 0; i < av.grid.voxelCount(); ++i) differAgain += av.value(i) != dv.value(i) ? 1 : 0;
+  EXPECT_EQ(differAgain, 0u);
   // The default kernel gives another volume: the comparison above can fail.
   const fs::path fixed = dir() / "kff_fixed.mha";
   r = run(common + " -o " + fixed.string());
@@ -358,6 +372,10 @@ TEST_F(ReconCli, KernelFromFramesIsTheSpeckleSuggestionAndAHandSetWidthWins) {
   EXPECT_NE(r.out.find("RMSE"), std::string::npos) << r.out;
 
   // Refused where it cannot apply, before any work.
+  r = run("reconstruct " + seq() + " --plus-config " + xml() + " -o " + derived.string() + " --write-settings " +
+          used.string());
+  EXPECT_EQ(r.status, 1) << r.out;
+  EXPECT_NE(r.out.find("--write-settings writes TOML settings"), std::string::npos) << r.out;
   r = run(common + " --set recon.kernel_from_frames=true --set recon.method=trilinear -o " + derived.string());
   EXPECT_EQ(r.status, 1) << r.out;
   EXPECT_NE(r.out.find("recon.kernel_from_frames derives the tent kernel"), std::string::npos) << r.out;

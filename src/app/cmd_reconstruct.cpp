@@ -10,6 +10,7 @@
 #include "app/settings.hpp"
 #include "app/speckle_run.hpp"
 #include "core/error.hpp"
+#include "core/io_util.hpp"
 #include "core/volume_io.hpp"
 
 namespace pp5::app {
@@ -17,7 +18,7 @@ namespace pp5::app {
 
 void addReconstructCommand(CLI::App& app, int& exitCode) {
   struct Opts {
-    std::string sequence, plusConfig, config, output, weights, type = "uint8";
+    std::string sequence, plusConfig, config, output, weights, writeSettings, type = "uint8";
     std::vector<std::string> overrides;
     int threads = -1;
   };
@@ -33,6 +34,9 @@ void addReconstructCommand(CLI::App& app, int& exitCode) {
   cmd->add_option("--set", o->overrides, "Override a TOML option: key=value (repeatable; implies TOML settings)");
   cmd->add_option("-o,--output", o->output, "Output volume (.mha, .mhd, .nrrd)")->required();
   cmd->add_option("--weights", o->weights, "Also write the accumulated weight per voxel (float32)");
+  cmd->add_option("--write-settings", o->writeSettings,
+                  "Also write the settings used as TOML, a kernel derived from the frames (recon.kernel_from_frames) "
+                  "included: `-c` with it reconstructs the same volume (needs TOML settings: -c or --set)");
   cmd->add_option("--type", o->type, "Voxel type of the output volume")->check(CLI::IsMember({"uint8", "float32"}));
   cmd->add_option("--threads", o->threads, "Threads (0 = every core); overrides recon.threads")
       ->check(CLI::Range(0, 1024));
@@ -54,6 +58,9 @@ void addReconstructCommand(CLI::App& app, int& exitCode) {
       configExtent = false;
       deriveKernelFromFrames(seq, rs, schema);
     } else {
+      if (!o->writeSettings.empty())
+        throw InputError("--write-settings writes TOML settings, but these come from " + o->plusConfig +
+                         "'s VolumeReconstruction element: give them with -c or --set");
       if (!seq.config.volumeReconstruction)
         inputError(o->plusConfig, "has no VolumeReconstruction element; give the settings with --config");
       rs = gp::fromPlus(*seq.config.volumeReconstruction);
@@ -71,6 +78,12 @@ void addReconstructCommand(CLI::App& app, int& exitCode) {
 
     const ReconRunStats st = runReconstruction(seq, *recon);
     writeVolume(o->output, recon->output().as(o->type == "float32" ? ScalarType::F32 : ScalarType::U8));
+    if (!o->writeSettings.empty()) {
+      s.recon = rs;  // as used: the derived kernel, the --threads override
+      io::AtomicFile f(o->writeSettings);
+      f.write("# pp5echo reconstruct " + o->sequence + ": the settings it used\n" + schema.toToml());
+      f.commit();
+    }
     if (!o->weights.empty()) writeVolume(o->weights, recon->weights());
 
     std::uint64_t covered = 0;
@@ -85,7 +98,8 @@ void addReconstructCommand(CLI::App& app, int& exitCode) {
                 static_cast<long long>(grid.dims.x), static_cast<long long>(grid.dims.y),
                 static_cast<long long>(grid.dims.z), grid.spacing.x, grid.spacing.y, grid.spacing.z, grid.origin.x,
                 grid.origin.y, grid.origin.z, 100.0 * static_cast<double>(covered) / static_cast<double>(grid.voxelCount()));
-    std::printf("wrote %s%s%s\n", o->output.c_str(), o->weights.empty() ? "" : " and ", o->weights.c_str());
+    std::printf("wrote %s%s%s%s%s\n", o->output.c_str(), o->weights.empty() ? "" : " and ", o->weights.c_str(),
+                o->writeSettings.empty() ? "" : " and ", o->writeSettings.c_str());
     exitCode = 0;
   });
 }
