@@ -379,6 +379,15 @@ TEST_F(ReconCli, KernelFromFramesIsTheSpeckleSuggestionAndAHandSetWidthWins) {
   r = run(common + " --set recon.kernel_from_frames=true --set recon.method=trilinear -o " + derived.string());
   EXPECT_EQ(r.status, 1) << r.out;
   EXPECT_NE(r.out.find("recon.kernel_from_frames derives the tent kernel"), std::string::npos) << r.out;
+  // A probe held still: no reach along the sweep to derive.
+  std::vector<pp5::Frame> still = pp5::readAllFrames(seq());
+  for (auto& f : still) f.transforms = still.front().transforms;
+  const fs::path stillPath = dir() / "kff_still.igs.mha";
+  pp5::writeAllFrames(stillPath.string(), still);
+  r = run("reconstruct " + stillPath.string() + " --plus-config " + xml() + " -c " + toml() +
+          " --set recon.kernel_from_frames=true -o " + derived.string());
+  EXPECT_EQ(r.status, 1) << r.out;
+  EXPECT_NE(r.out.find("the probe hardly moved"), std::string::npos) << r.out;
   r = run("run " + toml() + " -o " + (dir() / "kff_run").string() + " --set recon.kernel_from_frames=true");
   EXPECT_EQ(r.status, 1) << r.out;
   EXPECT_NE(r.out.find("`run` streams them"), std::string::npos) << r.out;

@@ -39,10 +39,11 @@ void addCommon(CLI::App* cmd, CommonOpts& o) {
 }
 
 // Reconstruction settings: TOML when given, else the PLUS config's element.
-// With recon.kernel_from_frames, the kernel is derived from the frames `use`
-// selects (those the reconstruction is given).
+// With recon.kernel_from_frames and `derive`, the kernel is derived from the
+// frames `use` selects (those the reconstruction is given).
 gp::ReconSettings reconSettings(const CommonOpts& o, const PosedSequence& seq, Settings& s, Vec3* spacing,
-                                double* margin, const std::function<bool(std::uint64_t)>& use = {}) {
+                                double* margin, const std::function<bool(std::uint64_t)>& use = {},
+                                bool derive = true) {
   gp::ReconSettings rs;
   if (!o.config.empty() || !o.overrides.empty()) {
     ConfigSchema schema;
@@ -51,7 +52,7 @@ gp::ReconSettings reconSettings(const CommonOpts& o, const PosedSequence& seq, S
     rs = s.recon;
     *spacing = s.grid.spacing;
     *margin = s.grid.marginMm;
-    deriveKernelFromFrames(seq, rs, schema, use);
+    if (derive) deriveKernelFromFrames(seq, rs, schema, use);
   } else {
     if (!seq.config.volumeReconstruction)
       inputError(o.plusConfig, "has no VolumeReconstruction element; give the settings with --config");
@@ -295,7 +296,8 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     Settings s;
     Vec3 spacing;
     double margin = 0;
-    const gp::ReconSettings rs = reconSettings(*sp, seq, s, &spacing, &margin);
+    // The clip rectangle and fan only: this command measures the cell itself.
+    const gp::ReconSettings rs = reconSettings(*sp, seq, s, &spacing, &margin, {}, false);
     const SpeckleRun m = measureSpeckle(seq, rs, sp->maxPairs, sp->maxLag);
     const gp::SpeckleCell& c = m.cell;
     const glm::dvec2 pixelMm = m.pixelMm;

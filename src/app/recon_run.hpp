@@ -37,9 +37,6 @@ ReconRunStats runReconstruction(PosedSequence& seq, gp::Reconstructor& recon,
 // tracker glitch that would stretch the automatic extent to it).
 void checkNoOutlierPose(const PosedSequence& seq);
 
-// The grid a run uses: OutputOrigin/OutputExtent when the PLUS config gives
-// both (PLUS's own tool ignores them; pp5echo honours them), otherwise PLUS's
-// automatic extent over every placeable frame, grown by `marginMm`.
 // The clip rectangle and fan as pixel runs, for the frames' size (computed again
 // only when the size changes).
 class FrameRuns {
@@ -60,6 +57,9 @@ class FrameRuns {
   int width_ = -1, height_ = -1;
 };
 
+// The grid a run uses: OutputOrigin/OutputExtent when the PLUS config gives
+// both (PLUS's own tool ignores them; pp5echo honours them), otherwise PLUS's
+// automatic extent over every placeable frame, grown by `marginMm`.
 Grid chooseGrid(const PosedSequence& seq, const gp::ReconSettings& s, const Vec3& spacing, double marginMm,
                 bool useConfigExtent);
 

@@ -15,17 +15,17 @@ SpeckleRun measureSpeckle(const PosedSequence& seq, const gp::ReconSettings& rs,
   const auto& info = seq.reader->info();
   const glm::dvec4 centre(0.5 * info.width, 0.5 * info.height, 0.0, 1.0);
   auto at = [&](std::uint64_t i) { return Vec3(*seq.poses[i] * centre); };
-  // The frames used, in order; a pair is two neighbours in it that can both be placed.
+  // The frames used that can be placed, in order (as a reconstruction inserts
+  // them, passing over the others); a pair is two neighbours in it.
   std::vector<std::uint64_t> used;
   for (std::uint64_t i = 0; i < seq.poses.size(); ++i)
-    if (!use || use(i)) used.push_back(i);
+    if (seq.poses[i] && (!use || use(i))) used.push_back(i);
   std::vector<std::size_t> pairs;  // index into `used` of the pair's second frame
   std::vector<double> steps;       // mm between the image centres, every pair
-  for (std::size_t j = 1; j < used.size(); ++j)
-    if (seq.poses[used[j]] && seq.poses[used[j - 1]]) {
-      pairs.push_back(j);
-      steps.push_back(glm::length(at(used[j]) - at(used[j - 1])));
-    }
+  for (std::size_t j = 1; j < used.size(); ++j) {
+    pairs.push_back(j);
+    steps.push_back(glm::length(at(used[j]) - at(used[j - 1])));
+  }
   if (pairs.empty())
     inputError(seq.path, "has no two consecutive frames that can both be placed: no speckle difference to measure");
   // At most maxPairs of them, spread evenly.
@@ -46,7 +46,7 @@ SpeckleRun measureSpeckle(const PosedSequence& seq, const gp::ReconSettings& rs,
       if (meter.add(prev, cur, runs.of(cur)) && out.pixelMm.x == 0.0)
         out.pixelMm = {glm::length(Vec3((*seq.poses[i])[0])), glm::length(Vec3((*seq.poses[i])[1]))};
       // Along the sweep: this pair's first frame, with the frames on either side of it.
-      if (j >= 2 && seq.poses[used[j - 2]])
+      if (j >= 2)
         meter.addTriple(prev2, prev, cur, glm::length(at(used[j - 1]) - at(used[j - 2])),
                         glm::length(at(i) - at(used[j - 2])), runs.of(cur));
     }
@@ -88,6 +88,11 @@ void deriveKernelFromFrames(const PosedSequence& seq, gp::ReconSettings& rs, con
     inputError(seq.path, "recon.kernel_from_frames: the speckle's {} half width is wider than 64 px, so no kernel can "
                "be derived from it; set recon.kernel_lateral_mm, recon.kernel_axial_mm and recon.kernel_elevation_mm",
                m.cell.lateralPx ? "axial" : "lateral");
+  if (!(k->elevationMm >= 0.01))
+    inputError(seq.path, "recon.kernel_from_frames: the frames' median spacing is {:.4f} mm (the probe hardly moved), "
+               "so no reach along the sweep can be derived from it; set recon.kernel_elevation_mm", m.frameSpacingMm);
+  // Within the range a file could give (a sparse leave-out can ask for more).
+  constexpr double kMaxHalfWidthMm = 50.0;
   struct Width {
     const char* key;
     double* field;
@@ -103,6 +108,10 @@ void deriveKernelFromFrames(const PosedSequence& seq, gp::ReconSettings& rs, con
   for (const Width& w : widths) {
     if (schema.assigned(w.key)) {
       std::printf("  %-26s %.3f mm, as set (derived: %.3f)\n", w.key, *w.field, w.derived);
+    } else if (w.derived > kMaxHalfWidthMm) {
+      *w.field = kMaxHalfWidthMm;
+      std::printf("  %-26s %.3f mm, derived %.3f mm and held to the option's largest value\n", w.key, kMaxHalfWidthMm,
+                  w.derived);
     } else {
       *w.field = w.derived;
       std::printf("  %-26s %.3f mm, derived\n", w.key, w.derived);

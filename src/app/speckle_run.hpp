@@ -23,8 +23,8 @@ struct SpeckleRun {
 
 // Measures at most `maxPairs` pairs of consecutive frames, spread over the
 // recording, and the triples around them; `use(i)` (when set) selects the
-// frames, and "consecutive" is then among the selected ones (what a
-// reconstruction of those frames is given). Reads the file once more from the
+// frames, and "consecutive" is among the selected ones that can be placed
+// (what a reconstruction of those frames is given). Reads the file once more from the
 // start; `seq`'s own reader is left where it is. InputError when no pair can
 // be placed or none shows speckle; a log warning when the estimate rests on
 // fewer than a thousand cells.
