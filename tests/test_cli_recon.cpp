@@ -390,8 +390,26 @@ TEST_F(ReconCli, KernelFromFramesIsTheSpeckleSuggestionAndAHandSetWidthWins) {
   EXPECT_NE(r.out.find("the probe hardly moved"), std::string::npos) << r.out;
   r = run("run " + toml() + " -o " + (dir() / "kff_run").string() + " --set recon.kernel_from_frames=true");
   EXPECT_EQ(r.status, 1) << r.out;
-  EXPECT_NE(r.out.find("`run` streams them"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("run.source = \"simulator\" streams them"), std::string::npos) << r.out;
   EXPECT_FALSE(fs::exists(dir() / "kff_run" / "summary.json"));
+
+  // `run` streaming the recording derives the same kernel first, and writes it to settings.toml.
+  const fs::path runDir = dir() / "kff_run_sequence";
+  r = run("run " + toml() + " --serial -o " + runDir.string() + " --set run.source=sequence --set run.sequence=\"" +
+          seq() + "\" --set run.plus_config=\"" + xml() +
+          "\" --set run.orbit_frames=0 --set render.width=64 --set render.height=48 --set recon.kernel_from_frames=true");
+  ASSERT_EQ(r.status, 0) << r.out;
+  for (int a = 0; a < 3; ++a)
+    EXPECT_NE(r.out.find(fmt::format("{:<26} {:.3f} mm, derived", keys[a], k[a].get<double>())), std::string::npos)
+        << r.out;
+  r = run("config " + (runDir / "settings.toml").string());
+  ASSERT_EQ(r.status, 0) << r.out;
+  for (int a = 0; a < 3; ++a) {
+    const std::string key = std::string(keys[a]).substr(6) + " = ";  // "kernel_lateral_mm = "
+    const auto at = r.out.find("\n" + key);
+    ASSERT_NE(at, std::string::npos) << r.out;
+    EXPECT_NEAR(std::stod(r.out.substr(at + 1 + key.size())), k[a].get<double>(), 1e-12) << key;
+  }
 }
 
 TEST_F(ReconCli, EvaluateRefusesToScoreNothing) {

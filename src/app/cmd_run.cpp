@@ -21,6 +21,7 @@
 #include "app/recon_run.hpp"
 #include "app/settings.hpp"
 #include "app/sources.hpp"
+#include "app/speckle_run.hpp"
 #include "comm/mpi.hpp"
 #include "core/error.hpp"
 #include "core/image_io.hpp"
@@ -75,13 +76,31 @@ extern "C" void onInterrupt(int) { gInterrupted = true; }
 void checkSettings(const Settings& s) {
   host::checkViewSettings(s.view);
   gp::checkReconSettings(s.recon);
-  // The batch commands measure the whole recording before the first frame
-  // goes in; a stream cannot be looked ahead in.
-  if (s.recon.kernelFromFrames)
-    throw InputError(
-        "recon.kernel_from_frames works in `reconstruct` and `evaluate`, which can read the frames before "
-        "reconstructing them; `run` streams them: measure a recording of the probe with `pp5echo evaluate speckle` "
-        "and set the three recon.kernel_*_mm it prints");
+  // The kernel is measured on the whole recording before the first frame goes
+  // in; a live source (or the simulator) cannot be looked ahead in.
+  if (s.recon.kernelFromFrames && s.run.source != SourceKind::Sequence)
+    throw InputError(fmt::format(
+        "recon.kernel_from_frames reads the frames before reconstructing them: `reconstruct`, `evaluate` and `run` "
+        "with run.source = \"sequence\" can; run.source = \"{}\" streams them: measure a recording of the probe "
+        "with `pp5echo evaluate speckle` and set the three recon.kernel_*_mm it prints",
+        enumName(s.run.source)));
+}
+
+// run.source = "sequence" with recon.kernel_from_frames: the kernel from the
+// recording (printed), over the frames the host's constant-interval capture
+// takes (judged on the whole frame, before any crop). Only where the source is
+// read: rank 0 under mpirun, which sends it with the grid.
+void deriveRunKernel(Settings& s, const ConfigSchema& schema) {
+  if (!s.recon.kernelFromFrames) return;
+  const PosedSequence seq = openPosedSequence(s.run.sequence, s.run.plusConfig);
+  Frame size;
+  size.width = seq.reader->info().width;
+  size.height = seq.reader->info().height;
+  host::IntervalCapture capture(s.run.captureIntervalMm);
+  std::vector<std::uint8_t> taken(seq.poses.size(), 0);
+  for (std::size_t i = 0; i < seq.poses.size(); ++i)
+    if (seq.poses[i]) taken[i] = capture.take(size, *seq.poses[i]) ? 1 : 0;
+  deriveKernelFromFrames(seq, s.recon, schema, [&taken](std::uint64_t i) { return taken[i] != 0; });
 }
 
 // The serial run's side of the live viewer: what the host rank does for the
@@ -220,6 +239,7 @@ int runSerial(const RunOptions& o) {
   checkSettings(s);
   const std::string dir = o.outDir.empty() ? s.output.dir : o.outDir;
   const bool writeSettings = checkSettingsFileTarget(o.overrides, o.file, dir);
+  deriveRunKernel(s, schema);
   host::RunFolder folder(dir);
   std::signal(SIGINT, onInterrupt);
   std::signal(SIGTERM, onInterrupt);
@@ -491,11 +511,15 @@ int runDistributed(const RunOptions& o) {
     if (rank == 0) {
       folder.emplace(dir);
       src = makeSource(s);
+      deriveRunKernel(s, schema);
       for (int a = 0; a < 3; ++a) {
         gm.dims[a] = src.grid.dims[a];
         gm.origin[a] = src.grid.origin[a];
         gm.spacing[a] = src.grid.spacing[a];
       }
+      gm.kernelMm[0] = s.recon.kernelLateralMm;
+      gm.kernelMm[1] = s.recon.kernelAxialMm;
+      gm.kernelMm[2] = s.recon.kernelElevationMm;
     }
     t.broadcast(gm, 0);
     Grid grid;
@@ -504,6 +528,10 @@ int runDistributed(const RunOptions& o) {
       grid.origin[a] = gm.origin[a];
       grid.spacing[a] = gm.spacing[a];
     }
+    // Every rank reconstructs, or reaches, with the host's kernel (derived there, or as read by all).
+    s.recon.kernelLateralMm = gm.kernelMm[0];
+    s.recon.kernelAxialMm = gm.kernelMm[1];
+    s.recon.kernelElevationMm = gm.kernelMm[2];
     switch (layout.role(rank)) {
       case parallel::Role::Host: {
         host::HostJob j;

@@ -270,11 +270,14 @@ struct ReportMsg {
   std::uint64_t bytesByKind[kTrafficKinds] = {};  // bytesSent by Traffic
 };
 
-// kTagGrid (broadcast).
+// kTagGrid (broadcast): what only the host's source knows before the run.
 struct GridMsg {
   Header h;
   std::int64_t dims[3] = {};
   double origin[3] = {}, spacing[3] = {};  // mm
+  // The tent kernel's half-widths (lateral, axial, elevation), mm: derived
+  // from a recording on the host (recon.kernel_from_frames) or as configured.
+  double kernelMm[3] = {};
 };
 
 template <typename T>

@@ -37,10 +37,11 @@ void registerOptions(ConfigSchema& schema, ReconSettings& s) {
                 "Tent kernel half-width across the slice (elevation), mm. About the elevation beam width (FWHM) "
                 "less a little; when consecutive slices are farther apart than this reaches, fill-in interpolates.");
   schema.option("recon.kernel_from_frames", &s.kernelFromFrames, false,
-                "Derive the tent kernel from the frames (`reconstruct` and `evaluate` only; `run` refuses it, as a live "
-                "source cannot be looked ahead in): twice the speckle's lateral and axial half widths (as `evaluate "
-                "speckle` measures them) and 1.5 times the median spacing of the frames that are inserted. A kernel "
-                "half-width set in the file or with --set wins over the derived one. Printed before the reconstruction.");
+                "Derive the tent kernel from the frames (`reconstruct`, `evaluate`, and `run` with run.source = "
+                "\"sequence\"; a live source or the simulator cannot be looked ahead in, and `run` refuses it there): "
+                "twice the speckle's lateral and axial half widths (as `evaluate speckle` measures them) and 1.5 times "
+                "the median spacing of the frames that are inserted. A kernel half-width set in the file or with --set "
+                "wins over the derived one. Printed before the reconstruction; `run` writes it to settings.toml.");
   schema.option("recon.fill_in", &s.fillIn, true,
                 "Interpolate intermediate slices between consecutive frames that are farther apart than the "
                 "kernel reaches (tent method).");
