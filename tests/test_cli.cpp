@@ -94,8 +94,8 @@ TEST(Cli, BadConfigGivesOneLineWithFileKeyAndLine) {
 
 // Settings no stage can honour are refused before anything runs, with the
 // key and what to do instead: hole filling with the tent method (it was
-// ignored without a word), a drag stride that would not start every tile on
-// a strided pixel.
+// ignored without a word), PLUS's skip interval (the same), a drag stride that
+// would not start every tile on a strided pixel.
 TEST(Cli, SettingsThatCannotWorkAreRefusedUpFront) {
   const std::string doll = dollConfig();
   auto r = run("run " + doll + " --serial -o /tmp/pp5cli-never --set recon.fill_holes=true");
@@ -106,6 +106,10 @@ TEST(Cli, SettingsThatCannotWorkAreRefusedUpFront) {
   r = run("run " + doll + " --serial -o /tmp/pp5cli-never --view 0 --set view.drag_pixel_stride=3");
   EXPECT_EQ(r.status, 1) << r.out;
   EXPECT_NE(r.out.find("view.drag_pixel_stride = 3"), std::string::npos) << r.out;
+  // PLUS's SkipInterval, which the pipeline ignored without a word.
+  r = run("run " + doll + " --serial -o /tmp/pp5cli-never --set recon.skip_interval=2");
+  EXPECT_EQ(r.status, 1) << r.out;
+  EXPECT_NE(r.out.find("recon.skip_interval = 2 applies to `reconstruct`"), std::string::npos) << r.out;
   // Negative counts were taken as "not given" (issue 20).
   r = run("run " + doll + " --serial -o /tmp/pp5cli-never --gps -1");
   EXPECT_NE(r.status, 0) << r.out;

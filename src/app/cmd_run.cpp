@@ -76,6 +76,12 @@ extern "C" void onInterrupt(int) { gInterrupted = true; }
 void checkSettings(const Settings& s) {
   host::checkViewSettings(s.view);
   gp::checkReconSettings(s.recon);
+  // Not silently ignored: the pipeline takes every frame the acquisition gives it.
+  if (s.recon.skipInterval > 1)
+    throw InputError(fmt::format(
+        "recon.skip_interval = {} applies to `reconstruct` and `evaluate` (PLUS's SkipInterval); `run` takes the "
+        "frames its source gives: thin them with run.capture_interval_mm (a frame every so many mm)",
+        s.recon.skipInterval));
   // The kernel is measured on the whole recording before the first frame goes
   // in; a live source (or the simulator) cannot be looked ahead in.
   if (s.recon.kernelFromFrames && s.run.source != SourceKind::Sequence)

@@ -23,7 +23,9 @@ void registerOptions(ConfigSchema& schema, ReconSettings& s) {
                 "`float`: exact weighted means in float accumulators; `plus`: PLUS's 14-bit fixed point, "
                 "truncating 8-bit running mean and 16-bit accumulator, to reproduce PLUS bit for bit.");
   schema.option("recon.threads", &s.threads, 0, 0, 1024, "Threads; 0 = every core. The result does not depend on it.");
-  schema.option("recon.skip_interval", &s.skipInterval, 1, 1, 100000, "Insert every n-th frame (PLUS's SkipInterval).");
+  schema.option("recon.skip_interval", &s.skipInterval, 1, 1, 100000,
+                "Insert every n-th frame (PLUS's SkipInterval; `reconstruct` and `evaluate truth`: `run` refuses a "
+                "value above 1 and thins frames with run.capture_interval_mm instead).");
   // The defaults match the default probe's resolution cell (paper35: lateral
   // FWHM 1.8 mm, elevation FWHM 4 mm, pulse about 1 mm): averaging over one
   // cell removes speckle without blurring what the scanner resolves
