@@ -131,6 +131,23 @@ TEST(Cli, SettingsThatCannotWorkAreRefusedUpFront) {
   EXPECT_NO_THROW(pp5::gp::checkReconSettings(s));
   s.method = pp5::gp::Method::Tent;
   EXPECT_THROW(pp5::gp::checkReconSettings(s), pp5::InputError);
+  // Incremental hole filling without hole filling did nothing, without a word.
+  s = {};
+  s.method = pp5::gp::Method::Nearest;
+  s.fillHolesIncremental = true;
+  EXPECT_THROW(pp5::gp::checkReconSettings(s), pp5::InputError);
+  s.fillHoles = true;
+  EXPECT_NO_THROW(pp5::gp::checkReconSettings(s));
+  // PLUS's arithmetic with the tent method, which computes in float: refused, and named on the command line.
+  r = run("run " + doll + " --serial -o /tmp/pp5cli-never --set recon.arithmetic=plus");
+  EXPECT_EQ(r.status, 1) << r.out;
+  EXPECT_NE(r.out.find("recon.arithmetic = \"plus\" reproduces PLUS's nearest and trilinear"), std::string::npos)
+      << r.out;
+  s = {};
+  s.arithmetic = pp5::gp::Arithmetic::Plus;
+  EXPECT_THROW(pp5::gp::checkReconSettings(s), pp5::InputError);
+  s.method = pp5::gp::Method::Trilinear;
+  EXPECT_NO_THROW(pp5::gp::checkReconSettings(s));
 }
 
 // run.script in a serial run (it was ignored there without a word, issue

@@ -412,6 +412,27 @@ TEST_F(ReconCli, KernelFromFramesIsTheSpeckleSuggestionAndAHandSetWidthWins) {
   }
 }
 
+// `evaluate leave-out` takes [grid] as `reconstruct` does (it used PLUS's rule
+// whatever [grid] said): a fixed grid is the grid it reconstructs on.
+TEST_F(ReconCli, LeaveOutUsesTheGridItIsGiven) {
+  const fs::path js = dir() / "lo_grid.json";
+  Result r = run("evaluate leave-out " + seq() + " --plus-config " + xml() + " -c " + toml() +
+                 " --keep-every 2 --set grid.auto_extent=false --set grid.dims=[12,54,102]"
+                 " --set grid.origin=[-100,-52,-16] --set grid.spacing=[2,2,2] --json " + js.string());
+  ASSERT_EQ(r.status, 0) << r.out;
+  const auto j = readJson(js);
+  EXPECT_EQ(j["grid"]["dims"][0].get<int>(), 12);
+  EXPECT_EQ(j["grid"]["dims"][2].get<int>(), 102);
+  EXPECT_DOUBLE_EQ(j["grid"]["origin_mm"][1].get<double>(), -52.0);
+  EXPECT_NE(r.out.find("12x54x102 voxels of 2 x 2 x 2 mm"), std::string::npos) << r.out;
+  // The same grid far from the sweep: nothing of it holds a value, and the command says so.
+  r = run("evaluate leave-out " + seq() + " --plus-config " + xml() + " -c " + toml() +
+          " --keep-every 2 --set grid.auto_extent=false --set grid.dims=[12,54,102]"
+          " --set grid.origin=[5000,0,0] --set grid.spacing=[2,2,2]");
+  EXPECT_EQ(r.status, 1) << r.out;
+  EXPECT_NE(r.out.find("nothing to compare"), std::string::npos) << r.out;
+}
+
 TEST_F(ReconCli, EvaluateRefusesToScoreNothing) {
   const pp5::Volume truth = pp5::readVolume((dir() / "doll_truth.mha").string());
   pp5::Volume far = truth;

@@ -119,7 +119,9 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     if (notFinite > 0)
       inputError(t->truth, "holds {} voxels that are not finite numbers (NaN or infinity): no error can be measured "
                  "against it", notFinite);
-    auto recon = gp::makeReconstructor(truthVol.grid, rs, 0, t->truth);
+    // On the truth's grid ([grid]'s extent and spacing do not apply), within [grid]'s memory limit.
+    const bool useToml = !t->config.empty() || !t->overrides.empty();
+    auto recon = gp::makeReconstructor(truthVol.grid, rs, useToml ? s.grid.memoryLimitBytes() : 0, t->truth);
     const ReconRunStats st = runReconstruction(seq, *recon);
     std::vector<Mat4> poses;
     for (const auto& p : seq.poses)
@@ -215,9 +217,14 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     const auto inserted = [k, every = l->heldOutInVolume](std::uint64_t i) { return every || i % k == 0; };
     gp::ReconSettings rs = reconSettings(*l, seq, s, &spacing, &margin, inserted);
     // The leave-out stride replaces SkipInterval: every frame not kept is held out.
+    if (rs.skipInterval > 1)
+      spdlog::warn("evaluate leave-out: --keep-every {} replaces recon.skip_interval = {} (SkipInterval)", k,
+                   rs.skipInterval);
     rs.skipInterval = 1;
-    const Grid grid = chooseGrid(seq, rs, spacing, margin, true);
-    auto recon = gp::makeReconstructor(grid, rs, 0, l->plusConfig);
+    // The grid as `reconstruct` chooses it: TOML's [grid] where given, else the PLUS config's extent or PLUS's rule.
+    const bool useToml = !l->config.empty() || !l->overrides.empty();
+    const Grid grid = useToml && !s.grid.autoExtent ? s.grid.fixedGrid() : chooseGrid(seq, rs, spacing, margin, !useToml);
+    auto recon = gp::makeReconstructor(grid, rs, useToml ? s.grid.memoryLimitBytes() : 0, l->plusConfig);
     const ReconRunStats st = runReconstruction(seq, *recon, inserted);
 
     // Second pass over the file for the held-out frames.
@@ -241,6 +248,10 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
                 static_cast<unsigned long long>(k), k == 2 ? "nd" : "th", 100.0 * (1.0 - 1.0 / static_cast<double>(k)));
     std::printf("  method            %s\n", describe(rs).c_str());
     std::printf("  reading           %s\n", l->reading.c_str());
+    std::printf("  grid              %lldx%lldx%lld voxels of %g x %g x %g mm, origin %g %g %g mm\n",
+                static_cast<long long>(grid.dims.x), static_cast<long long>(grid.dims.y),
+                static_cast<long long>(grid.dims.z), grid.spacing.x, grid.spacing.y, grid.spacing.z, grid.origin.x,
+                grid.origin.y, grid.origin.z);
     if (l->heldOutInVolume)
       std::printf("  held-out frames   inserted too (--held-out-in-volume): what the grid holds of them, not a leave-out\n");
     std::printf(l->heldOutInVolume ? "  frames            %llu inserted, %llu of them scored, %llu skipped\n"
@@ -266,6 +277,9 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     j["reading"] = l->reading;
     j["held_out_in_volume"] = l->heldOutInVolume;
     j["keep_every"] = k;
+    j["grid"] = {{"dims", {grid.dims.x, grid.dims.y, grid.dims.z}},
+                 {"spacing_mm", {grid.spacing.x, grid.spacing.y, grid.spacing.z}},
+                 {"origin_mm", {grid.origin.x, grid.origin.y, grid.origin.z}}};
     j["frames_kept"] = st.inserted;
     j["frames_held_out"] = m.framesHeldOut;
     j["mae"] = m.mae;

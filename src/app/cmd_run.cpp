@@ -251,6 +251,10 @@ int runSerial(const RunOptions& o) {
   std::signal(SIGTERM, onInterrupt);
 
   Source src = makeSource(s);
+  if (s.run.paceFps > 0.0)
+    spdlog::info("run: one process (not under mpirun): each frame goes through the whole pipeline before the next is "
+                 "taken, as fast as it can; run.pace_fps = {:g}, run.queue_frames and run.drop apply under mpirun",
+                 s.run.paceFps);
   serial::PipelineSettings ps{s.recon, s.render, s.shading, s.tf, s.cache};
   spdlog::info("run: {}; grid {}x{}x{} of {} mm; {}x{} image, {} composition", src.description, src.grid.dims.x,
                src.grid.dims.y, src.grid.dims.z, src.grid.spacing.x, s.render.width, s.render.height,

@@ -10,7 +10,10 @@ namespace pp5::app {
 void registerAll(ConfigSchema& schema, Settings& s) {
   sim::registerOptions(schema, s.sim);
 
-  schema.section("grid", "The reconstruction grid, which is also the grid of the simulated truth volume.");
+  schema.section("grid", "The reconstruction grid, which is also the grid of the simulated truth volume. "
+                         "`reconstruct` and `evaluate leave-out` with TOML settings use it; with a PLUS config alone, "
+                         "its OutputSpacing (and OutputOrigin and OutputExtent, where it gives both); `evaluate "
+                         "truth` reconstructs on the truth volume's grid.");
   schema.option("grid.auto_extent", &s.grid.autoExtent, true,
                 "Fit the grid around every frame's corners (PLUS's rule), plus `grid.margin_mm`; "
                 "otherwise use `grid.origin` and `grid.dims`.");
@@ -123,15 +126,18 @@ void registerAll(ConfigSchema& schema, Settings& s) {
                 "Host preprocessing: after the crop, keep the mean of each n x n block of pixels.");
   schema.option("run.pace_fps", &s.run.paceFps, 0.0, 0.0, 10000.0,
                 "Deliver the source's frames at this rate, as a live scanner would (0 = as fast as the pipeline "
-                "takes them); a paced source that falls behind drops frames (`run.drop`).");
+                "takes them); a paced source that falls behind drops frames (`run.drop`). Under mpirun: the "
+                "one-process pipeline (`--serial`, or `run` without mpirun) takes every frame in turn, unpaced, "
+                "and says so.");
   schema.option("run.capture_interval_mm", &s.run.captureIntervalMm, 0.0, 0.0, 100.0,
                 "Constant-interval capture on the host, for every source: take a frame only once some corner of "
                 "the image has moved this far (mm) from the last frame taken, as the 1990 system digitised every "
                 "2, 3 or 5 mm; 0 takes every frame. Counted in summary.json (`frames_left_out_by_interval`).");
   schema.option("run.queue_frames", &s.run.queueFrames, 8, 1, 100000,
-                "Frames the acquisition thread may queue ahead of the pipeline.");
+                "Frames the acquisition thread may queue ahead of the pipeline (under mpirun).");
   enumOption(schema, "run.drop", &s.run.drop, host::DropPolicy::Oldest,
-                "A live source's queue is full: drop the oldest queued frame, or the new one. Drops are counted.");
+                "A live source's queue is full: drop the oldest queued frame, or the new one. Drops are counted "
+                "(under mpirun; the one-process pipeline never drops).");
 
   parallel::registerOptions(schema, s.parallel);
   host::registerOptions(schema, s.view);

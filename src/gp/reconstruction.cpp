@@ -21,8 +21,10 @@ void registerOptions(ConfigSchema& schema, ReconSettings& s) {
                 "How `nearest` and `trilinear` combine several hits on a voxel (PLUS's CompoundingMode).");
   enumOption(schema, "recon.arithmetic", &s.arithmetic, Arithmetic::Float,
                 "`float`: exact weighted means in float accumulators; `plus`: PLUS's 14-bit fixed point, "
-                "truncating 8-bit running mean and 16-bit accumulator, to reproduce PLUS bit for bit.");
-  schema.option("recon.threads", &s.threads, 0, 0, 1024, "Threads; 0 = every core. The result does not depend on it.");
+                "truncating 8-bit running mean and 16-bit accumulator, to reproduce PLUS bit for bit (nearest and "
+                "trilinear only; the tent method refuses it).");
+  schema.option("recon.threads", &s.threads, 0, 0, 1024,
+                "Threads; 0 = every core. The result does not depend on it. Under mpirun, parallel.threads replaces it.");
   schema.option("recon.skip_interval", &s.skipInterval, 1, 1, 100000,
                 "Insert every n-th frame (PLUS's SkipInterval; `reconstruct` and `evaluate truth`: `run` refuses a "
                 "value above 1 and thins frames with run.capture_interval_mm instead).");
@@ -74,7 +76,8 @@ void registerOptions(ConfigSchema& schema, ReconSettings& s) {
                 "trilinear only (the tent method refuses it and fills between slices with recon.fill_in). PLUS "
                 "configs may name other kernels.");
   schema.option("recon.fill_holes_incremental", &s.fillHolesIncremental, false,
-                "Keep holes filled inside each frame's dirty region as frames arrive, instead of one final pass.");
+                "Keep holes filled inside each frame's dirty region as frames arrive, instead of one final pass "
+                "(needs recon.fill_holes = true).");
 }
 
 namespace {
@@ -146,6 +149,14 @@ void checkReconSettings(const ReconSettings& s) {
         "nearest or trilinear, whose per-voxel weights it needs; the tent method fills between slices itself "
         "(recon.fill_in, recon.fill_in_max_gap_mm): set recon.method = trilinear for PLUS's hole filling, or "
         "recon.fill_holes = false");
+  if (s.fillHolesIncremental && !s.fillHoles)
+    throw InputError("recon.fill_holes_incremental keeps the holes filled as frames arrive; it needs "
+                     "recon.fill_holes = true");
+  // PLUS's fixed point is how PLUS splats pixels; the tent kernel has no PLUS
+  // counterpart and always computes in float.
+  if (s.method == Method::Tent && s.arithmetic == Arithmetic::Plus)
+    throw InputError("recon.arithmetic = \"plus\" reproduces PLUS's nearest and trilinear splatting; the tent method "
+                     "computes in float: set recon.method = nearest or trilinear, or recon.arithmetic = \"float\"");
 }
 
 std::unique_ptr<Reconstructor> makeReconstructor(const Grid& g, const ReconSettings& s,
