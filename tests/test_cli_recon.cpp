@@ -388,10 +388,19 @@ TEST_F(ReconCli, KernelFromFramesIsTheSpeckleSuggestionAndAHandSetWidthWins) {
           " --set recon.kernel_from_frames=true -o " + derived.string());
   EXPECT_EQ(r.status, 1) << r.out;
   EXPECT_NE(r.out.find("the probe hardly moved"), std::string::npos) << r.out;
-  r = run("run " + toml() + " -o " + (dir() / "kff_run").string() + " --set recon.kernel_from_frames=true");
+  r = run("run " + toml() + " -o " + (dir() / "kff_run").string() +
+          " --set run.simulate_live=true --set recon.kernel_from_frames=true");
   EXPECT_EQ(r.status, 1) << r.out;
-  EXPECT_NE(r.out.find("run.source = \"simulator\" streams them"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("run.simulate_live = true streams them"), std::string::npos) << r.out;
   EXPECT_FALSE(fs::exists(dir() / "kff_run" / "summary.json"));
+  // The simulator's cached sweep is a recording too: the same small sweep as the fixture's, the same kernel.
+  r = run("run " + toml() + " --serial -o " + (dir() / "kff_run_sim").string() +
+          " --set sim.sweep.max_frames=8 --set sim.probe.width_px=64 --set sim.probe.height_px=96"
+          " --set run.orbit_frames=0 --set render.width=64 --set render.height=48 --set recon.kernel_from_frames=true");
+  ASSERT_EQ(r.status, 0) << r.out;
+  for (int a = 0; a < 3; ++a)
+    EXPECT_NE(r.out.find(fmt::format("{:<26} {:.3f} mm, derived", keys[a], k[a].get<double>())), std::string::npos)
+        << r.out;
 
   // `run` streaming the recording derives the same kernel first, and writes it to settings.toml.
   const fs::path runDir = dir() / "kff_run_sequence";

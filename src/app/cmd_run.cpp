@@ -22,6 +22,7 @@
 #include "app/settings.hpp"
 #include "app/sources.hpp"
 #include "app/speckle_run.hpp"
+#include "app/sweep_cache.hpp"
 #include "comm/mpi.hpp"
 #include "core/error.hpp"
 #include "core/image_io.hpp"
@@ -84,21 +85,34 @@ void checkSettings(const Settings& s) {
         s.recon.skipInterval));
   // The kernel is measured on the whole recording before the first frame goes
   // in; a live source (or the simulator) cannot be looked ahead in.
-  if (s.recon.kernelFromFrames && s.run.source != SourceKind::Sequence)
+  const bool recorded = s.run.source == SourceKind::Sequence ||
+                        (s.run.source == SourceKind::Simulator && !s.run.simulateLive);
+  if (s.recon.kernelFromFrames && !recorded)
     throw InputError(fmt::format(
         "recon.kernel_from_frames reads the frames before reconstructing them: `reconstruct`, `evaluate` and `run` "
-        "with run.source = \"sequence\" can; run.source = \"{}\" streams them: measure a recording of the probe "
-        "with `pp5echo evaluate speckle` and set the three recon.kernel_*_mm it prints",
-        enumName(s.run.source)));
+        "with run.source = \"sequence\" (or the simulator's cached sweep) can; {} streams them as they come: "
+        "measure a recording of the probe with `pp5echo evaluate speckle` and set the three recon.kernel_*_mm it "
+        "prints",
+        s.run.source == SourceKind::Simulator ? std::string("run.simulate_live = true")
+                                              : fmt::format("run.source = \"{}\"", enumName(s.run.source))));
 }
 
-// run.source = "sequence" with recon.kernel_from_frames: the kernel from the
-// recording (printed), over the frames the host's constant-interval capture
-// takes (judged on the whole frame, before any crop). Only where the source is
-// read: rank 0 under mpirun, which sends it with the grid.
+// recon.kernel_from_frames: the kernel from the recording (run.source =
+// "sequence") or the simulator's cached sweep, printed, over the frames the
+// host's constant-interval capture takes (judged on the whole frame, before
+// any crop). Only where the source is read: rank 0 under mpirun, which sends
+// it with the grid.
 void deriveRunKernel(Settings& s, const ConfigSchema& schema) {
   if (!s.recon.kernelFromFrames) return;
-  const PosedSequence seq = openPosedSequence(s.run.sequence, s.run.plusConfig);
+  std::string sequence = s.run.sequence, plusConfig = s.run.plusConfig;
+  if (s.run.source == SourceKind::Simulator) {
+    // The sweep the run streams, filled into the cache now rather than once the viewer's URL is out.
+    spdlog::info("run: recon.kernel_from_frames: the simulated sweep first (from the cache, or simulated into it)");
+    const SimulatedSweep sweep = cachedSweep(s);
+    sequence = sweep.sequencePath;
+    plusConfig = sweep.configPath;
+  }
+  const PosedSequence seq = openPosedSequence(sequence, plusConfig);
   Frame size;
   size.width = seq.reader->info().width;
   size.height = seq.reader->info().height;

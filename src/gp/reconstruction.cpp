@@ -42,7 +42,8 @@ void registerOptions(ConfigSchema& schema, ReconSettings& s) {
                 "less a little; when consecutive slices are farther apart than this reaches, fill-in interpolates.");
   schema.option("recon.kernel_from_frames", &s.kernelFromFrames, false,
                 "Derive the tent kernel from the frames (`reconstruct`, `evaluate`, and `run` with run.source = "
-                "\"sequence\"; a live source or the simulator cannot be looked ahead in, and `run` refuses it there): "
+                "\"sequence\" or the simulator's cached sweep; a live source or run.simulate_live cannot be looked "
+                "ahead in, and `run` refuses it there): "
                 "twice the speckle's lateral and axial half widths (as `evaluate speckle` measures them) and 1.5 times "
                 "the median spacing of the frames that are inserted. A kernel half-width set in the file or with --set "
                 "wins over the derived one. Printed before the reconstruction; `run` writes it to settings.toml.");
