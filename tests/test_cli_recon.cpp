@@ -421,6 +421,37 @@ TEST_F(ReconCli, KernelFromFramesIsTheSpeckleSuggestionAndAHandSetWidthWins) {
   }
 }
 
+// `run` measures the kernel over the frames its constant-interval capture
+// takes, judged as the host judges them, after the crop: one pair fewer than
+// the frames the pipeline then takes (every pair of BoneUltrasound_L14 shows
+// speckle). Without the crop the capture takes another number of frames.
+TEST_F(ReconCli, RunDerivesTheKernelFromTheFramesItsCaptureTakes) {
+  const std::string common = "run " + std::string(PP5_SOURCE_DIR) + "/tests/configs/mpi_small.toml --serial"
+                             " --set run.source=sequence --set run.sequence=\"" + std::string(PP5_DATA_DIR) +
+                             "/BoneUltrasound_L14.igs.mha\" --set run.plus_config=\"" + std::string(PP5_DATA_DIR) +
+                             "/BoneUltrasound_L14_config.xml\" --set recon.kernel_from_frames=true"
+                             " --set run.capture_interval_mm=1.0";
+  auto counts = [](const std::string& out) {
+    const auto p = out.find(" pairs, pixel");
+    const auto f = out.find(" frames through the serial pipeline");
+    EXPECT_NE(p, std::string::npos) << out;
+    EXPECT_NE(f, std::string::npos) << out;
+    if (p == std::string::npos || f == std::string::npos) return std::pair<int, int>{-1, -1};
+    return std::pair<int, int>{std::stoi(out.substr(out.rfind('(', p) + 1)), std::stoi(out.substr(out.rfind(": ", f) + 2))};
+  };
+  Result r = run(common + " -o " + (dir() / "kff_capture_crop").string() +
+                 " --set run.crop_origin=[0,0] --set run.crop_size=[200,100]");
+  ASSERT_EQ(r.status, 0) << r.out;
+  const auto [pairsCrop, framesCrop] = counts(r.out);
+  EXPECT_EQ(pairsCrop + 1, framesCrop) << r.out;
+  EXPECT_LT(framesCrop, 21) << r.out;  // the capture left some out
+  r = run(common + " -o " + (dir() / "kff_capture").string());
+  ASSERT_EQ(r.status, 0) << r.out;
+  const auto [pairs, frames] = counts(r.out);
+  EXPECT_EQ(pairs + 1, frames) << r.out;
+  EXPECT_NE(frames, framesCrop) << r.out;
+}
+
 // `evaluate leave-out` takes [grid] as `reconstruct` does (it used PLUS's rule
 // whatever [grid] said): a fixed grid is the grid it reconstructs on.
 TEST_F(ReconCli, LeaveOutUsesTheGridItIsGiven) {
@@ -434,6 +465,19 @@ TEST_F(ReconCli, LeaveOutUsesTheGridItIsGiven) {
   EXPECT_EQ(j["grid"]["dims"][2].get<int>(), 102);
   EXPECT_DOUBLE_EQ(j["grid"]["origin_mm"][1].get<double>(), -52.0);
   EXPECT_NE(r.out.find("12x54x102 voxels of 2 x 2 x 2 mm"), std::string::npos) << r.out;
+  // With an automatic extent, the grid `reconstruct` fits with the same settings (the sweep's own
+  // config gives an extent too, which TOML settings replace, as they do for `reconstruct`).
+  const fs::path autoJs = dir() / "lo_grid_auto.json";
+  r = run("evaluate leave-out " + seq() + " --plus-config " + xml() + " -c " + toml() +
+          " --keep-every 2 --set grid.spacing=[2,2,2] --json " + autoJs.string());
+  ASSERT_EQ(r.status, 0) << r.out;
+  const auto a = readJson(autoJs)["grid"]["dims"];
+  r = run("reconstruct " + seq() + " --plus-config " + xml() + " -c " + toml() + " --set grid.spacing=[2,2,2] -o " +
+          (dir() / "lo_grid_auto.mha").string());
+  ASSERT_EQ(r.status, 0) << r.out;
+  EXPECT_NE(r.out.find(fmt::format("grid {}x{}x{}, spacing 2 2 2 mm", a[0].get<int>(), a[1].get<int>(), a[2].get<int>())),
+            std::string::npos)
+      << r.out;
   // The same grid far from the sweep: nothing of it holds a value, and the command says so.
   r = run("evaluate leave-out " + seq() + " --plus-config " + xml() + " -c " + toml() +
           " --keep-every 2 --set grid.auto_extent=false --set grid.dims=[12,54,102]"

@@ -224,7 +224,8 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     // The grid as `reconstruct` chooses it: TOML's [grid] where given, else the PLUS config's extent or PLUS's rule.
     const bool useToml = !l->config.empty() || !l->overrides.empty();
     const Grid grid = useToml && !s.grid.autoExtent ? s.grid.fixedGrid() : chooseGrid(seq, rs, spacing, margin, !useToml);
-    auto recon = gp::makeReconstructor(grid, rs, useToml ? s.grid.memoryLimitBytes() : 0, l->plusConfig);
+    auto recon = gp::makeReconstructor(grid, rs, useToml ? s.grid.memoryLimitBytes() : 0,
+                                       useToml && !l->config.empty() ? l->config : l->plusConfig);
     const ReconRunStats st = runReconstruction(seq, *recon, inserted);
 
     // Second pass over the file for the held-out frames.

@@ -99,27 +99,38 @@ void checkSettings(const Settings& s) {
 
 // recon.kernel_from_frames: the kernel from the recording (run.source =
 // "sequence") or the simulator's cached sweep, printed, over the frames the
-// host's constant-interval capture takes (judged on the whole frame, before
-// any crop). Only where the source is read: rank 0 under mpirun, which sends
-// it with the grid.
+// host's constant-interval capture takes (a paced source that falls behind
+// may drop others). Only where the source is read: rank 0 under mpirun, which
+// sends it with the grid.
 void deriveRunKernel(Settings& s, const ConfigSchema& schema) {
   if (!s.recon.kernelFromFrames) return;
   std::string sequence = s.run.sequence, plusConfig = s.run.plusConfig;
   if (s.run.source == SourceKind::Simulator) {
     // The sweep the run streams, filled into the cache now rather than once the viewer's URL is out.
     spdlog::info("run: recon.kernel_from_frames: the simulated sweep first (from the cache, or simulated into it)");
-    const SimulatedSweep sweep = cachedSweep(s);
+    SimulatedSweep sweep;
+    try {
+      sweep = cachedSweep(s);
+    } catch (const InputError& e) {
+      throw InputError(fmt::format("recon.kernel_from_frames measures the simulated sweep in its cache: {}; set "
+                                   "run.sweep_cache to a folder that can be written, or set the kernel by hand",
+                                   e.what()));
+    }
     sequence = sweep.sequencePath;
     plusConfig = sweep.configPath;
   }
   const PosedSequence seq = openPosedSequence(sequence, plusConfig);
+  // The capture judges each frame after the crop and subsampling, which move
+  // its pixel grid by the same matrix whatever the pose.
+  const SequenceInfo& info = seq.reader->info();
   Frame size;
-  size.width = seq.reader->info().width;
-  size.height = seq.reader->info().height;
+  size.allocate(info.width, info.height, PixelType::U8);
+  Mat4 afterPreprocess(1.0);
+  host::preprocess(preprocessOf(s), size, afterPreprocess);
   host::IntervalCapture capture(s.run.captureIntervalMm);
   std::vector<std::uint8_t> taken(seq.poses.size(), 0);
   for (std::size_t i = 0; i < seq.poses.size(); ++i)
-    if (seq.poses[i]) taken[i] = capture.take(size, *seq.poses[i]) ? 1 : 0;
+    if (seq.poses[i]) taken[i] = capture.take(size, *seq.poses[i] * afterPreprocess) ? 1 : 0;
   deriveKernelFromFrames(seq, s.recon, schema, [&taken](std::uint64_t i) { return taken[i] != 0; });
 }
 

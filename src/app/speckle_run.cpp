@@ -76,9 +76,7 @@ SpeckleRun measureSpeckle(const PosedSequence& seq, const gp::ReconSettings& rs,
 void deriveKernelFromFrames(const PosedSequence& seq, gp::ReconSettings& rs, const ConfigSchema& schema,
                             const std::function<bool(std::uint64_t)>& use) {
   if (!rs.kernelFromFrames) return;
-  if (rs.method != gp::Method::Tent)
-    throw InputError(fmt::format("recon.kernel_from_frames derives the tent kernel, but recon.method is '{}': use it "
-                                 "with recon.method = \"tent\"", enumName(rs.method)));
+  gp::checkReconSettings(rs);  // what the reconstruction would refuse, before the measurement
   // The frames the reconstruction is given: `use`'s, or every skip_interval-th.
   const auto skip = static_cast<std::uint64_t>(std::max(1, rs.skipInterval));
   const SpeckleRun m =

@@ -150,6 +150,9 @@ void checkReconSettings(const ReconSettings& s) {
         "nearest or trilinear, whose per-voxel weights it needs; the tent method fills between slices itself "
         "(recon.fill_in, recon.fill_in_max_gap_mm): set recon.method = trilinear for PLUS's hole filling, or "
         "recon.fill_holes = false");
+  if (s.kernelFromFrames && s.method != Method::Tent)
+    throw InputError(fmt::format("recon.kernel_from_frames derives the tent kernel, but recon.method is '{}': use it "
+                                 "with recon.method = \"tent\"", enumName(s.method)));
   if (s.fillHolesIncremental && !s.fillHoles)
     throw InputError("recon.fill_holes_incremental keeps the holes filled as frames arrive; it needs "
                      "recon.fill_holes = true");
