@@ -41,24 +41,22 @@ void addCommon(CLI::App* cmd, CommonOpts& o) {
 // Reconstruction settings: TOML when given, else the PLUS config's element.
 // With recon.kernel_from_frames and `derive`, the kernel is derived from the
 // frames `use` selects (those the reconstruction is given).
-gp::ReconSettings reconSettings(const CommonOpts& o, const PosedSequence& seq, Settings& s, Vec3* spacing,
-                                double* margin, const std::function<bool(std::uint64_t)>& use = {},
-                                bool derive = true) {
+bool tomlSettings(const CommonOpts& o) { return !o.config.empty() || !o.overrides.empty(); }
+
+gp::ReconSettings reconSettings(const CommonOpts& o, const PosedSequence& seq, Settings& s, Vec3* plusSpacing,
+                                const std::function<bool(std::uint64_t)>& use = {}, bool derive = true) {
   gp::ReconSettings rs;
-  if (!o.config.empty() || !o.overrides.empty()) {
+  if (tomlSettings(o)) {
     ConfigSchema schema;
     registerAll(schema, s);
     loadSettings(schema, o.config, o.overrides);
     rs = s.recon;
-    *spacing = s.grid.spacing;
-    *margin = s.grid.marginMm;
     if (derive) deriveKernelFromFrames(seq, rs, schema, use);
   } else {
     if (!seq.config.volumeReconstruction)
       inputError(o.plusConfig, "has no VolumeReconstruction element; give the settings with --config");
     rs = gp::fromPlus(*seq.config.volumeReconstruction);
-    *spacing = seq.config.volumeReconstruction->outputSpacing;
-    *margin = 0.0;
+    *plusSpacing = seq.config.volumeReconstruction->outputSpacing;
   }
   if (o.threads >= 0) rs.threads = o.threads;
   return rs;
@@ -110,9 +108,8 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
   truth->callback([t, &exitCode] {
     PosedSequence seq = openPosedSequence(t->sequence, t->plusConfig);
     Settings s;
-    Vec3 spacing;
-    double margin = 0;
-    const gp::ReconSettings rs = reconSettings(*t, seq, s, &spacing, &margin);
+    Vec3 plusSpacing;  // not used: the truth's grid
+    const gp::ReconSettings rs = reconSettings(*t, seq, s, &plusSpacing);
     const Volume truthVol = readVolume(t->truth);
     std::uint64_t notFinite = 0;
     for (std::size_t i = 0; i < truthVol.grid.voxelCount(); ++i) notFinite += std::isfinite(truthVol.value(i)) ? 0 : 1;
@@ -120,8 +117,7 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
       inputError(t->truth, "holds {} voxels that are not finite numbers (NaN or infinity): no error can be measured "
                  "against it", notFinite);
     // On the truth's grid ([grid]'s extent and spacing do not apply), within [grid]'s memory limit.
-    const bool useToml = !t->config.empty() || !t->overrides.empty();
-    auto recon = gp::makeReconstructor(truthVol.grid, rs, useToml ? s.grid.memoryLimitBytes() : 0, t->truth);
+    auto recon = gp::makeReconstructor(truthVol.grid, rs, tomlSettings(*t) ? s.grid.memoryLimitBytes() : 0, t->truth);
     const ReconRunStats st = runReconstruction(seq, *recon);
     std::vector<Mat4> poses;
     for (const auto& p : seq.poses)
@@ -211,19 +207,18 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
         l->reading == "plus" ? gp::LeaveOutReading::PlusGreyLevels : gp::LeaveOutReading::Trilinear;
     PosedSequence seq = openPosedSequence(l->sequence, l->plusConfig);
     Settings s;
-    Vec3 spacing;
-    double margin = 0;
+    Vec3 plusSpacing;
     const auto k = static_cast<std::uint64_t>(l->keepEvery);
     const auto inserted = [k, every = l->heldOutInVolume](std::uint64_t i) { return every || i % k == 0; };
-    gp::ReconSettings rs = reconSettings(*l, seq, s, &spacing, &margin, inserted);
+    gp::ReconSettings rs = reconSettings(*l, seq, s, &plusSpacing, inserted);
     // The leave-out stride replaces SkipInterval: every frame not kept is held out.
     if (rs.skipInterval > 1)
       spdlog::warn("evaluate leave-out: --keep-every {} replaces recon.skip_interval = {} (SkipInterval)", k,
                    rs.skipInterval);
     rs.skipInterval = 1;
     // The grid as `reconstruct` chooses it: TOML's [grid] where given, else the PLUS config's extent or PLUS's rule.
-    const bool useToml = !l->config.empty() || !l->overrides.empty();
-    const Grid grid = useToml && !s.grid.autoExtent ? s.grid.fixedGrid() : chooseGrid(seq, rs, spacing, margin, !useToml);
+    const bool useToml = tomlSettings(*l);
+    const Grid grid = commandGrid(seq, rs, useToml ? &s.grid : nullptr, plusSpacing);
     auto recon = gp::makeReconstructor(grid, rs, useToml ? s.grid.memoryLimitBytes() : 0,
                                        useToml && !l->config.empty() ? l->config : l->plusConfig);
     const ReconRunStats st = runReconstruction(seq, *recon, inserted);
@@ -309,10 +304,9 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
   speckle->callback([sp, &exitCode] {
     PosedSequence seq = openPosedSequence(sp->sequence, sp->plusConfig);
     Settings s;
-    Vec3 spacing;
-    double margin = 0;
+    Vec3 plusSpacing;  // not used
     // The clip rectangle and fan only: this command measures the cell itself.
-    const gp::ReconSettings rs = reconSettings(*sp, seq, s, &spacing, &margin, {}, false);
+    const gp::ReconSettings rs = reconSettings(*sp, seq, s, &plusSpacing, {}, false);
     const SpeckleRun m = measureSpeckle(seq, rs, sp->maxPairs, sp->maxLag);
     const gp::SpeckleCell& c = m.cell;
     const glm::dvec2 pixelMm = m.pixelMm;

@@ -43,9 +43,7 @@ void addReconstructCommand(CLI::App& app, int& exitCode) {
   cmd->callback([o, &exitCode] {
     PosedSequence seq = openPosedSequence(o->sequence, o->plusConfig);
     gp::ReconSettings rs;
-    Vec3 spacing;
-    double margin = 0.0;
-    bool configExtent = true;
+    Vec3 plusSpacing;
     Settings s;
     ConfigSchema schema;
     registerAll(schema, s);
@@ -53,9 +51,6 @@ void addReconstructCommand(CLI::App& app, int& exitCode) {
     if (useToml) {
       loadSettings(schema, o->config, o->overrides);
       rs = s.recon;
-      spacing = s.grid.spacing;
-      margin = s.grid.marginMm;
-      configExtent = false;
       deriveKernelFromFrames(seq, rs, schema);
     } else {
       if (!o->writeSettings.empty())
@@ -64,12 +59,11 @@ void addReconstructCommand(CLI::App& app, int& exitCode) {
       if (!seq.config.volumeReconstruction)
         inputError(o->plusConfig, "has no VolumeReconstruction element; give the settings with --config");
       rs = gp::fromPlus(*seq.config.volumeReconstruction);
-      spacing = seq.config.volumeReconstruction->outputSpacing;
+      plusSpacing = seq.config.volumeReconstruction->outputSpacing;
     }
     if (o->threads >= 0) rs.threads = o->threads;
 
-    const Grid grid =
-        useToml && !s.grid.autoExtent ? s.grid.fixedGrid() : chooseGrid(seq, rs, spacing, margin, configExtent);
+    const Grid grid = commandGrid(seq, rs, useToml ? &s.grid : nullptr, plusSpacing);
     const std::string what = useToml && !o->config.empty() ? o->config : o->plusConfig;
     auto recon = gp::makeReconstructor(grid, rs, useToml ? s.grid.memoryLimitBytes() : 0, what);
     spdlog::info("reconstruct: {} frames of {}x{} into {}x{}x{} voxels of {} mm ({} / {}, {} arithmetic)",

@@ -74,6 +74,11 @@ Grid chooseGrid(const PosedSequence& seq, const gp::ReconSettings& s, const Vec3
   return g;
 }
 
+Grid commandGrid(const PosedSequence& seq, const gp::ReconSettings& s, const GridSettings* toml, const Vec3& plusSpacing) {
+  if (!toml) return chooseGrid(seq, s, plusSpacing, 0.0, true);
+  return toml->autoExtent ? chooseGrid(seq, s, toml->spacing, toml->marginMm, false) : toml->fixedGrid();
+}
+
 ReconRunStats runReconstruction(PosedSequence& seq, gp::Reconstructor& recon,
                                 const std::function<bool(std::uint64_t)>& keep) {
   using Clock = std::chrono::steady_clock;

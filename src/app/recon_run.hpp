@@ -8,6 +8,7 @@
 #include <string>
 #include <vector>
 
+#include "app/settings.hpp"
 #include "core/plus_config.hpp"
 #include "core/posed_sequence.hpp"
 #include "core/sequence_io.hpp"
@@ -62,5 +63,11 @@ class FrameRuns {
 // automatic extent over every placeable frame, grown by `marginMm`.
 Grid chooseGrid(const PosedSequence& seq, const gp::ReconSettings& s, const Vec3& spacing, double marginMm,
                 bool useConfigExtent);
+
+// The grid `reconstruct`, `evaluate leave-out` and a run of a sequence reconstruct on: with TOML
+// settings (`toml`), [grid]'s fixed grid, or PLUS's rule around the sweep grown
+// by grid.margin_mm; with a PLUS config alone (nullptr), chooseGrid at its
+// OutputSpacing `plusSpacing` with no margin.
+Grid commandGrid(const PosedSequence& seq, const gp::ReconSettings& s, const GridSettings* toml, const Vec3& plusSpacing);
 
 }  // namespace pp5::app

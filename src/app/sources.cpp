@@ -56,8 +56,7 @@ host::Source makeSource(const Settings& s) {
     if (s.run.sequence.empty() || s.run.plusConfig.empty())
       throw InputError("run.source = \"sequence\" needs run.sequence and run.plus_config");
     auto seq = std::make_shared<PosedSequence>(openPosedSequence(s.run.sequence, s.run.plusConfig));
-    const Grid grid =
-        s.grid.autoExtent ? chooseGrid(*seq, s.recon, s.grid.spacing, s.grid.marginMm, false) : s.grid.fixedGrid();
+    const Grid grid = commandGrid(*seq, s.recon, &s.grid, s.grid.spacing);
     return host::recorded(host::sequenceSource(seq, grid), s.run.record);
   }
   auto sim = std::make_shared<sim::SweepSimulator>(s.sim);

@@ -20,21 +20,19 @@ SpeckleRun measureSpeckle(const PosedSequence& seq, const gp::ReconSettings& rs,
   std::vector<std::uint64_t> used;
   for (std::uint64_t i = 0; i < seq.poses.size(); ++i)
     if (seq.poses[i] && (!use || use(i))) used.push_back(i);
-  std::vector<std::size_t> pairs;  // index into `used` of the pair's second frame
-  std::vector<double> steps;       // mm between the image centres, every pair
-  for (std::size_t j = 1; j < used.size(); ++j) {
-    pairs.push_back(j);
-    steps.push_back(glm::length(at(used[j]) - at(used[j - 1])));
-  }
-  if (pairs.empty())
+  // Pair j (1 .. used.size() - 1) is used frames j - 1 and j.
+  std::vector<double> steps;  // mm between the image centres, every pair
+  for (std::size_t j = 1; j < used.size(); ++j) steps.push_back(glm::length(at(used[j]) - at(used[j - 1])));
+  const std::size_t pairs = steps.size();
+  if (pairs == 0)
     inputError(seq.path, "has no two consecutive frames that can both be placed: no speckle difference to measure");
   // At most maxPairs of them, spread evenly.
-  const std::size_t want = std::min<std::size_t>(pairs.size(), static_cast<std::size_t>(std::max(1, maxPairs)));
+  const std::size_t want = std::min<std::size_t>(pairs, static_cast<std::size_t>(std::max(1, maxPairs)));
   std::vector<std::uint8_t> chosen(used.size(), 0);
-  for (std::size_t k = 0; k < want; ++k) chosen[pairs[k * pairs.size() / want]] = 1;
+  for (std::size_t k = 0; k < want; ++k) chosen[1 + k * pairs / want] = 1;
 
   SpeckleRun out;
-  out.pairsAvailable = pairs.size();
+  out.pairsAvailable = pairs;
   gp::SpeckleCellMeter meter(maxLag);
   auto reader = SequenceReader::open(seq.path);
   Frame prev2, prev, cur;  // used frames j - 2, j - 1 and j
