@@ -450,6 +450,25 @@ TEST_F(ReconCli, RunDerivesTheKernelFromTheFramesItsCaptureTakes) {
   const auto [pairs, frames] = counts(r.out);
   EXPECT_EQ(pairs + 1, frames) << r.out;
   EXPECT_NE(frames, framesCrop) << r.out;
+
+  // Subsampled by 4, the pixels the pipeline is given are 4 times the recording's: L14's axial cell
+  // (under one of them) makes an axial half-width of twice that pixel, not twice the recording's.
+  auto derived = [](const std::string& out, const std::string& key) {
+    const auto at = out.find(fmt::format("{:<26} ", key));
+    EXPECT_NE(at, std::string::npos) << out;
+    return at == std::string::npos ? -1.0 : std::stod(out.substr(at + 27));
+  };
+  const double axial = derived(r.out, "recon.kernel_axial_mm");
+  const double lateral = derived(r.out, "recon.kernel_lateral_mm");
+  const auto px = r.out.find("pixel ");
+  ASSERT_NE(px, std::string::npos) << r.out;
+  const double pixelY = std::stod(r.out.substr(r.out.find(" x ", px) + 3));
+  EXPECT_LT(axial, 2.0 * 4.0 * pixelY * 0.9) << r.out;  // the cell, not the subsampled pixel, without subsampling
+  r = run(common + " -o " + (dir() / "kff_capture_sub").string() + " --set run.subsample=4");
+  ASSERT_EQ(r.status, 0) << r.out;
+  EXPECT_NE(r.out.find("the reconstruction is given pixels of"), std::string::npos) << r.out;
+  EXPECT_NEAR(derived(r.out, "recon.kernel_axial_mm"), 2.0 * 4.0 * pixelY, 2e-3) << r.out;
+  EXPECT_NEAR(derived(r.out, "recon.kernel_lateral_mm"), lateral, 1e-3) << r.out;  // its cell spans 4 pixels or more
 }
 
 // `evaluate leave-out` takes [grid] as `reconstruct` does (it used PLUS's rule

@@ -183,6 +183,12 @@ TEST(SpeckleCell, KernelScaledFromTheCellAndTheSpacing) {
   EXPECT_DOUBLE_EQ(k->lateralMm, kKernelPerLateralCell * 3.0 * 0.4);
   EXPECT_DOUBLE_EQ(k->axialMm, kKernelPerAxialCell * 1.0 * 0.5);
   EXPECT_DOUBLE_EQ(k->elevationMm, kKernelPerFrameSpacing * 2.0);
+  // Pixels subsampled to 1.0 x 2.0 mm before the reconstruction: a cell under them counts as them.
+  const auto sub = kernelFromCell(c, 0.4, 0.5, 2.0, 1.0, 2.0);
+  ASSERT_TRUE(sub);
+  EXPECT_DOUBLE_EQ(sub->lateralMm, kKernelPerLateralCell * 3.0 * 0.4);  // 1.2 mm of cell is over 1 mm
+  EXPECT_DOUBLE_EQ(sub->axialMm, kKernelPerAxialCell * 2.0);
+  EXPECT_DOUBLE_EQ(sub->elevationMm, k->elevationMm);
   c.axialPx.reset();  // not measured: no suggestion
   EXPECT_FALSE(kernelFromCell(c, 0.4, 0.5, 2.0));
 }

@@ -131,7 +131,9 @@ void deriveRunKernel(Settings& s, const ConfigSchema& schema) {
   std::vector<std::uint8_t> taken(seq.poses.size(), 0);
   for (std::size_t i = 0; i < seq.poses.size(); ++i)
     if (seq.poses[i]) taken[i] = capture.take(size, *seq.poses[i] * afterPreprocess) ? 1 : 0;
-  deriveKernelFromFrames(seq, s.recon, schema, [&taken](std::uint64_t i) { return taken[i] != 0; });
+  // The pixels inserted are the subsampled ones: the in-plane reach is at least twice theirs.
+  const glm::dvec2 scale(glm::length(Vec3(afterPreprocess[0])), glm::length(Vec3(afterPreprocess[1])));
+  deriveKernelFromFrames(seq, s.recon, schema, [&taken](std::uint64_t i) { return taken[i] != 0; }, scale);
 }
 
 // The serial run's side of the live viewer: what the host rank does for the

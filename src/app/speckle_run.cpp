@@ -72,14 +72,15 @@ SpeckleRun measureSpeckle(const PosedSequence& seq, const gp::ReconSettings& rs,
 }
 
 void deriveKernelFromFrames(const PosedSequence& seq, gp::ReconSettings& rs, const ConfigSchema& schema,
-                            const std::function<bool(std::uint64_t)>& use) {
+                            const std::function<bool(std::uint64_t)>& use, glm::dvec2 insertedPixelScale) {
   if (!rs.kernelFromFrames) return;
   gp::checkReconSettings(rs);  // what the reconstruction would refuse, before the measurement
   // The frames the reconstruction is given: `use`'s, or every skip_interval-th.
   const auto skip = static_cast<std::uint64_t>(std::max(1, rs.skipInterval));
   const SpeckleRun m =
       measureSpeckle(seq, rs, 32, 64, use ? use : [skip](std::uint64_t i) { return i % skip == 0; });
-  const auto k = gp::kernelFromCell(m.cell, m.pixelMm.x, m.pixelMm.y, m.frameSpacingMm);
+  const glm::dvec2 inserted = m.pixelMm * insertedPixelScale;
+  const auto k = gp::kernelFromCell(m.cell, m.pixelMm.x, m.pixelMm.y, m.frameSpacingMm, inserted.x, inserted.y);
   if (!k)
     inputError(seq.path, "recon.kernel_from_frames: the speckle's {} half width is wider than 64 px, so no kernel can "
                "be derived from it; set recon.kernel_lateral_mm, recon.kernel_axial_mm and recon.kernel_elevation_mm",
@@ -101,6 +102,9 @@ void deriveKernelFromFrames(const PosedSequence& seq, gp::ReconSettings& rs, con
               "%.4f x %.4f mm), frames %.3f mm apart (median)\n",
               *m.cell.lateralPx * m.pixelMm.x, *m.cell.axialPx * m.pixelMm.y,
               static_cast<unsigned long long>(m.cell.pairs), m.pixelMm.x, m.pixelMm.y, m.frameSpacingMm);
+  if (insertedPixelScale != glm::dvec2(1.0))
+    std::printf("  (the reconstruction is given pixels of %.4f x %.4f mm, after the subsampling)\n", inserted.x,
+                inserted.y);
   for (const Width& w : widths) {
     if (schema.assigned(w.key)) {
       std::printf("  %-26s %.3f mm, as set (derived: %.3f)\n", w.key, *w.field, w.derived);

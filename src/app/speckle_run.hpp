@@ -37,7 +37,11 @@ SpeckleRun measureSpeckle(const PosedSequence& seq, const gp::ReconSettings& rs,
 // that `schema` says no file or override assigned to gp::kernelFromCell's;
 // prints what it measured and derived. InputError when the method is not the
 // tent or the cell cannot be measured. Does nothing when the option is off.
+// `insertedPixelScale`: how much larger the pixels the reconstruction is given
+// are than the recording's (a run's subsampling); the in-plane half-widths are
+// at least twice that pixel, as they are twice the recording's.
 void deriveKernelFromFrames(const PosedSequence& seq, gp::ReconSettings& rs, const ConfigSchema& schema,
-                            const std::function<bool(std::uint64_t)>& use = {});
+                            const std::function<bool(std::uint64_t)>& use = {},
+                            glm::dvec2 insertedPixelScale = glm::dvec2(1.0));
 
 }  // namespace pp5::app

@@ -44,7 +44,8 @@ void registerOptions(ConfigSchema& schema, ReconSettings& s) {
                 "Derive the tent kernel from the frames (`reconstruct`, `evaluate`, and `run` with run.source = "
                 "\"sequence\" or the simulator's cached sweep; a live source or run.simulate_live cannot be looked "
                 "ahead in, and `run` refuses it there): "
-                "twice the speckle's lateral and axial half widths (as `evaluate speckle` measures them) and 1.5 times "
+                "twice the speckle's lateral and axial half widths (as `evaluate speckle` measures them; at least twice "
+                "the pixel inserted, after run.subsample) and 1.5 times "
                 "the median spacing of the frames that are inserted. A kernel half-width set in the file or with --set "
                 "wins over the derived one. Printed before the reconstruction; `run` writes it to settings.toml.");
   schema.option("recon.fill_in", &s.fillIn, true,

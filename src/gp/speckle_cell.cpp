@@ -244,11 +244,11 @@ SpeckleCell SpeckleCellMeter::result() const {
 }
 
 std::optional<KernelHalfWidths> kernelFromCell(const SpeckleCell& cell, double pixelXMm, double pixelYMm,
-                                               double frameSpacingMm) {
+                                               double frameSpacingMm, double floorXMm, double floorYMm) {
   if (!cell.lateralPx || !cell.axialPx) return std::nullopt;
   KernelHalfWidths k;
-  k.lateralMm = kKernelPerLateralCell * std::max(*cell.lateralPx, 1.0) * pixelXMm;
-  k.axialMm = kKernelPerAxialCell * std::max(*cell.axialPx, 1.0) * pixelYMm;
+  k.lateralMm = kKernelPerLateralCell * std::max({*cell.lateralPx * pixelXMm, pixelXMm, floorXMm});
+  k.axialMm = kKernelPerAxialCell * std::max({*cell.axialPx * pixelYMm, pixelYMm, floorYMm});
   k.elevationMm = kKernelPerFrameSpacing * frameSpacingMm;
   return k;
 }

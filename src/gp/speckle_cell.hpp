@@ -95,17 +95,19 @@ class SpeckleCellMeter {
 // twice the lateral cell, twice the axial cell or the pixel where that is
 // larger (an axial cell under a pixel is the pixel's), and 1.5 times the
 // median spacing of consecutive frames. Chosen on that sweep alone; checked
-// on others in docs/quality.md. A suggestion that `evaluate speckle` prints:
-// no default uses it.
+// on others in docs/quality.md. `evaluate speckle` prints it as a suggestion;
+// recon.kernel_from_frames (off by default) uses it.
 struct KernelHalfWidths {
   double lateralMm = 0.0, axialMm = 0.0, elevationMm = 0.0;
 };
 inline constexpr double kKernelPerLateralCell = 2.0;
 inline constexpr double kKernelPerAxialCell = 2.0;
 inline constexpr double kKernelPerFrameSpacing = 1.5;
-// nullopt when either half width was not measured.
+// nullopt when either half width was not measured. `floorXMm`/`floorYMm`: the
+// pixel the reconstruction is given where that is coarser than the measured
+// frames' (a run that subsamples them); a cell under it counts as it.
 std::optional<KernelHalfWidths> kernelFromCell(const SpeckleCell& cell, double pixelXMm, double pixelYMm,
-                                               double frameSpacingMm);
+                                               double frameSpacingMm, double floorXMm = 0.0, double floorYMm = 0.0);
 
 // Where a normalised autocorrelation (1 at lag 0) first falls below one half,
 // interpolated linearly between the lags around it; nullopt if it never does.
