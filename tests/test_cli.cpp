@@ -5,12 +5,14 @@
 
 #include <algorithm>
 #include <array>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
 #include <string>
+#include <tuple>
 #include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -157,8 +159,10 @@ TEST(Cli, SettingsThatCannotWorkAreRefusedUpFront) {
 TEST(Cli, SerialRunAppliesItsScript) {
   const auto d = tempDir("script");
   const std::string doll = dollConfig();
+  // Unpaced (doll.toml paces at 30 frames/s): a slow machine would drop frames, and the images differ.
   const std::string common = " --serial --set run.orbit_frames=0 --set run.mpr=false --set run.volume=false"
-                             " --set sim.sweep.max_frames=12 --set run.sweep_cache=" + (d / "cache").string();
+                             " --set run.pace_fps=0 --set sim.sweep.max_frames=12 --set run.sweep_cache=" +
+                             (d / "cache").string();
   auto r = run("run " + doll + common + " -o " + (d / "scripted").string() +
                " --set 'run.script=[\"5 render.azimuth_deg = -60\"]'");
   ASSERT_EQ(r.status, 0) << r.out;
@@ -176,6 +180,45 @@ TEST(Cli, SerialRunAppliesItsScript) {
           " --set 'run.script=[\"500 render.azimuth_deg = -60\"]'");
   ASSERT_EQ(r.status, 0) << r.out;
   EXPECT_NE(r.out.find("was not applied"), std::string::npos) << r.out;
+  std::filesystem::remove_all(d);
+}
+
+// The one-process run takes its frames through the host's acquisition
+// thread, as under mpirun: paced at run.pace_fps (it had taken every frame as
+// fast as it could, whatever the setting), and a paced source that gets ahead
+// of the pipeline drops frames by run.drop, counted and printed. Every frame
+// the source gave is either through the pipeline or dropped.
+TEST(Cli, SerialRunIsPacedAndDropsAsUnderMpirun) {
+  const auto d = tempDir("paced");
+  const std::string cfg = std::string(PP5_SOURCE_DIR) + "/tests/configs/mpi_small.toml";
+  const std::string common = " --serial --set run.orbit_frames=0 --set run.mpr=false --set run.volume=false"
+                             " --set run.script=[] --set run.sweep_cache=" + (d / "cache").string();
+  auto counts = [](const std::string& out) {
+    const auto t = out.find(" frames through the serial pipeline");
+    EXPECT_NE(t, std::string::npos) << out;
+    if (t == std::string::npos) return std::pair<int, int>{-1, -1};
+    const int through = std::stoi(out.substr(out.rfind('\n', t) + 1 + std::string("run: ").size()));
+    const auto dr = out.find("  dropped ");
+    return std::pair<int, int>{through, dr == std::string::npos ? 0 : std::stoi(out.substr(dr + 10))};
+  };
+  // 12 frames at 10 frames/s: the last one leaves the source 1.1 s after the first.
+  const auto t0 = std::chrono::steady_clock::now();
+  Result r = run("run " + cfg + common + " -o " + (d / "paced").string() +
+          " --set sim.sweep.max_frames=12 --set run.pace_fps=10");
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  ASSERT_EQ(r.status, 0) << r.out;
+  EXPECT_GE(seconds, 1.1) << r.out;
+  auto [through, dropped] = counts(r.out);
+  EXPECT_EQ(through + dropped, 12) << r.out;
+  // 24 frames at 10,000 frames/s into a queue of one: the pipeline cannot take a frame in 0.1 ms.
+  r = run("run " + cfg + common + " -o " + (d / "drops").string() +
+          " --set sim.sweep.max_frames=24 --set run.pace_fps=10000 --set run.queue_frames=1 --set run.drop=newest");
+  ASSERT_EQ(r.status, 0) << r.out;
+  std::tie(through, dropped) = counts(r.out);
+  EXPECT_GT(dropped, 0) << r.out;
+  EXPECT_GT(through, 0) << r.out;
+  EXPECT_EQ(through + dropped, 24) << r.out;
+  EXPECT_NE(r.out.find("run.drop = newest"), std::string::npos) << r.out;
   std::filesystem::remove_all(d);
 }
 

@@ -71,6 +71,8 @@ std::vector<std::string> serialArgv(const std::string& exe, const std::string& f
                                    "run.plus_config=" + tomlString(seq.configPath), "render.threads=1",
                                    "recon.threads=1"};
   sets.insert(sets.end(), overrides.begin(), overrides.end());
+  // What one core does per frame: every frame, unpaced (a pace would only add waits, and drops if it fell behind).
+  sets.push_back("run.pace_fps=0");
   for (const auto& s : sets) {
     argv.push_back("--set");
     argv.push_back(s);

@@ -168,8 +168,6 @@ public:
     frameMs_.push_back(ms);
     live_->image(pipe_.image().rgba, pipe_.image().width, pipe_.image().height, epoch_,
                  static_cast<std::int64_t>(frames_) - 1);
-    // Paused: the source waits here.
-    while (serve() && !gInterrupted) std::this_thread::sleep_for(std::chrono::milliseconds(5));
   }
 
   // Applies what the page asks; true while it asks for a pause.
@@ -278,10 +276,6 @@ int runSerial(const RunOptions& o) {
   std::signal(SIGTERM, onInterrupt);
 
   Source src = makeSource(s);
-  if (s.run.paceFps > 0.0)
-    spdlog::info("run: one process (not under mpirun): each frame goes through the whole pipeline before the next is "
-                 "taken, as fast as it can; run.pace_fps = {:g}, run.queue_frames and run.drop apply under mpirun",
-                 s.run.paceFps);
   serial::PipelineSettings ps{s.recon, s.render, s.shading, s.tf, s.cache};
   spdlog::info("run: {}; grid {}x{}x{} of {} mm; {}x{} image, {} composition", src.description, src.grid.dims.x,
                src.grid.dims.y, src.grid.dims.z, src.grid.spacing.x, s.render.width, s.render.height,
@@ -319,27 +313,22 @@ int runSerial(const RunOptions& o) {
   using Clock = std::chrono::steady_clock;
   const auto start = Clock::now();
   auto lastLog = start;
-  std::uint64_t done = 0;
-  const host::Preprocess pre = preprocessOf(s);
-  host::IntervalCapture capture(s.run.captureIntervalMm);
-  Frame cropped;
-  // Ctrl-C or SIGTERM: the source stops at the next frame, and the frames
-  // taken so far go through the final passes and every output, as under
-  // mpirun (the source is left by an exception of this type).
-  struct Interrupted {};
-  try {
-  src.run([&](const Frame& in, const Mat4& inPose, double t) {
-    if (gInterrupted) throw Interrupted{};
-    const auto arrival = Clock::now();
-    Mat4 pose = inPose;
-    const Frame* fp = &in;
-    if (!pre.identity()) {
-      cropped = in;
-      host::preprocess(pre, cropped, pose);
-      fp = &cropped;
-    }
-    if (!capture.take(*fp, pose)) return;
-    const serial::FrameStats st = pipe.insert(*fp, pose, t);
+  std::uint64_t done = 0, pausedFrames = 0;
+  // The source runs in its own thread into a bounded queue, as on the host
+  // rank under mpirun: paced at run.pace_fps, cropped and subsampled, judged
+  // by the constant-interval capture, and dropped by run.drop when a live (or
+  // paced) source gets ahead of the pipeline; a file unpaced waits instead.
+  if (src.prepare) src.prepare();  // the simulated sweep's cache, before the pace's clock starts
+  const bool liveSource = src.live || s.run.paceFps > 0.0;
+  host::Acquisition acq(src, preprocessOf(s), static_cast<std::size_t>(s.run.queueFrames), s.run.drop, s.run.paceFps,
+                        s.run.captureIntervalMm);
+  bool interrupted = false;
+  Clock::time_point firstAt{};
+  const auto process = [&](const host::AcquiredFrame& a) {
+    if (done == 0) firstAt = Clock::now();
+    const Frame& f = a.frame;
+    const Mat4& pose = a.imageToReference;
+    const serial::FrameStats st = pipe.insert(f, pose, a.timeS);
     stats.row({static_cast<double>(st.index), st.reconMs, st.shadeMs, st.sampleMs, st.compositeMs, st.totalMs(),
                static_cast<double>(st.fillInSlices), static_cast<double>(st.dirtyBricks),
                static_cast<double>(st.dirtyVoxels), static_cast<double>(st.shadedVoxels),
@@ -350,9 +339,12 @@ int runSerial(const RunOptions& o) {
     shades.push_back(st.shadeMs);
     samplings.push_back(st.sampleMs);
     composites.push_back(st.compositeMs);
-    viewer.frame(*fp, pose, t, arrival, std::chrono::duration<double, std::milli>(Clock::now() - arrival).count());
+    // The latency from the frame's arrival, its wait in the queue included.
+    viewer.frame(f, pose, a.timeS, a.arrival,
+                 std::chrono::duration<double, std::milli>(Clock::now() - a.arrival).count());
     if (done % static_cast<std::uint64_t>(s.run.buildupEvery) == 0) buildup.add(pp::toRgb8(pipe.image()).data());
-    while (nextScript < script.size() && script[nextScript].afterFrame <= fp->index) {
+    // By the source's frame index, so that dropped frames do not move the change.
+    while (nextScript < script.size() && script[nextScript].afterFrame <= f.index) {
       const host::ScriptedControl& sc = script[nextScript++];
       spdlog::info("run: after frame {}: {}", done, sc.text);
       viewer.scripted(sc.state);
@@ -360,14 +352,32 @@ int runSerial(const RunOptions& o) {
     ++done;
     const auto now = Clock::now();
     if (now - lastLog > std::chrono::seconds(2)) {
-      const double el = std::chrono::duration<double>(now - start).count();
+      const double el = std::chrono::duration<double>(now - firstAt).count();
       spdlog::info("run: frame {}/{}, {:.1f} frames/s, {:.0f} s left", done, src.frames, done / el,
                    static_cast<double>(src.frames - std::min(done, src.frames)) * el / done);
       lastLog = now;
     }
-  });
-  } catch (const Interrupted&) {
-    spdlog::warn("run: interrupted; finishing the {} frames taken", done);
+  };
+  for (;;) {
+    // Ctrl-C or SIGTERM: the source stops, and the frames queued and taken so
+    // far go through the final passes and every output, as under mpirun.
+    if (!interrupted && gInterrupted) {
+      spdlog::warn("run: interrupted; finishing the {} frames taken", done);
+      acq.stop();
+      interrupted = true;
+    }
+    if (viewer.serve() && !interrupted) {
+      // Paused: a live source's frames go by unused; a file's wait.
+      host::AcquiredFrame unused;
+      if (liveSource && acq.tryPop(unused)) ++pausedFrames;
+      else if (acq.finished()) break;
+      else std::this_thread::sleep_for(std::chrono::milliseconds(2));
+      continue;
+    }
+    host::AcquiredFrame a;
+    if (acq.tryPop(a)) process(a);
+    else if (acq.finished()) break;
+    else std::this_thread::sleep_for(std::chrono::milliseconds(1));
   }
   if (done == 0) throw InputError("run: the source gave no frame that can be placed");
   for (; nextScript < script.size(); ++nextScript)
@@ -441,9 +451,17 @@ int runSerial(const RunOptions& o) {
                 med(&serial::ViewStats::shadeMs), med(&serial::ViewStats::sampleMs),
                 med(&serial::ViewStats::compositeMs));
   }
-  if (capture.skipped())
-    std::printf("  constant-interval capture (every %g mm) left out %llu frames\n", capture.intervalMm(),
-                static_cast<unsigned long long>(capture.skipped()));
+  if (acq.dropped())
+    std::printf("  dropped %llu frames (the source ahead of the pipeline; run.pace_fps = %g, run.queue_frames = %d, "
+                "run.drop = %s)\n",
+                static_cast<unsigned long long>(acq.dropped()), s.run.paceFps, s.run.queueFrames,
+                enumName(s.run.drop).data());
+  if (pausedFrames)
+    std::printf("  %llu frames went by while the viewer paused acquisition\n",
+                static_cast<unsigned long long>(pausedFrames));
+  if (acq.skipped())
+    std::printf("  constant-interval capture (every %g mm) left out %llu frames\n", s.run.captureIntervalMm,
+                static_cast<unsigned long long>(acq.skipped()));
   folder.finished();
   std::printf("wrote to %s\n", fs::absolute(dir).string().c_str());
   for (const auto& n : wrote) std::printf("  %s\n", n.c_str());

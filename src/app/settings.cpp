@@ -126,18 +126,17 @@ void registerAll(ConfigSchema& schema, Settings& s) {
                 "Host preprocessing: after the crop, keep the mean of each n x n block of pixels.");
   schema.option("run.pace_fps", &s.run.paceFps, 0.0, 0.0, 10000.0,
                 "Deliver the source's frames at this rate, as a live scanner would (0 = as fast as the pipeline "
-                "takes them); a paced source that falls behind drops frames (`run.drop`). Under mpirun: the "
-                "one-process pipeline (`--serial`, or `run` without mpirun) takes every frame in turn, unpaced, "
-                "and says so.");
+                "takes them); a paced source that falls behind drops frames (`run.drop`). The same under mpirun "
+                "and in one process (`--serial`, or `run` without mpirun).");
   schema.option("run.capture_interval_mm", &s.run.captureIntervalMm, 0.0, 0.0, 100.0,
                 "Constant-interval capture on the host, for every source: take a frame only once some corner of "
                 "the image has moved this far (mm) from the last frame taken, as the 1990 system digitised every "
                 "2, 3 or 5 mm; 0 takes every frame. Counted in summary.json (`frames_left_out_by_interval`).");
   schema.option("run.queue_frames", &s.run.queueFrames, 8, 1, 100000,
-                "Frames the acquisition thread may queue ahead of the pipeline (under mpirun).");
+                "Frames the acquisition thread may queue ahead of the pipeline.");
   enumOption(schema, "run.drop", &s.run.drop, host::DropPolicy::Oldest,
-                "A live source's queue is full: drop the oldest queued frame, or the new one. Drops are counted "
-                "(under mpirun; the one-process pipeline never drops).");
+                "A live source's queue is full: drop the oldest queued frame, or the new one. Drops are counted and "
+                "printed.");
 
   parallel::registerOptions(schema, s.parallel);
   host::registerOptions(schema, s.view);
