@@ -8,6 +8,7 @@
 #include <csignal>
 #include <cstdio>
 #include <filesystem>
+#include <functional>
 #include <deque>
 #include <memory>
 #include <numeric>
@@ -149,6 +150,8 @@ public:
   }
   explicit operator bool() const { return live_ != nullptr; }
   host::LiveView& live() { return *live_; }
+  // The acquisition's drop counter, for the page's figures.
+  void countDrops(std::function<std::uint64_t()> dropped) { dropped_ = std::move(dropped); }
 
   // A run.script change: the pipeline takes it, and the page's next changes
   // start from it (as the host rank does under mpirun).
@@ -200,6 +203,7 @@ public:
         f.latencyP95Ms = last[std::min(last.size() - 1, static_cast<std::size_t>(0.95 * last.size()))];
       }
       f.frames = frames_;
+      f.dropped = dropped_ ? dropped_() : 0;
       f.gpLoad = f.ppLoad = 1.0;  // one process does it all
       live_->figures(f);
     }
@@ -236,6 +240,7 @@ private:
   std::vector<double> frameMs_;
   std::deque<std::pair<std::chrono::steady_clock::time_point, std::uint64_t>> window_;
   std::chrono::steady_clock::time_point lastFigures_{};
+  std::function<std::uint64_t()> dropped_;
 };
 
 double median(std::vector<double> v) {
@@ -322,6 +327,7 @@ int runSerial(const RunOptions& o) {
   const bool liveSource = src.live || s.run.paceFps > 0.0;
   host::Acquisition acq(src, preprocessOf(s), static_cast<std::size_t>(s.run.queueFrames), s.run.drop, s.run.paceFps,
                         s.run.captureIntervalMm);
+  viewer.countDrops([&acq] { return acq.dropped(); });
   bool interrupted = false;
   Clock::time_point firstAt{};
   const auto process = [&](const host::AcquiredFrame& a) {
