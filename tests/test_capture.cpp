@@ -104,6 +104,50 @@ TEST(Acquisition, ConstantIntervalCaptureLeavesFramesOutAndCountsThem) {
   EXPECT_EQ(got, (std::vector<std::uint64_t>{0, 4, 8, 12, 16, 20, 24, 28}));
   EXPECT_EQ(acq.skipped(), 22u);
   EXPECT_EQ(acq.dropped(), 0u);
+  EXPECT_EQ(acq.given(), 30u);
+}
+
+// popFor hands over each frame of an unpaced file source in order, waiting on
+// the queue (the one-process run's loop), and then reports the end.
+TEST(Acquisition, PopForTakesEveryFrameOfAFileInOrder) {
+  host::Source src;
+  src.frames = 50;
+  src.run = [](const host::FrameSink& sink) {
+    for (int i = 0; i < 50; ++i) sink(blank(16, 8, static_cast<std::uint64_t>(i)), slid(1.0 * i), 0.01 * i);
+  };
+  host::Acquisition acq(src, {}, 2, host::DropPolicy::Oldest, 0.0);
+  std::vector<std::uint64_t> got;
+  for (;;) {
+    host::AcquiredFrame a;
+    if (acq.popFor(a, std::chrono::milliseconds(20))) got.push_back(a.frame.index);
+    else if (acq.finished()) break;
+  }
+  ASSERT_EQ(got.size(), 50u);
+  for (std::size_t i = 0; i < got.size(); ++i) EXPECT_EQ(got[i], i);
+  EXPECT_EQ(acq.dropped(), 0u);
+}
+
+// A stop ends a paced source's wait for its next frame at once (it slept to
+// the frame's time first: at a slow pace Ctrl-C waited, then took one more
+// frame), and a file source blocked on a full queue is released too.
+TEST(Acquisition, StopEndsAPacedWaitAndAFullQueuesWait) {
+  for (const double pace : {0.2, 0.0}) {
+    SCOPED_TRACE(pace);
+    host::Source src;
+    src.run = [](const host::FrameSink& sink) {
+      for (int i = 0; i < 1000; ++i) sink(blank(16, 8, static_cast<std::uint64_t>(i)), slid(1.0 * i), 0.01 * i);
+    };
+    auto acq = std::make_unique<host::Acquisition>(src, host::Preprocess{}, 1, host::DropPolicy::Oldest, pace);
+    host::AcquiredFrame a;
+    ASSERT_TRUE(acq->popFor(a, std::chrono::seconds(10)));  // the first frame is due at once
+    EXPECT_EQ(a.frame.index, 0u);
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));  // the source now waits: for frame 1's time, or for room
+    const auto t0 = std::chrono::steady_clock::now();
+    acq->stop();
+    acq.reset();  // joins the source's thread
+    // At 0.2 frames/s frame 1 is due 5 s after frame 0; without the stop's wake-up this would wait for it.
+    EXPECT_LT(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(), 2.5);
+  }
 }
 
 }  // namespace

@@ -222,9 +222,9 @@ TEST(Cli, SerialRunIsPacedAndDropsAsUnderMpirun) {
   std::filesystem::remove_all(d);
 }
 
-// SIGINT stops a serial run at the next frame, and the frames taken go
-// through the final passes and every output, as under mpirun (the serial run
-// went on to the end of the input, issue 20 item 3).
+// SIGINT stops a serial run's source at its next frame, and the frames taken
+// and still queued go through the final passes and every output, as under
+// mpirun (the serial run went on to the end of the input, issue 20 item 3).
 TEST(Cli, SerialRunStopsOnSigintAndWritesItsOutputs) {
   for (const std::string sig : {"INT", "TERM"}) {
     SCOPED_TRACE(sig);

@@ -324,6 +324,7 @@ int runSerial(const RunOptions& o) {
   // by the constant-interval capture, and dropped by run.drop when a live (or
   // paced) source gets ahead of the pipeline; a file unpaced waits instead.
   if (src.prepare) src.prepare();  // the simulated sweep's cache, before the pace's clock starts
+  if (gInterrupted) throw InputError("run: interrupted before the first frame");
   const bool liveSource = src.live || s.run.paceFps > 0.0;
   host::Acquisition acq(src, preprocessOf(s), static_cast<std::size_t>(s.run.queueFrames), s.run.drop, s.run.paceFps,
                         s.run.captureIntervalMm);
@@ -358,9 +359,14 @@ int runSerial(const RunOptions& o) {
     ++done;
     const auto now = Clock::now();
     if (now - lastLog > std::chrono::seconds(2)) {
+      // How far the source is (frames dropped or left out count), and how fast the pipeline takes them.
       const double el = std::chrono::duration<double>(now - firstAt).count();
-      spdlog::info("run: frame {}/{}, {:.1f} frames/s, {:.0f} s left", done, src.frames, done / el,
-                   static_cast<double>(src.frames - std::min(done, src.frames)) * el / done);
+      const std::uint64_t at = std::max<std::uint64_t>(1, acq.given());
+      if (src.frames)
+        spdlog::info("run: frame {}/{}, {:.1f} frames/s, {:.0f} s left", at, src.frames, done / el,
+                     static_cast<double>(src.frames - std::min(at, src.frames)) * el / static_cast<double>(at));
+      else
+        spdlog::info("run: frame {}, {:.1f} frames/s", at, done / el);
       lastLog = now;
     }
   };
@@ -368,7 +374,7 @@ int runSerial(const RunOptions& o) {
     // Ctrl-C or SIGTERM: the source stops, and the frames queued and taken so
     // far go through the final passes and every output, as under mpirun.
     if (!interrupted && gInterrupted) {
-      spdlog::warn("run: interrupted; finishing the {} frames taken", done);
+      spdlog::warn("run: interrupted; finishing the {} frames taken and those still queued", done);
       acq.stop();
       interrupted = true;
     }
@@ -380,10 +386,10 @@ int runSerial(const RunOptions& o) {
       else std::this_thread::sleep_for(std::chrono::milliseconds(2));
       continue;
     }
+    // Waits on the queue; the page is served at least every 5 ms while one is open.
     host::AcquiredFrame a;
-    if (acq.tryPop(a)) process(a);
+    if (acq.popFor(a, std::chrono::milliseconds(viewer ? 5 : 50))) process(a);
     else if (acq.finished()) break;
-    else std::this_thread::sleep_for(std::chrono::milliseconds(1));
   }
   if (done == 0) throw InputError("run: the source gave no frame that can be placed");
   for (; nextScript < script.size(); ++nextScript)

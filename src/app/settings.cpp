@@ -135,7 +135,7 @@ void registerAll(ConfigSchema& schema, Settings& s) {
   schema.option("run.queue_frames", &s.run.queueFrames, 8, 1, 100000,
                 "Frames the acquisition thread may queue ahead of the pipeline.");
   enumOption(schema, "run.drop", &s.run.drop, host::DropPolicy::Oldest,
-                "A live source's queue is full: drop the oldest queued frame, or the new one. Drops are counted and "
+                "A live or paced (`run.pace_fps`) source's queue is full: drop the oldest queued frame, or the new one. Drops are counted and "
                 "printed.");
 
   parallel::registerOptions(schema, s.parallel);

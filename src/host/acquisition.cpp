@@ -74,10 +74,15 @@ Acquisition::Acquisition(Source source, Preprocess pre, std::size_t capacity, Dr
       std::uint64_t n = 0;
       source_.run([&](const Frame& f, const Mat4& pose, double t) {
         if (stop_) throw StopRequested{};
-        if (paceFps_ > 0.0)
-          std::this_thread::sleep_until(t0 + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
-                                                 std::chrono::duration<double>(static_cast<double>(n) / paceFps_)));
+        if (paceFps_ > 0.0) {
+          // The frame's time in the paced timeline; a stop ends the wait at once.
+          const auto due = t0 + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                                    std::chrono::duration<double>(static_cast<double>(n) / paceFps_));
+          std::unique_lock<std::mutex> lock(m_);
+          if (cv_.wait_until(lock, due, [this] { return stop_.load(); })) throw StopRequested{};
+        }
         ++n;
+        ++given_;
         AcquiredFrame a{f, pose, t, {}};
         preprocess(pre_, a.frame, a.imageToReference);
         if (!capture_.take(a.frame, a.imageToReference)) {
@@ -104,7 +109,13 @@ Acquisition::~Acquisition() {
 }
 
 void Acquisition::stop() {
-  if (!stop_.exchange(true) && source_.interrupt) source_.interrupt();
+  bool first = false;
+  {
+    // Under the lock, so that a thread between its check of stop_ and its wait cannot miss the wake-up.
+    const std::lock_guard<std::mutex> lock(m_);
+    first = !stop_.exchange(true);
+  }
+  if (first && source_.interrupt) source_.interrupt();
   cv_.notify_all();
 }
 
@@ -124,6 +135,17 @@ void Acquisition::push(AcquiredFrame&& f) {
   }
   q_.push_back(std::move(f));
   ++delivered_;
+  cv_.notify_all();  // a consumer in popFor
+}
+
+bool Acquisition::popFor(AcquiredFrame& out, std::chrono::milliseconds timeout) {
+  std::unique_lock<std::mutex> lock(m_);
+  cv_.wait_for(lock, timeout, [this] { return !q_.empty() || done_; });
+  if (q_.empty()) return false;
+  out = std::move(q_.front());
+  q_.pop_front();
+  cv_.notify_all();
+  return true;
 }
 
 bool Acquisition::tryPop(AcquiredFrame& out) {

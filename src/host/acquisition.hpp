@@ -81,12 +81,16 @@ public:
 
   // The next frame if one is queued.
   bool tryPop(AcquiredFrame& out);
+  // The next frame, waiting at most `timeout` for one (false: none came, or the source ended).
+  bool popFor(AcquiredFrame& out, std::chrono::milliseconds timeout);
   // True once the source has ended and the queue is empty. Rethrows the
   // source's error, if it had one.
   bool finished();
   // Asks the source to stop (Ctrl-C); frames already queued are still served.
   void stop();
 
+  // Frames the source has given so far: queued, dropped or left out by the capture.
+  std::uint64_t given() const { return given_; }
   std::uint64_t delivered() const { return delivered_; }
   std::uint64_t dropped() const { return dropped_; }
   // Frames constant-interval capture left out.
@@ -105,7 +109,7 @@ private:
   bool done_ = false;
   std::exception_ptr error_;
   std::atomic<bool> stop_{false};
-  std::atomic<std::uint64_t> delivered_{0}, dropped_{0}, skipped_{0};
+  std::atomic<std::uint64_t> given_{0}, delivered_{0}, dropped_{0}, skipped_{0};
   IntervalCapture capture_;
   std::thread thread_;
 

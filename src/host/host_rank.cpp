@@ -612,18 +612,19 @@ int HostRank::run() {
     bool viewerActed = false;
     const bool paused = serveViewer(lockstep, viewerActed);
     if (viewerActed) idle.reset();
+    // Before the pause: Ctrl-C ends a paused run too.
+    if (!interruptedAt && j_.interrupt && j_.interrupt->load()) {
+      spdlog::warn("run: interrupted; finishing the {} frames acquired and those still queued", sent_);
+      acq.stop();
+      interruptedAt = Clock::now();
+    }
     if (paused && !interruptedAt) {
-      // Paused: a live source's frames go by unused; a file's wait.
+      // Paused: a live (or paced) source's frames go by unused; a file's wait.
       AcquiredFrame skipped;
       if (liveSource && acq.tryPop(skipped)) ++pausedFrames_;
       else if (acq.finished()) break;
       else std::this_thread::sleep_for(std::chrono::milliseconds(2));
       continue;
-    }
-    if (!interruptedAt && j_.interrupt && j_.interrupt->load()) {
-      spdlog::warn("run: interrupted; finishing the {} frames acquired", sent_);
-      acq.stop();
-      interruptedAt = Clock::now();
     }
     AcquiredFrame a;
     if (acq.tryPop(a)) {
@@ -652,12 +653,15 @@ int HostRank::run() {
       }
       const auto now = Clock::now();
       if (now - lastLog > std::chrono::seconds(2)) {
+        // How far the source is (frames dropped or left out count), and how fast the pipeline takes them.
         const double el = std::chrono::duration<double>(now - firstSent).count();
+        const std::uint64_t at = std::max<std::uint64_t>(1, acq.given());
         if (j_.source.frames)
-          spdlog::info("run: frame {}/{}, {:.1f} frames/s, {:.0f} s left", sent_, j_.source.frames, sent_ / el,
-                       static_cast<double>(j_.source.frames - std::min(sent_, j_.source.frames)) * el / sent_);
+          spdlog::info("run: frame {}/{}, {:.1f} frames/s, {:.0f} s left", at, j_.source.frames, sent_ / el,
+                       static_cast<double>(j_.source.frames - std::min(at, j_.source.frames)) * el /
+                           static_cast<double>(at));
         else
-          spdlog::info("run: frame {}, {:.1f} frames/s", sent_, sent_ / el);
+          spdlog::info("run: frame {}, {:.1f} frames/s", at, sent_ / el);
         lastLog = now;
       }
     } else if (acq.finished()) {
