@@ -175,6 +175,17 @@ TEST(Cli, SerialRunAppliesItsScript) {
   ASSERT_FALSE(scripted.empty());
   EXPECT_EQ(scripted, readFile(d / "turned" / "final_over.png"));
   EXPECT_NE(scripted, readFile(d / "plain" / "final_over.png"));
+  // stats.csv gives each frame's view epoch: 0 up to the change after frame 5, 1 from there on.
+  {
+    std::stringstream rows(readFile(d / "scripted" / "stats.csv"));
+    std::string line;
+    std::getline(rows, line);
+    ASSERT_EQ(line.rfind("frame,epoch,", 0), 0u) << line;
+    std::vector<int> epochs;
+    while (std::getline(rows, line)) epochs.push_back(std::stoi(line.substr(line.find(',') + 1)));
+    ASSERT_EQ(epochs.size(), 12u);
+    for (std::size_t i = 0; i < epochs.size(); ++i) EXPECT_EQ(epochs[i], i <= 5 ? 0 : 1) << "frame " << i;
+  }
   // An entry after the last frame is named, not dropped without a word.
   r = run("run " + doll + common + " -o " + (d / "late").string() +
           " --set 'run.script=[\"500 render.azimuth_deg = -60\"]'");

@@ -267,6 +267,19 @@ TEST(HarnessCostModel, SerialStats) {
   EXPECT_DOUBLE_EQ(r.compositeMs, 5.0);
   SerialRef none;
   EXPECT_FALSE(readSerialStats((d / "missing.csv").string(), none));
+  // The columns are found by name: the run's own file has an epoch column after the frame's.
+  std::ofstream(d / "stats2.csv") << "frame,epoch,recon_ms,shade_ms,sample_ms,composite_ms,total_ms\n"
+                                     "0,0,1,2,3,4,10\n1,1,3,4,5,6,18\n";
+  SerialRef withEpoch;
+  ASSERT_TRUE(readSerialStats((d / "stats2.csv").string(), withEpoch));
+  EXPECT_EQ(withEpoch.frames, 2u);
+  EXPECT_DOUBLE_EQ(withEpoch.reconMs, 2.0);
+  EXPECT_DOUBLE_EQ(withEpoch.shadeMs, 3.0);
+  EXPECT_DOUBLE_EQ(withEpoch.compositeMs, 5.0);
+  // A file without the stage columns is not a serial run's.
+  std::ofstream(d / "other.csv") << "frame,epoch,rank\n0,0,1\n";
+  SerialRef other;
+  EXPECT_FALSE(readSerialStats((d / "other.csv").string(), other));
 }
 
 // ------------------------------------------------------------------- report --

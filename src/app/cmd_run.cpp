@@ -150,16 +150,23 @@ public:
   }
   explicit operator bool() const { return live_ != nullptr; }
   host::LiveView& live() { return *live_; }
+  // The view's epoch: 0, then one more for each change (run.script's or the page's).
+  std::uint32_t epoch() const { return epoch_; }
   // The acquisition's drop counter, for the page's figures.
   void countDrops(std::function<std::uint64_t()> dropped) { dropped_ = std::move(dropped); }
 
   // A run.script change: the pipeline takes it, and the page's next changes
-  // start from it (as the host rank does under mpirun).
+  // start from it (as the host rank does under mpirun). A change is a new
+  // epoch, with or without a page, as on the host; an entry that changes
+  // nothing is none.
   void scripted(const comm::ControlState& next) {
-    if (const std::uint32_t ch = parallel::controlChanges(cur_, next)) host::applyControl(pipe_, ch, next, s_.render, grid_);
+    const std::uint32_t ch = parallel::controlChanges(cur_, next);
+    if (!ch) return;
+    host::applyControl(pipe_, ch, next, s_.render, grid_);
     cur_ = next;
+    ++epoch_;
     if (!live_) return;
-    live_->epochStarted(++epoch_, cur_);
+    live_->epochStarted(epoch_, cur_);
     live_->image(pipe_.image().rgba, pipe_.image().width, pipe_.image().height, epoch_,
                  static_cast<std::int64_t>(frames_) - 1);
   }
@@ -310,7 +317,7 @@ int runSerial(const RunOptions& o) {
   std::size_t nextScript = 0;
   const int w = s.render.width, h = s.render.height;
   host::StatsCsv stats((fs::path(dir) / "stats.csv").string(),
-                       {"frame", "recon_ms", "shade_ms", "sample_ms", "composite_ms", "total_ms", "fill_in_slices",
+                       {"frame", "epoch", "recon_ms", "shade_ms", "sample_ms", "composite_ms", "total_ms", "fill_in_slices",
                         "dirty_bricks", "dirty_voxels", "shaded_voxels", "dbuffer_rays", "samples", "rays_composited",
                         "blocks_composited"});
   AnimatedGif buildup((fs::path(dir) / "buildup.gif").string(), w, h, s.run.buildupFps);
@@ -336,7 +343,8 @@ int runSerial(const RunOptions& o) {
     const Frame& f = a.frame;
     const Mat4& pose = a.imageToReference;
     const serial::FrameStats st = pipe.insert(f, pose, a.timeS);
-    stats.row({static_cast<double>(st.index), st.reconMs, st.shadeMs, st.sampleMs, st.compositeMs, st.totalMs(),
+    stats.row({static_cast<double>(st.index), static_cast<double>(viewer.epoch()), st.reconMs, st.shadeMs,
+               st.sampleMs, st.compositeMs, st.totalMs(),
                static_cast<double>(st.fillInSlices), static_cast<double>(st.dirtyBricks),
                static_cast<double>(st.dirtyVoxels), static_cast<double>(st.shadedVoxels),
                static_cast<double>(st.dbufferPixels), static_cast<double>(st.samples),

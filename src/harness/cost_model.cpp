@@ -184,15 +184,25 @@ bool readSerialStats(const std::string& statsCsv, SerialRef& r) {
   std::ifstream in(statsCsv);
   std::string line;
   std::getline(in, line);
+  // The columns by name.
+  std::vector<std::string> header;
+  {
+    std::stringstream ss(line);
+    for (std::string c; std::getline(ss, c, ',');) header.push_back(c);
+  }
+  const auto column = [&](const char* name) {
+    return static_cast<std::size_t>(std::find(header.begin(), header.end(), name) - header.begin());
+  };
+  const std::size_t cols[4] = {column("recon_ms"), column("shade_ms"), column("sample_ms"), column("composite_ms")};
+  for (const std::size_t c : cols)
+    if (c >= header.size()) return false;
+  double* sums[4] = {&r.reconMs, &r.shadeMs, &r.sampleMs, &r.compositeMs};
   while (std::getline(in, line)) {
     std::vector<double> v;
     std::stringstream ss(line);
     for (std::string c; std::getline(ss, c, ',');) v.push_back(std::strtod(c.c_str(), nullptr));
-    if (v.size() < 5) continue;
-    r.reconMs += v[1];
-    r.shadeMs += v[2];
-    r.sampleMs += v[3];
-    r.compositeMs += v[4];
+    if (v.size() < header.size()) continue;
+    for (int k = 0; k < 4; ++k) *sums[k] += v[cols[k]];
     ++r.frames;
   }
   if (r.frames == 0) return false;

@@ -1,9 +1,10 @@
 // The live viewer in a real browser: Debian's chromium, headless, driven by
 // playwright-core, against `pp5echo run --view` streaming a paced simulated
-// sweep through the MPI pipeline. Checks what issue 16 asks of the page and
-// measures what a person would feel (docs/benchmarks.md).
+// sweep through the MPI pipeline (or, with --serial, the one-process
+// pipeline). Checks what issue 16 asks of the page and measures what a person
+// would feel (docs/benchmarks.md).
 //
-// Usage: node viewer_test.mjs --pp5echo BIN --out DIR [--ranks 4] [--pace 15]
+// Usage: node viewer_test.mjs --pp5echo BIN --out DIR [--ranks 4 | --serial] [--pace 15]
 //          [--set key=value ...] [--measure]
 // Exit status 0 when every check holds; DIR gets screenshot.png,
 // figures.json and the run's own outputs.
@@ -26,6 +27,7 @@ const out = path.resolve(opt('--out', 'viewer-test'));
 const ranks = opt('--ranks', '4');
 const pace = opt('--pace', '15');
 const measure = args.includes('--measure');
+const serial = args.includes('--serial');
 fs.mkdirSync(out, {recursive: true});
 
 const failures = [];
@@ -58,8 +60,10 @@ page.on('pageerror', (e) => failures.push('page error: ' + e.message));
 const runArgs = [ranks, bin, 'run', path.join(repo, 'configs/doll.toml'), '-o', path.join(out, 'run'), '--view', '127.0.0.1:0',
                  '--serve', '--set', `run.pace_fps=${pace}`, '--set', 'run.orbit_frames=0',
                  '--set', 'sim.sweep.capture_interval_mm=1', ...sets];
-console.log('run: scripts/mpirun.sh ' + runArgs.join(' '));
-const run = spawn('bash', [path.join(repo, 'scripts/mpirun.sh'), ...runArgs], {stdio: ['ignore', 'pipe', 'pipe']});
+// One process: the same run without mpirun (runArgs less the rank count).
+const launch = serial ? [bin, [...runArgs.slice(2), '--serial']] : ['bash', [path.join(repo, 'scripts/mpirun.sh'), ...runArgs]];
+console.log('run: ' + (serial ? launch[0] + ' ' : 'scripts/mpirun.sh ') + launch[1].join(' '));
+const run = spawn(launch[0], launch[1], {stdio: ['ignore', 'pipe', 'pipe']});
 let runLog = '', timedLog = '';
 const urlPromise = new Promise((resolve, reject) => {
   const onData = (d) => {
