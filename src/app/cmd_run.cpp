@@ -325,14 +325,13 @@ int runSerial(const RunOptions& o) {
   using Clock = std::chrono::steady_clock;
   const auto start = Clock::now();
   auto lastLog = start;
-  std::uint64_t done = 0, pausedFrames = 0;
+  std::uint64_t done = 0;
   // The source runs in its own thread into a bounded queue, as on the host
   // rank under mpirun: paced at run.pace_fps, cropped and subsampled, judged
   // by the constant-interval capture, and dropped by run.drop when a live (or
   // paced) source gets ahead of the pipeline; a file unpaced waits instead.
   if (src.prepare) src.prepare();  // the simulated sweep's cache, before the pace's clock starts
   if (gInterrupted) throw InputError("run: interrupted before the first frame");
-  const bool liveSource = src.live || s.run.paceFps > 0.0;
   host::Acquisition acq(src, preprocessOf(s), static_cast<std::size_t>(s.run.queueFrames), s.run.drop, s.run.paceFps,
                         s.run.captureIntervalMm);
   viewer.countDrops([&acq] { return acq.dropped(); });
@@ -367,14 +366,7 @@ int runSerial(const RunOptions& o) {
     ++done;
     const auto now = Clock::now();
     if (now - lastLog > std::chrono::seconds(2)) {
-      // How far the source is (frames dropped or left out count), and how fast the pipeline takes them.
-      const double el = std::chrono::duration<double>(now - firstAt).count();
-      const std::uint64_t at = std::max<std::uint64_t>(1, acq.given());
-      if (src.frames)
-        spdlog::info("run: frame {}/{}, {:.1f} frames/s, {:.0f} s left", at, src.frames, done / el,
-                     static_cast<double>(src.frames - std::min(at, src.frames)) * el / static_cast<double>(at));
-      else
-        spdlog::info("run: frame {}, {:.1f} frames/s", at, done / el);
+      acq.logProgress(done, std::chrono::duration<double>(now - firstAt).count());
       lastLog = now;
     }
   };
@@ -387,11 +379,7 @@ int runSerial(const RunOptions& o) {
       interrupted = true;
     }
     if (viewer.serve() && !interrupted) {
-      // Paused: a live source's frames go by unused; a file's wait.
-      host::AcquiredFrame unused;
-      if (liveSource && acq.tryPop(unused)) ++pausedFrames;
-      else if (acq.finished()) break;
-      else std::this_thread::sleep_for(std::chrono::milliseconds(2));
+      if (!acq.whilePaused()) break;
       continue;
     }
     // Waits on the queue; the page is served at least every 5 ms while one is open.
@@ -471,17 +459,7 @@ int runSerial(const RunOptions& o) {
                 med(&serial::ViewStats::shadeMs), med(&serial::ViewStats::sampleMs),
                 med(&serial::ViewStats::compositeMs));
   }
-  if (acq.dropped())
-    std::printf("  dropped %llu frames (the source ahead of the pipeline; run.pace_fps = %g, run.queue_frames = %d, "
-                "run.drop = %s)\n",
-                static_cast<unsigned long long>(acq.dropped()), s.run.paceFps, s.run.queueFrames,
-                enumName(s.run.drop).data());
-  if (pausedFrames)
-    std::printf("  %llu frames went by while the viewer paused acquisition\n",
-                static_cast<unsigned long long>(pausedFrames));
-  if (acq.skipped())
-    std::printf("  constant-interval capture (every %g mm) left out %llu frames\n", s.run.captureIntervalMm,
-                static_cast<unsigned long long>(acq.skipped()));
+  acq.printCounts();
   folder.finished();
   std::printf("wrote to %s\n", fs::absolute(dir).string().c_str());
   for (const auto& n : wrote) std::printf("  %s\n", n.c_str());

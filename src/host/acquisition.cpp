@@ -1,6 +1,10 @@
 #include "host/acquisition.hpp"
 
+#include <algorithm>
+#include <cstdio>
+
 #include <fmt/format.h>
+#include <spdlog/spdlog.h>
 
 #include "core/error.hpp"
 
@@ -136,6 +140,41 @@ void Acquisition::push(AcquiredFrame&& f) {
   q_.push_back(std::move(f));
   ++delivered_;
   cv_.notify_all();  // a consumer in popFor
+}
+
+bool Acquisition::whilePaused() {
+  AcquiredFrame unused;
+  if (live_ && tryPop(unused)) {
+    ++passedWhilePaused_;
+    return true;
+  }
+  if (finished()) return false;
+  std::this_thread::sleep_for(std::chrono::milliseconds(2));
+  return true;
+}
+
+void Acquisition::logProgress(std::uint64_t through, double seconds) const {
+  const std::uint64_t at = std::max<std::uint64_t>(1, given_);
+  const double fps = static_cast<double>(through) / seconds;
+  if (source_.frames)
+    spdlog::info("run: frame {}/{}, {:.1f} frames/s, {:.0f} s left", at, source_.frames, fps,
+                 static_cast<double>(source_.frames - std::min(at, source_.frames)) * seconds /
+                     static_cast<double>(at));
+  else
+    spdlog::info("run: frame {}, {:.1f} frames/s", at, fps);
+}
+
+void Acquisition::printCounts() const {
+  if (dropped_)
+    std::printf("  dropped %llu frames (the source ahead of the pipeline; run.pace_fps = %g, run.queue_frames = %zu, "
+                "run.drop = %s)\n",
+                static_cast<unsigned long long>(dropped_.load()), paceFps_, capacity_, enumName(policy_).data());
+  if (passedWhilePaused_)
+    std::printf("  %llu frames went by while the viewer paused acquisition\n",
+                static_cast<unsigned long long>(passedWhilePaused_));
+  if (skipped_)
+    std::printf("  constant-interval capture (every %g mm) left out %llu frames\n", capture_.intervalMm(),
+                static_cast<unsigned long long>(skipped_.load()));
 }
 
 bool Acquisition::popFor(AcquiredFrame& out, std::chrono::milliseconds timeout) {

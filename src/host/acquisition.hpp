@@ -88,11 +88,26 @@ public:
   bool finished();
   // Asks the source to stop (Ctrl-C); frames already queued are still served.
   void stop();
+  // One step of a loop whose viewer has paused acquisition: a live (or
+  // paced) source's next frame goes by unused and is counted; a file's wait
+  // (a short sleep). False once the source has ended and nothing is queued.
+  bool whilePaused();
+
+  // The progress line a run logs: how far the source is (frames dropped or
+  // left out count) and how fast `through` frames went into the pipeline in
+  // `seconds`.
+  void logProgress(std::uint64_t through, double seconds) const;
+  // The run's closing lines on what did not reach the pipeline: drops,
+  // frames passed by while paused, frames the capture left out (each only
+  // when there were any).
+  void printCounts() const;
 
   // Frames the source has given so far: queued, dropped or left out by the capture.
   std::uint64_t given() const { return given_; }
   std::uint64_t delivered() const { return delivered_; }
   std::uint64_t dropped() const { return dropped_; }
+  // Frames that went by while the viewer paused acquisition.
+  std::uint64_t passedWhilePaused() const { return passedWhilePaused_; }
   // Frames constant-interval capture left out.
   std::uint64_t skipped() const { return skipped_; }
 
@@ -110,6 +125,7 @@ private:
   std::exception_ptr error_;
   std::atomic<bool> stop_{false};
   std::atomic<std::uint64_t> given_{0}, delivered_{0}, dropped_{0}, skipped_{0};
+  std::uint64_t passedWhilePaused_ = 0;  // the consumer's own
   IntervalCapture capture_;
   std::thread thread_;
 

@@ -126,7 +126,6 @@ private:
   std::deque<Sample> window_;
   Clock::time_point lastFigures_{}, lastKeepAlive_ = Clock::now();
   std::vector<Clock::time_point> lastHeard_;  // per rank: the last message from it (the heartbeat)
-  std::uint64_t pausedFrames_ = 0;
   std::unique_ptr<StatsCsv> stats_;
   std::unique_ptr<AnimatedGif> buildup_;
   std::int64_t lastBuildup_ = -1;
@@ -601,7 +600,6 @@ int HostRank::run() {
   t_.barrier();
   Acquisition acq(j_.source, j_.preprocess, j_.queueFrames, j_.drop, j_.paceFps, j_.captureIntervalMm);
   dropped_ = [&acq] { return acq.dropped(); };
-  const bool liveSource = j_.source.live || j_.paceFps > 0.0;
   Clock::time_point firstSent{}, lastLog = start;
   std::optional<Clock::time_point> interruptedAt;  // set when interrupted: acquisition stopped
   lastHeard_.assign(static_cast<std::size_t>(L_.worldSize()), Clock::now());
@@ -619,11 +617,7 @@ int HostRank::run() {
       interruptedAt = Clock::now();
     }
     if (paused && !interruptedAt) {
-      // Paused: a live (or paced) source's frames go by unused; a file's wait.
-      AcquiredFrame skipped;
-      if (liveSource && acq.tryPop(skipped)) ++pausedFrames_;
-      else if (acq.finished()) break;
-      else std::this_thread::sleep_for(std::chrono::milliseconds(2));
+      if (!acq.whilePaused()) break;
       continue;
     }
     AcquiredFrame a;
@@ -653,15 +647,7 @@ int HostRank::run() {
       }
       const auto now = Clock::now();
       if (now - lastLog > std::chrono::seconds(2)) {
-        // How far the source is (frames dropped or left out count), and how fast the pipeline takes them.
-        const double el = std::chrono::duration<double>(now - firstSent).count();
-        const std::uint64_t at = std::max<std::uint64_t>(1, acq.given());
-        if (j_.source.frames)
-          spdlog::info("run: frame {}/{}, {:.1f} frames/s, {:.0f} s left", at, j_.source.frames, sent_ / el,
-                       static_cast<double>(j_.source.frames - std::min(at, j_.source.frames)) * el /
-                           static_cast<double>(at));
-        else
-          spdlog::info("run: frame {}, {:.1f} frames/s", at, sent_ / el);
+        acq.logProgress(sent_, std::chrono::duration<double>(now - firstSent).count());
         lastLog = now;
       }
     } else if (acq.finished()) {
@@ -773,16 +759,8 @@ int HostRank::run() {
               static_cast<unsigned long long>(sent_), L_.worldSize(), L_.gps, L_.pps, enumName(j_.parallel.gpPartition).data(),
               enumName(j_.parallel.tileOwner).data(), j_.parallel.tileSize, enumName(j_.parallel.compositeOn).data(),
               totalS);
-  if (acq.dropped())
-    std::printf("  dropped %llu frames (live source behind; run.drop = %s)\n",
-                static_cast<unsigned long long>(acq.dropped()), enumName(j_.drop).data());
-  if (pausedFrames_)
-    std::printf("  %llu frames went by while the viewer paused acquisition\n",
-                static_cast<unsigned long long>(pausedFrames_));
+  acq.printCounts();
   if (ref_) std::printf("  verified: %llu images bitwise equal to the serial pipeline's\n", static_cast<unsigned long long>(verified_));
-  if (acq.skipped())
-    std::printf("  constant-interval capture (every %g mm) left out %llu frames\n", j_.captureIntervalMm,
-                static_cast<unsigned long long>(acq.skipped()));
   writeSummary(streamS, totalS, acq.dropped(), acq.skipped(), wrote);
   // SIGTERM sent to mpirun reaches the host odls_base_sigkill_timeout seconds
   // before mpirun's SIGKILL (docs/cluster.md): say how long the ending took.
