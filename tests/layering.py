@@ -29,7 +29,8 @@ LAYERS = {
     "parallel": 2,         # schedules, partitionings, parallel settings
     "serial": 2,           # the single-process reference pipeline
     "ranks": 3,            # the GP and PP rank loops
-    "host": 4,             # acquisition, outputs, the host rank loop
+    "host": 4,             # sources, acquisition, the one run loop and its two pipelines
+    "outputs": 5,          # the run's outputs as sinks of the run loop
     "harness": 5,          # the partitioning benchmark's harness
     "app": 6,              # the command line
 }

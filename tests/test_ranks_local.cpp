@@ -4,6 +4,9 @@
 // for both partitionings.
 #include <gtest/gtest.h>
 
+#include <fmt/format.h>
+
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <exception>
@@ -18,7 +21,9 @@
 #include "comm/local_transport.hpp"
 #include "comm/messages.hpp"
 #include "core/error.hpp"
-#include "host/host_rank.hpp"
+#include "host/distributed_pipeline.hpp"
+#include "host/local_pipeline.hpp"
+#include "outputs/sinks.hpp"
 #include "host/sources.hpp"
 #include "parallel/parallel_settings.hpp"
 #include "ranks/gp_rank.hpp"
@@ -158,13 +163,11 @@ TEST(LocalTransport, AFailedRankLeavesNoneWaiting) {
   for (int r = 1; r < 3; ++r) EXPECT_NE(errors[static_cast<std::size_t>(r)].find("aborted"), std::string::npos) << r;
 }
 
-// A small doll sweep through 1 host + 2 GP + 1 PP, lockstep, every image
-// checked against the serial pipeline on the host, with a view change. Or
-// in tick mode (`tick`), every frame given at once, where a GP updates the
-// frames that wait for it together (their reported changes joined; whether
-// any wait depends on the machine's timing): the images after the sweep,
-// the final passes and the orbit are checked.
-void runJob(parallel::GpPartition partition, const std::string& name, bool tick = false) {
+// A small doll sweep for 1 host + 2 GP + 1 PP, lockstep, with a view change
+// and a drag. Or in tick mode (`tick`), every frame given at once, so that
+// frames wait at the GPs and a GP updates them together (their reported
+// changes joined; whether any wait depends on the machine's timing).
+host::RunJob smallJob(parallel::GpPartition partition, bool tick) {
   sim::SimSettings ss;
   ss.seed = 1;
   ss.sweep.captureIntervalMm = 6.0;
@@ -175,7 +178,7 @@ void runJob(parallel::GpPartition partition, const std::string& name, bool tick 
   const Grid grid =
       sim::fitGrid(poses, simulator->probe().width, simulator->probe().height, Vec3(2.0), 2.0);
 
-  host::HostJob j;
+  host::RunJob j;
   j.grid = grid;
   j.pipeline.render.width = 128;
   j.pipeline.render.height = 96;
@@ -189,8 +192,6 @@ void runJob(parallel::GpPartition partition, const std::string& name, bool tick 
   j.layout = parallel::RankLayout::choose(4, 2, 1);
   j.source = host::simulatorSource(simulator, grid, 1);
   if (tick) {
-    // Every frame at once (simulated beforehand), so that frames wait at the
-    // GPs and are updated together.
     struct Shot {
       Frame frame;
       Mat4 pose;
@@ -216,13 +217,21 @@ void runJob(parallel::GpPartition partition, const std::string& name, bool tick 
   dragged.pixelStride = 4;
   j.script.push_back({5, parallel::makeControlState(dragged, j.pipeline.shading, j.pipeline.tf), "drag"});
   j.script.push_back({7, parallel::makeControlState(turned, j.pipeline.shading, j.pipeline.tf), "drag ends"});
+  j.orbitFrames = 2;
+  return j;
+}
+
+fs::path freshDir(const std::string& name) {
   const fs::path dir = fs::temp_directory_path() / ("pp5_ranks_local_" + name + "_" + std::to_string(::getpid()));
   fs::remove_all(dir);
   fs::create_directories(dir);
-  j.outDir = dir.string();
-  j.orbitFrames = 2;
-  j.verify = true;
+  return dir;
+}
 
+// Runs `j` on 1 host + 2 GP + 1 PP, threads of this process, the host
+// driving the distributed pipeline into `sinks`; its exit status, and what
+// it printed in `out`.
+int runDistributed(const host::RunJob& j, const std::vector<host::Sink*>& sinks, std::string& out) {
   comm::LocalJob job(4, j.parallel.timeoutS);
   std::vector<std::exception_ptr> errors(4);
   std::vector<std::thread> ranks;
@@ -230,11 +239,11 @@ void runJob(parallel::GpPartition partition, const std::string& name, bool tick 
     ranks.emplace_back([&, r] {
       try {
         if (j.layout.role(r) == parallel::Role::Gp) {
-          ranks::GpRankConfig c{grid, j.pipeline.recon, j.pipeline.render, j.pipeline.shading, j.pipeline.tf,
+          ranks::GpRankConfig c{j.grid, j.pipeline.recon, j.pipeline.render, j.pipeline.shading, j.pipeline.tf,
                                 j.parallel, j.layout, 0, pp::sampleWireFor(j.pipeline.cache.format)};
           ranks::runGpRank(job.rank(r), c);
         } else {
-          ranks::PpRankConfig c{grid, j.pipeline.render, j.pipeline.shading, j.pipeline.tf, j.pipeline.cache,
+          ranks::PpRankConfig c{j.grid, j.pipeline.render, j.pipeline.shading, j.pipeline.tf, j.pipeline.cache,
                                 j.parallel, j.layout};
           ranks::runPpRank(job.rank(r), c);
         }
@@ -246,23 +255,108 @@ void runJob(parallel::GpPartition partition, const std::string& name, bool tick 
   testing::internal::CaptureStdout();
   int status = -1;
   try {
-    status = host::runHostRank(job.rank(0), j);
+    host::DistributedPipeline pipe(job.rank(0), j);
+    status = host::runLoop(pipe, j, sinks);
   } catch (...) {
     errors[0] = std::current_exception();
     job.abort();
   }
-  const std::string out = testing::internal::GetCapturedStdout();
+  out = testing::internal::GetCapturedStdout();
   for (auto& t : ranks) t.join();
   for (const auto& e : errors)
     if (e) std::rethrow_exception(e);
-  EXPECT_EQ(status, 0);
-  // Every image after every frame, the view change, the final passes and the orbit.
+  return status;
+}
+
+// Every image after every frame, the view change, the final passes and the
+// orbit (lockstep; in tick mode from the last frame on), checked against the
+// serial pipeline on the host; every output written.
+void runJob(parallel::GpPartition partition, const std::string& name, bool tick = false) {
+  host::RunJob j = smallJob(partition, tick);
+  const fs::path dir = freshDir(name);
+  j.outDir = dir.string();
+  j.verify = true;
+  const outputs::SinkList sinks = outputs::makeSinks(j);
+  std::string out;
+  EXPECT_EQ(runDistributed(j, outputs::pointers(sinks), out), 0);
   const auto at = out.find("verified: ");
   ASSERT_NE(at, std::string::npos) << out;
   EXPECT_GE(std::stoi(out.substr(at + 10)), tick ? 3 : 12) << out;
   EXPECT_NE(out.find("images bitwise equal to the serial pipeline's"), std::string::npos) << out;
   for (const char* f : {"final_over.png", "final_mip.png", "volume.mha", "stats.csv", "summary.json"})
     EXPECT_TRUE(fs::exists(dir / f)) << f;
+  fs::remove_all(dir);
+}
+
+// A sink that writes down what it is handed, in order, each image with a
+// hash of its pixels (the figures, which depend on timing, and the
+// pipeline's own statistics and summary aside).
+class EventLog final : public host::Sink {
+public:
+  std::vector<std::string> events;
+  void start(const host::RunStart& r) override { add(fmt::format("start {}x{}", r.width, r.height)); }
+  void frame(const host::AcquiredFrame& a, std::uint64_t k) override {
+    add(fmt::format("frame {} (source {})", k, a.frame.index));
+  }
+  void epochStarted(std::uint32_t epoch, const host::ViewState& s, bool lasting) override {
+    add(fmt::format("epoch {} azimuth {} mode {}{}", epoch, s.azimuthDeg, s.liveMode, lasting ? "" : " (own)"));
+  }
+  void image(const host::ImageView& im) override { add("image " + describe(im)); }
+  void inputEnded() override { add("input ended"); }
+  void finished(const host::ImageView& im) override { add("finished " + describe(im)); }
+  void finalImage(pp::CompositeMode m, const host::ImageView& im) override {
+    add(fmt::format("final {} {}", enumName(m), describe(im)));
+  }
+  bool wantsFinalVolume() const override { return true; }
+  void finalVolume(const Volume& v) override {
+    add(fmt::format("volume {}x{}x{} hash {}", v.grid.dims.x, v.grid.dims.y, v.grid.dims.z,
+                    hash(v.bytes.data(), v.bytes.size())));
+  }
+  void orbit(int i, int n, const host::ImageView& im) override { add(fmt::format("orbit {}/{} {}", i, n, describe(im))); }
+  void ended() override { add("ended"); }
+
+private:
+  void add(std::string e) { events.push_back(std::move(e)); }
+  static std::uint64_t hash(const void* p, std::size_t n) {
+    std::uint64_t h = 1469598103934665603ull;  // FNV-1a
+    for (std::size_t i = 0; i < n; ++i) h = (h ^ static_cast<const unsigned char*>(p)[i]) * 1099511628211ull;
+    return h;
+  }
+  static std::string describe(const host::ImageView& im) {
+    return fmt::format("epoch {} frame {}{} {}x{} hash {}", im.epoch, im.frame, im.latest ? "" : " (older view)",
+                       im.width, im.height, hash(im.rgba->data(), im.rgba->size() * sizeof(float)));
+  }
+};
+
+// The run loop exists once: whichever pipeline it drives, the sinks are
+// handed the same things in the same order, down to every image's pixels.
+TEST(RunLoop, BothPipelinesHandTheSinksTheSameEvents) {
+  host::RunJob j = smallJob(parallel::GpPartition::Slab, false);
+  const fs::path dir = freshDir("events");
+  j.outDir = dir.string();
+  EventLog distributed, local;
+  std::string out;
+  ASSERT_EQ(runDistributed(j, {&distributed}, out), 0);
+  testing::internal::CaptureStdout();
+  host::LocalPipeline pipe(j);
+  const int status = host::runLoop(pipe, j, {&local});
+  out = testing::internal::GetCapturedStdout();
+  ASSERT_EQ(status, 0) << out;
+  // Sanity: the log holds each kind of event, so that equal logs say something.
+  const auto has = [&](const std::string& what) {
+    return std::any_of(local.events.begin(), local.events.end(),
+                       [&](const std::string& e) { return e.rfind(what, 0) == 0; });
+  };
+  for (const char* what : {"start", "frame 9", "epoch 1 azimuth -60", "image", "input ended", "finished",
+                           "final over", "final mip", "volume", "orbit 1/2", "ended"})
+    EXPECT_TRUE(has(what)) << what;
+  EXPECT_EQ(distributed.events, local.events);
+  for (std::size_t i = 0; i < std::min(distributed.events.size(), local.events.size()); ++i)
+    if (distributed.events[i] != local.events[i]) {
+      ADD_FAILURE() << "first difference at event " << i << ": " << distributed.events[i] << " against "
+                    << local.events[i];
+      break;
+    }
   fs::remove_all(dir);
 }
 

@@ -31,13 +31,14 @@
 #include "core/volume_io.hpp"
 #include "host/acquisition.hpp"
 #include "host/capture.hpp"
-#include "host/host_rank.hpp"
-#include "host/live_view.hpp"
+#include "host/distributed_pipeline.hpp"
+#include "host/local_pipeline.hpp"
+#include "host/run_loop.hpp"
 #include "host/outputs.hpp"
 #include "parallel/parallel_settings.hpp"
 #include "ranks/gp_rank.hpp"
 #include "ranks/pp_rank.hpp"
-#include "serial/serial_pipeline.hpp"
+#include "outputs/sinks.hpp"
 #include "sim/simulate.hpp"
 
 namespace pp5::app {
@@ -137,125 +138,6 @@ void deriveRunKernel(Settings& s, const ConfigSchema& schema) {
   deriveKernelFromFrames(seq, s.recon, schema, [&taken](std::uint64_t i) { return taken[i] != 0; }, scale);
 }
 
-// The serial run's side of the live viewer: what the host rank does for the
-// distributed pipeline, for the one process.
-class SerialViewer {
-public:
-  SerialViewer(const Settings& s, const Grid& grid, serial::SerialPipeline& pipe, const std::string& dir)
-      : s_(s), grid_(grid), pipe_(pipe), cur_(parallel::makeControlState(s.render, s.shading, s.tf)) {
-    if (s.view.listen.empty()) return;
-    live_ = std::make_unique<host::LiveView>(s.view, grid, s.render, s.recon, s.tf, cur_, dir);
-    std::printf("viewer: open %s\n", live_->url().c_str());
-    std::fflush(stdout);
-  }
-  explicit operator bool() const { return live_ != nullptr; }
-  host::LiveView& live() { return *live_; }
-  // The view's epoch: 0, then one more for each change (run.script's or the page's).
-  std::uint32_t epoch() const { return epoch_; }
-  // The acquisition's drop counter, for the page's figures.
-  void countDrops(std::function<std::uint64_t()> dropped) { dropped_ = std::move(dropped); }
-
-  // A run.script change: the pipeline takes it, and the page's next changes
-  // start from it (as the host rank does under mpirun). A change is a new
-  // epoch, with or without a page, as on the host; an entry that changes
-  // nothing is none.
-  void scripted(const comm::ControlState& next) {
-    const std::uint32_t ch = parallel::controlChanges(cur_, next);
-    if (!ch) return;
-    host::applyControl(pipe_, ch, next, s_.render, grid_);
-    cur_ = next;
-    ++epoch_;
-    if (!live_) return;
-    live_->epochStarted(epoch_, cur_);
-    live_->image(pipe_.image().rgba, pipe_.image().width, pipe_.image().height, epoch_,
-                 static_cast<std::int64_t>(frames_) - 1);
-  }
-
-  void frame(const Frame& f, const Mat4& pose, double t, std::chrono::steady_clock::time_point arrival, double ms) {
-    if (!live_) return;
-    live_->frame(f, pose, frames_, t, arrival);
-    ++frames_;
-    frameMs_.push_back(ms);
-    live_->image(pipe_.image().rgba, pipe_.image().width, pipe_.image().height, epoch_,
-                 static_cast<std::int64_t>(frames_) - 1);
-  }
-
-  // Applies what the page asks; true while it asks for a pause.
-  bool serve() {
-    if (!live_) return false;
-    const host::LiveWanted w = live_->wanted();
-    if (const std::uint32_t ch = parallel::controlChanges(cur_, w.state)) {
-      host::applyControl(pipe_, ch, w.state, s_.render, grid_);
-      cur_ = w.state;
-      live_->epochStarted(++epoch_, cur_);
-      live_->image(pipe_.image().rgba, pipe_.image().width, pipe_.image().height, epoch_,
-                   static_cast<std::int64_t>(frames_) - 1);
-    }
-    if (live_->wantsImage())
-      live_->image(pipe_.image().rgba, pipe_.image().width, pipe_.image().height, epoch_,
-                   static_cast<std::int64_t>(frames_) - 1);
-    if (frames_ > 0 && live_->wantsVolume()) live_->volume(pipe_.reconstructor().output());
-    const auto now = std::chrono::steady_clock::now();
-    if (now - lastFigures_ > std::chrono::milliseconds(250)) {
-      window_.emplace_back(now, frames_);
-      while (window_.size() > 9) window_.pop_front();
-      lastFigures_ = now;
-      host::LiveFigures f;
-      const double span = std::chrono::duration<double>(now - window_.front().first).count();
-      if (span > 0) f.framesPerS = f.imagesPerS = static_cast<double>(frames_ - window_.front().second) / span;
-      std::vector<double> last(frameMs_.end() - std::min<std::ptrdiff_t>(90, std::ssize(frameMs_)), frameMs_.end());
-      std::sort(last.begin(), last.end());
-      if (!last.empty()) {
-        f.latencyMedianMs = last[last.size() / 2];
-        f.latencyP95Ms = last[std::min(last.size() - 1, static_cast<std::size_t>(0.95 * last.size()))];
-      }
-      f.frames = frames_;
-      f.dropped = dropped_ ? dropped_() : 0;
-      f.gpLoad = f.ppLoad = 1.0;  // one process does it all
-      live_->figures(f);
-    }
-    return w.paused;
-  }
-
-  void ended() {
-    if (!live_) return;
-    lastFigures_ = {};  // every frame counted at once
-    live_->inputEnded();
-    serve();
-  }
-
-  // After the input: the page steers the final volume until Ctrl-C.
-  void serveFinal() {
-    if (!live_ || !live_->serve()) return;
-    live_->servingFinal();
-    std::printf("viewer: the final volume stays live at %s until Ctrl-C\n", live_->url().c_str());
-    std::fflush(stdout);
-    while (!gInterrupted) {
-      serve();
-      std::this_thread::sleep_for(std::chrono::milliseconds(5));
-    }
-  }
-
-private:
-  const Settings& s_;
-  Grid grid_;
-  serial::SerialPipeline& pipe_;
-  comm::ControlState cur_;
-  std::unique_ptr<host::LiveView> live_;
-  std::uint32_t epoch_ = 0;
-  std::uint64_t frames_ = 0;
-  std::vector<double> frameMs_;
-  std::deque<std::pair<std::chrono::steady_clock::time_point, std::uint64_t>> window_;
-  std::chrono::steady_clock::time_point lastFigures_{};
-  std::function<std::uint64_t()> dropped_;
-};
-
-double median(std::vector<double> v) {
-  if (v.empty()) return 0.0;
-  std::sort(v.begin(), v.end());
-  return v[v.size() / 2];
-}
-
 std::vector<host::ScriptedControl> parseScript(const Settings& base);
 
 // A run writes its settings to DIR/settings.toml. Started from that very file
@@ -274,6 +156,41 @@ bool checkSettingsFileTarget(const std::vector<std::string>& overrides, const st
   return false;
 }
 
+// The job both pipelines run: the settings, the source and the grid it was
+// given, and where the outputs go.
+host::RunJob makeJob(const Settings& s, host::Source src, const Grid& grid, const std::string& dir) {
+  host::RunJob j;
+  j.grid = grid;
+  j.pipeline = {s.recon, s.render, s.shading, s.tf, s.cache};
+  j.parallel = s.parallel;
+  j.source = std::move(src);
+  j.preprocess = preprocessOf(s);
+  j.queueFrames = static_cast<std::size_t>(s.run.queueFrames);
+  j.drop = s.run.drop;
+  j.paceFps = s.run.paceFps;
+  j.captureIntervalMm = s.run.captureIntervalMm;
+  j.script = parseScript(s);
+  j.outDir = dir;
+  j.buildupEvery = s.run.buildupEvery;
+  j.buildupFps = s.run.buildupFps;
+  j.orbitFrames = s.run.orbitFrames;
+  j.orbitFps = s.run.orbitFps;
+  j.mpr = s.run.mpr;
+  j.mprLook = s.run.mprLook;
+  j.volume = s.run.volume;
+  j.memoryLimitBytes = s.grid.memoryLimitBytes();
+  j.interrupt = &gInterrupted;
+  j.view = s.view;
+  j.alsoWrote = {"settings.toml"};
+  return j;
+}
+
+void writeSettingsFile(const ConfigSchema& schema, const std::string& dir) {
+  io::AtomicFile settingsFile((fs::path(dir) / "settings.toml").string());
+  settingsFile.write(schema.toToml());
+  settingsFile.commit();
+}
+
 int runSerial(const RunOptions& o) {
   Settings s;
   ConfigSchema schema;
@@ -288,182 +205,20 @@ int runSerial(const RunOptions& o) {
   std::signal(SIGTERM, onInterrupt);
 
   Source src = makeSource(s);
-  serial::PipelineSettings ps{s.recon, s.render, s.shading, s.tf, s.cache};
-  spdlog::info("run: {}; grid {}x{}x{} of {} mm; {}x{} image, {} composition", src.description, src.grid.dims.x,
-               src.grid.dims.y, src.grid.dims.z, src.grid.spacing.x, s.render.width, s.render.height,
+  const Grid grid = src.grid;
+  spdlog::info("run: {}; grid {}x{}x{} of {} mm; {}x{} image, {} composition", src.description, grid.dims.x,
+               grid.dims.y, grid.dims.z, grid.spacing.x, s.render.width, s.render.height,
                enumName(s.render.compositing.front()));
-  serial::SerialPipeline pipe(src.grid, ps, s.grid.memoryLimitBytes());
-  spdlog::info("run: ray cache {:.1f} MiB ({} samples, {} format), shade buffer {:.1f} MiB",
-               static_cast<double>(pipe.cache().memoryBytes()) / (1 << 20), pipe.cache().sampleCount(),
-               pp::sampleFormatName(pipe.cache().format()),
-               static_cast<double>(pipe.shadeBuffer().memoryBytes()) / (1 << 20));
-  std::unique_ptr<serial::WorkCensus> census;
-  if (!o.census.empty()) {
-    census = std::make_unique<serial::WorkCensus>(src.grid, s.render.width, s.render.height);
-    pipe.setCensus(census.get());
-  }
-  SerialViewer viewer(s, src.grid, pipe, dir);
-  // run.script: by the source's frame index, as under mpirun.
-  std::vector<host::ScriptedControl> script = parseScript(s);
-  std::stable_sort(script.begin(), script.end(),
-                   [](const host::ScriptedControl& a, const host::ScriptedControl& b) { return a.afterFrame < b.afterFrame; });
+  host::RunJob job = makeJob(s, std::move(src), grid, dir);
+  job.census = o.census;
+  host::LocalPipeline pipe(job);
+  const outputs::SinkList sinks = outputs::makeSinks(job);
   // Everything that could refuse the run has passed: the folder is the run's now.
   folder.start({o.file, o.census});
-  if (writeSettings) {
-    io::AtomicFile settingsFile((fs::path(dir) / "settings.toml").string());
-    settingsFile.write(schema.toToml());
-    settingsFile.commit();
-  }
-  std::size_t nextScript = 0;
-  const int w = s.render.width, h = s.render.height;
-  host::StatsCsv stats((fs::path(dir) / "stats.csv").string(),
-                       {"frame", "epoch", "recon_ms", "shade_ms", "sample_ms", "composite_ms", "total_ms", "fill_in_slices",
-                        "dirty_bricks", "dirty_voxels", "shaded_voxels", "dbuffer_rays", "samples", "rays_composited",
-                        "blocks_composited"});
-  AnimatedGif buildup((fs::path(dir) / "buildup.gif").string(), w, h, s.run.buildupFps);
-  std::vector<double> totals, recons, shades, samplings, composites;
-  using Clock = std::chrono::steady_clock;
-  const auto start = Clock::now();
-  auto lastLog = start;
-  std::uint64_t done = 0;
-  // The source runs in its own thread into a bounded queue, as on the host
-  // rank under mpirun: paced at run.pace_fps, cropped and subsampled, judged
-  // by the constant-interval capture, and dropped by run.drop when a live (or
-  // paced) source gets ahead of the pipeline; a file unpaced waits instead.
-  if (src.prepare) src.prepare();  // the simulated sweep's cache, before the pace's clock starts
-  if (gInterrupted) throw InputError("run: interrupted before the first frame");
-  host::Acquisition acq(src, preprocessOf(s), static_cast<std::size_t>(s.run.queueFrames), s.run.drop, s.run.paceFps,
-                        s.run.captureIntervalMm);
-  viewer.countDrops([&acq] { return acq.dropped(); });
-  bool interrupted = false;
-  Clock::time_point firstAt{};
-  const auto process = [&](const host::AcquiredFrame& a) {
-    if (done == 0) firstAt = Clock::now();
-    const Frame& f = a.frame;
-    const Mat4& pose = a.imageToReference;
-    const serial::FrameStats st = pipe.insert(f, pose, a.timeS);
-    stats.row({static_cast<double>(st.index), static_cast<double>(viewer.epoch()), st.reconMs, st.shadeMs,
-               st.sampleMs, st.compositeMs, st.totalMs(),
-               static_cast<double>(st.fillInSlices), static_cast<double>(st.dirtyBricks),
-               static_cast<double>(st.dirtyVoxels), static_cast<double>(st.shadedVoxels),
-               static_cast<double>(st.dbufferPixels), static_cast<double>(st.samples),
-               static_cast<double>(st.raysComposited), static_cast<double>(st.blocksComposited)});
-    totals.push_back(st.totalMs());
-    recons.push_back(st.reconMs);
-    shades.push_back(st.shadeMs);
-    samplings.push_back(st.sampleMs);
-    composites.push_back(st.compositeMs);
-    // The latency from the frame's arrival, its wait in the queue included.
-    viewer.frame(f, pose, a.timeS, a.arrival,
-                 std::chrono::duration<double, std::milli>(Clock::now() - a.arrival).count());
-    if (done % static_cast<std::uint64_t>(s.run.buildupEvery) == 0) buildup.add(pp::toRgb8(pipe.image()).data());
-    // By the source's frame index, so that dropped frames do not move the change.
-    while (nextScript < script.size() && script[nextScript].afterFrame <= f.index) {
-      const host::ScriptedControl& sc = script[nextScript++];
-      spdlog::info("run: after frame {}: {}", done, sc.text);
-      viewer.scripted(sc.state);
-    }
-    ++done;
-    const auto now = Clock::now();
-    if (now - lastLog > std::chrono::seconds(2)) {
-      acq.logProgress(done, std::chrono::duration<double>(now - firstAt).count());
-      lastLog = now;
-    }
-  };
-  for (;;) {
-    // Ctrl-C or SIGTERM: the source stops, and the frames queued and taken so
-    // far go through the final passes and every output, as under mpirun.
-    if (!interrupted && gInterrupted) {
-      spdlog::warn("run: interrupted; finishing the {} frames taken and those still queued", done);
-      acq.stop();
-      interrupted = true;
-    }
-    if (viewer.serve() && !interrupted) {
-      if (!acq.whilePaused()) break;
-      continue;
-    }
-    // Waits on the queue; the page is served at least every 5 ms while one is open.
-    host::AcquiredFrame a;
-    if (acq.popFor(a, std::chrono::milliseconds(viewer ? 5 : 50))) process(a);
-    else if (acq.finished()) break;
-  }
-  if (done == 0) throw InputError("run: the source gave no frame that can be placed");
-  for (; nextScript < script.size(); ++nextScript)
-    spdlog::warn("run: the source ended before frame {}; run.script entry \"{}\" was not applied",
-                 script[nextScript].afterFrame, script[nextScript].text);
-
-  if (census) {
-    pipe.setCensus(nullptr);
-    census->write(o.census);
-    spdlog::info("run: the census of {} frames is in {}", census->frames(), o.census);
-  }
-  // The end of the sweep: final passes, then what is shown of the final volume.
-  pipe.finish();
-  viewer.ended();
-  buildup.add(pp::toRgb8(pipe.image()).data());
-  buildup.close();
-  std::vector<std::string> wrote = {"buildup.gif"};
-  const pp::CompositeMode liveMode = pipe.liveMode();
-  for (const pp::CompositeMode m : s.render.compositing) {
-    const std::string mode(enumName(m));
-    // MIP and additive need grey-value samples, over classified colour ones.
-    if (compositesGreyValues(m) != compositesGreyValues(pipe.liveMode())) pipe.setLiveMode(m);
-    const pp::TileImage im = m == pipe.liveMode() ? pipe.image() : pipe.compositeFull(m);
-    const std::string name = "final_" + mode + ".png";
-    writeRgbPng((fs::path(dir) / name).string(), w, h, pp::toRgb8(im).data());
-    wrote.push_back(name);
-  }
-  pipe.setLiveMode(liveMode);
-  if (s.run.mpr) {
-    for (const auto& p : host::writeMpr(pipe.reconstructor().output(), s.run.mprLook, (fs::path(dir) / "mpr").string()))
-      wrote.push_back(fs::path(p).filename().string());
-  }
-  if (s.run.volume) {
-    writeVolume((fs::path(dir) / "volume.mha").string(), pipe.reconstructor().output().as(ScalarType::U8), true);
-    wrote.push_back("volume.mha");
-  }
-  double orbitMs = 0.0;
-  std::vector<serial::ViewStats> orbitStats;
-  if (s.run.orbitFrames > 0) {
-    AnimatedGif orbit((fs::path(dir) / "orbit.gif").string(), w, h, s.run.orbitFps);
-    const Camera base = pipe.camera();
-    std::vector<double> ms;
-    for (int i = 0; i < s.run.orbitFrames; ++i) {
-      const auto t = Clock::now();
-      orbitStats.push_back(pipe.setCamera(base.orbited(Vec3(0, 0, 1), 360.0 * i / s.run.orbitFrames)));
-      ms.push_back(std::chrono::duration<double, std::milli>(Clock::now() - t).count());
-      orbit.add(pp::toRgb8(pipe.image()).data());
-    }
-    orbit.close();
-    orbitMs = median(ms);
-    wrote.push_back("orbit.gif");
-  }
-  wrote.push_back("stats.csv");
-  wrote.push_back("settings.toml");
-  viewer.serveFinal();
-
-  const double seconds = std::chrono::duration<double>(Clock::now() - start).count();
-  std::printf("run: %llu frames through the serial pipeline in %.1f s\n", static_cast<unsigned long long>(done),
-              seconds);
-  std::printf("  per frame (median): %.1f ms = reconstruct %.1f + shade %.1f + sample %.1f + composite %.1f\n",
-              median(totals), median(recons), median(shades), median(samplings), median(composites));
-  if (orbitMs > 0.0) {
-    auto med = [&](double serial::ViewStats::*f) {
-      std::vector<double> v;
-      for (const auto& o : orbitStats) v.push_back(o.*f);
-      return median(v);
-    };
-    std::printf("  full re-render after a view change (median of %zu): %.0f ms = lattice %.1f + cache reset %.1f + "
-                "re-light %.1f + sample and put %.1f + composite %.1f\n",
-                orbitStats.size(), orbitMs, med(&serial::ViewStats::latticeMs), med(&serial::ViewStats::cacheMs),
-                med(&serial::ViewStats::shadeMs), med(&serial::ViewStats::sampleMs),
-                med(&serial::ViewStats::compositeMs));
-  }
-  acq.printCounts();
-  folder.finished();
-  std::printf("wrote to %s\n", fs::absolute(dir).string().c_str());
-  for (const auto& n : wrote) std::printf("  %s\n", n.c_str());
-  return 0;
+  if (writeSettings) writeSettingsFile(schema, dir);
+  const int status = host::runLoop(pipe, job, outputs::pointers(sinks));
+  if (status == 0) folder.finished();
+  return status;
 }
 
 
@@ -587,42 +342,19 @@ int runDistributed(const RunOptions& o) {
     s.recon.kernelElevationMm = gm.kernelMm[2];
     switch (layout.role(rank)) {
       case parallel::Role::Host: {
-        host::HostJob j;
-        j.grid = grid;
-        j.pipeline = {s.recon, s.render, s.shading, s.tf, s.cache};
-        j.parallel = s.parallel;
+        host::RunJob j = makeJob(s, std::move(src), grid, dir);
         j.layout = layout;
-        j.source = std::move(src);
-        j.preprocess = preprocessOf(s);
-        j.queueFrames = static_cast<std::size_t>(s.run.queueFrames);
-        j.drop = s.run.drop;
-        j.paceFps = s.run.paceFps;
-        j.captureIntervalMm = s.run.captureIntervalMm;
-        j.script = parseScript(s);
-        j.outDir = dir;
-        j.buildupEvery = s.run.buildupEvery;
-        j.buildupFps = s.run.buildupFps;
-        j.orbitFrames = s.run.orbitFrames;
-        j.orbitFps = s.run.orbitFps;
-        j.mpr = s.run.mpr;
-        j.mprLook = s.run.mprLook;
-        j.volume = s.run.volume;
         j.verify = o.verify;
-        j.memoryLimitBytes = s.grid.memoryLimitBytes();
-        j.interrupt = &gInterrupted;
-        j.view = s.view;
         spdlog::info("run: {}; grid {}x{}x{} of {} mm; {}x{} image; {} ranks: 1 host, {} GP ({} partition), {} PP "
                      "({} tiles of {} px), compositing on {}",
                      j.source.description, grid.dims.x, grid.dims.y, grid.dims.z, grid.spacing.x, s.render.width,
                      s.render.height, size, layout.gps, enumName(s.parallel.gpPartition), layout.pps,
                      enumName(s.parallel.tileOwner), s.parallel.tileSize, enumName(s.parallel.compositeOn));
+        host::DistributedPipeline pipe(t, j);
+        const outputs::SinkList sinks = outputs::makeSinks(j);
         folder->start({o.file});  // the settings and the source have passed: the folder is the run's now
-        if (writeSettings) {
-          io::AtomicFile settingsFile((fs::path(dir) / "settings.toml").string());
-          settingsFile.write(schema.toToml());
-          settingsFile.commit();
-        }
-        status = host::runHostRank(t, j);
+        if (writeSettings) writeSettingsFile(schema, dir);
+        status = host::runLoop(pipe, j, outputs::pointers(sinks));
         if (status == 0) folder->finished();
         break;
       }
@@ -697,11 +429,10 @@ int viewVolume(const std::string& file, const std::string& config, const std::ve
   const Volume v = readVolume(file);
   spdlog::info("view: {}: {}x{}x{} voxels of {} x {} x {} mm", file, v.grid.dims.x, v.grid.dims.y, v.grid.dims.z,
                v.grid.spacing.x, v.grid.spacing.y, v.grid.spacing.z);
-  serial::SerialPipeline pipe(v, serial::PipelineSettings{s.recon, s.render, s.shading, s.tf, s.cache});
-  SerialViewer viewer(s, v.grid, pipe, s.output.dir);
-  viewer.live().volume(pipe.reconstructor().output());
-  viewer.ended();
-  viewer.serveFinal();
+  host::RunJob job = makeJob(s, host::Source{}, v.grid, s.output.dir);
+  host::LocalPipeline pipe(v, job);
+  const std::unique_ptr<host::Sink> viewer = outputs::makeViewerSink(job);
+  host::serveVolume(pipe, job, {viewer.get()});
   return 0;
 }
 

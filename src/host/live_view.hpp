@@ -24,6 +24,8 @@
 #include "core/transform.hpp"
 #include "core/volume_io.hpp"
 #include "gp/reconstruction.hpp"
+#include "host/sink.hpp"
+#include "host/view_settings.hpp"
 
 namespace pp5 {
 class ConfigSchema;
@@ -31,45 +33,6 @@ class ConfigSchema;
 
 namespace pp5::host {
 
-// [view]
-struct ViewSettings {
-  std::string listen;        // "[ADDR:]PORT"; "" = no viewer (`run --view` sets it)
-  std::string token;         // "" = a random one when the address is not loopback
-  bool serve = false;        // keep the final volume interactive after the input ends (`run --serve`)
-  double imageHz = 30.0;     // at most this many 3D images per second to the browsers
-  int jpegQuality = 85;
-  double bmodeHz = 15.0;     // B-mode frames per second to the browsers
-  double sliceHz = 2.0;      // the volume fetched for the slices at most this often
-  int sliceSize = 384;       // the slices' longer side, pixels
-  double dragStepScale = 2.0;  // the ray step times this while the user drags
-  int dragPixelStride = 2;     // and a ray for every n-th pixel along x and y (the finest a drag uses)
-  double dragRateHz = 15.0;    // a drag's stride coarsens until its views come this often (0: fixed)
-  std::string webRoot;       // the page's folder; "" = the one built in
-  // Control messages accepted per second, more are answered with an error (not
-  // a TOML option: the fuzz target of tests/fuzz raises it).
-  int maxControlPerSecond = 240;
-};
-void registerOptions(ConfigSchema& schema, ViewSettings& s);
-// InputError for settings that cannot work together: view.serve without
-// view.listen, a view.drag_pixel_stride that does not divide 8.
-void checkViewSettings(const ViewSettings& s);
-
-// "[ADDR:]PORT" into its parts; InputError naming `what` when malformed.
-void parseListen(const std::string& listen, std::string& address, int& port, const std::string& what);
-
-// The run's figures, as the host (or the serial run) measures them.
-struct LiveFigures {
-  double framesPerS = 0, imagesPerS = 0, latencyMedianMs = 0, latencyP95Ms = 0;
-  std::uint64_t frames = 0, dropped = 0;
-  double gpLoad = 0, ppLoad = 0;  // share of the wall time the GPs (PPs) were busy, 0..1
-};
-
-// What the browsers ask of the pipeline now.
-struct LiveWanted {
-  comm::ControlState state;  // the view, shading, transfer function and live mode
-  bool paused = false;
-  bool recording = false;
-};
 
 class LiveView {
 public:

@@ -1,0 +1,37 @@
+#pragma once
+// [view]: the live viewer's settings (the viewer itself: host/live_view.hpp).
+#include <string>
+
+namespace pp5 {
+class ConfigSchema;
+}
+
+namespace pp5::host {
+
+// [view]
+struct ViewSettings {
+  std::string listen;        // "[ADDR:]PORT"; "" = no viewer (`run --view` sets it)
+  std::string token;         // "" = a random one when the address is not loopback
+  bool serve = false;        // keep the final volume interactive after the input ends (`run --serve`)
+  double imageHz = 30.0;     // at most this many 3D images per second to the browsers
+  int jpegQuality = 85;
+  double bmodeHz = 15.0;     // B-mode frames per second to the browsers
+  double sliceHz = 2.0;      // the volume fetched for the slices at most this often
+  int sliceSize = 384;       // the slices' longer side, pixels
+  double dragStepScale = 2.0;  // the ray step times this while the user drags
+  int dragPixelStride = 2;     // and a ray for every n-th pixel along x and y (the finest a drag uses)
+  double dragRateHz = 15.0;    // a drag's stride coarsens until its views come this often (0: fixed)
+  std::string webRoot;       // the page's folder; "" = the one built in
+  // Control messages accepted per second, more are answered with an error (not
+  // a TOML option: the fuzz target of tests/fuzz raises it).
+  int maxControlPerSecond = 240;
+};
+void registerOptions(ConfigSchema& schema, ViewSettings& s);
+// InputError for settings that cannot work together: view.serve without
+// view.listen, a view.drag_pixel_stride that does not divide 8.
+void checkViewSettings(const ViewSettings& s);
+
+// "[ADDR:]PORT" into its parts; InputError naming `what` when malformed.
+void parseListen(const std::string& listen, std::string& address, int& port, const std::string& what);
+
+}  // namespace pp5::host
