@@ -3,12 +3,14 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <memory>
 #include <vector>
 
-#include <OpenImageIO/filesystem.h>
-#include <OpenImageIO/imageio.h>
+#include <dlfcn.h>
+
+#include <fmt/format.h>
 #include <gif_lib.h>
 
 #include "core/error.hpp"
@@ -17,27 +19,59 @@
 namespace pp5 {
 namespace {
 
+// The image codec module (core/image_codec.cpp), loaded on first use: the
+// build tree's, PP5_IMAGE_CODEC's, or the one installed beside the program.
+struct Codec {
+  int (*encode)(const char*, int, int, int, const unsigned char*, unsigned char**, std::size_t*, char*, std::size_t);
+  int (*decode)(const char*, int*, int*, int*, unsigned char**, char*, std::size_t);
+  void (*release)(void*);
+};
+
+std::vector<std::string> codecCandidates() {
+  std::vector<std::string> out;
+  if (const char* env = std::getenv("PP5_IMAGE_CODEC"); env && *env) out.emplace_back(env);
+  std::error_code ec;
+  const auto exe = std::filesystem::read_symlink("/proc/self/exe", ec);
+  if (!ec) out.push_back((exe.parent_path().parent_path() / "lib" / "pp5echo" / PP5_IMAGE_CODEC_NAME).string());
+  out.emplace_back(PP5_IMAGE_CODEC_BUILT);
+  return out;
+}
+
+const Codec& codec() {
+  static const Codec c = [] {
+    std::string tried;
+    for (const std::string& path : codecCandidates()) {
+      if (void* h = ::dlopen(path.c_str(), RTLD_NOW | RTLD_LOCAL)) {
+        Codec k{};
+        k.encode = reinterpret_cast<decltype(k.encode)>(::dlsym(h, "pp5_codec_encode"));
+        k.decode = reinterpret_cast<decltype(k.decode)>(::dlsym(h, "pp5_codec_decode"));
+        k.release = reinterpret_cast<decltype(k.release)>(::dlsym(h, "pp5_codec_free"));
+        if (k.encode && k.decode && k.release) return k;
+        tried += fmt::format("; {}: not the image codec module", path);
+      } else {
+        tried += fmt::format("; {}", ::dlerror());
+      }
+    }
+    throw InputError("cannot load the image codec module (OpenImageIO)" + tried +
+                     " (set PP5_IMAGE_CODEC to its path)");
+  }();
+  return c;
+}
+
 void writeImage(const std::string& path, int width, int height, int channels, const std::uint8_t* px) {
   PP5_CHECK_GT(width, 0);
   PP5_CHECK_GT(height, 0);
   // Encoded in memory, then written with io::AtomicFile, which checks every
   // write, syncs and renames: OpenImageIO's PNG writer reported success for a
   // file the disk had cut short (found with `ulimit -f`).
-  const std::filesystem::path final(path);
-  auto out = OIIO::ImageOutput::create(path);  // the format by the extension; nothing is opened
-  if (!out) inputError(path, "cannot write an image of this type ({})", OIIO::geterror());
-  if (!out->supports("ioproxy")) inputError(path, "the image writer cannot encode to memory");
-  std::vector<unsigned char> encoded;
-  OIIO::Filesystem::IOVecOutput memory(encoded);
-  out->set_ioproxy(&memory);
-  OIIO::ImageSpec spec(width, height, channels, OIIO::TypeDesc::UINT8);
-  // Level 1 is ~3x faster than the default for noisy ultrasound content, for
-  // files only a little larger.
-  spec.attribute("png:compressionLevel", 1);
-  if (!out->open(path, spec)) inputError(path, "cannot encode: {}", out->geterror());
-  if (!out->write_image(OIIO::TypeDesc::UINT8, px) || !out->close()) inputError(path, "cannot encode: {}", out->geterror());
+  const Codec& k = codec();
+  unsigned char* encoded = nullptr;
+  std::size_t n = 0;
+  char err[512] = {};
+  if (k.encode(path.c_str(), width, height, channels, px, &encoded, &n, err, sizeof err) != 0) inputError(path, "{}", err);
+  const std::unique_ptr<unsigned char, void (*)(void*)> owned(encoded, k.release);
   io::AtomicFile file(path);
-  file.write(encoded.data(), encoded.size());
+  file.write(encoded, n);
   file.commit();
 }
 
@@ -163,17 +197,14 @@ void AnimatedGif::close() {
 }
 
 Image8 readImage8(const std::string& path) {
-  auto in = OIIO::ImageInput::open(path);
-  if (!in) inputError(path, "cannot read image: {}", OIIO::geterror());
-  const OIIO::ImageSpec& spec = in->spec();
+  const Codec& k = codec();
   Image8 img;
-  img.width = spec.width;
-  img.height = spec.height;
-  img.channels = spec.nchannels;
-  img.pixels.resize(static_cast<std::size_t>(img.width) * img.height * img.channels);
-  if (!in->read_image(0, 0, 0, img.channels, OIIO::TypeDesc::UINT8, img.pixels.data()))
-    inputError(path, "cannot decode image: {}", in->geterror());
-  in->close();
+  unsigned char* px = nullptr;
+  char err[512] = {};
+  if (k.decode(path.c_str(), &img.width, &img.height, &img.channels, &px, err, sizeof err) != 0)
+    inputError(path, "{}", err);
+  const std::unique_ptr<unsigned char, void (*)(void*)> owned(px, k.release);
+  img.pixels.assign(px, px + static_cast<std::size_t>(img.width) * img.height * img.channels);
   return img;
 }
 

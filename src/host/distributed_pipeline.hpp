@@ -13,6 +13,8 @@
 #include <string>
 #include <vector>
 
+#include <fmt/format.h>
+
 #include "comm/messages.hpp"
 #include "comm/transport.hpp"
 #include "host/pipeline.hpp"
@@ -128,5 +130,22 @@ private:
   // The closing report: printed, and returned as summary.json's text.
   std::string summary(const RunEnd& e);
 };
+
+template <typename F>
+inline void DistributedPipeline::waitUntil(F done, const std::string& what) {
+  while (!done()) {
+    const double w0 = t_.waitSeconds();
+    comm::Message m;
+    try {
+      m = t_.wait(what);
+    } catch (const comm::CommError& e) {
+      // Name the rank that went quiet, as the heartbeat would.
+      const auto [r, age] = quietestRank();
+      throw comm::CommError(fmt::format("{}; {} was heard from last, {:.1f} s ago", e.what(), rankName(r), age));
+    }
+    clock_.add(comm::kWait, 1e3 * (t_.waitSeconds() - w0));
+    handle(m);
+  }
+}
 
 }  // namespace pp5::host
