@@ -25,6 +25,7 @@ cmake -S . -B "$dir" -G Ninja -DCMAKE_CXX_COMPILER="$cxx" -DCMAKE_BUILD_TYPE=Rel
   { cat "$dir/configure.log" >&2; exit 1; }
 echo "sanitize.sh: building the sanitized pp5echo and tests with $jobs jobs (several minutes the first time)" >&2
 cmake --build "$dir" -j "$jobs" --target pp5echo test_io test_plus_config test_calibration test_cli test_igtl >&2
+echo "sanitize.sh: built in $(( $(date +%s) - start )) s" >&2
 
 export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 OMPI_MCA_rmaps_base_oversubscribe=1
 export UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1"

@@ -1,42 +1,28 @@
 #!/usr/bin/env python3
-"""The layering rules of src/ (docs/architecture.md, "Layers"), checked on the includes.
+"""The rules of src/, checked on the includes. The rules live in one place: each folder's README.md.
 
     python3 tests/layering.py SRC_DIR        exit 1 and one line per broken rule
     python3 tests/layering.py --self-test    the checker catches each kind of break
 
 Rules:
-  1. A folder includes only its own headers and those of folders in lower layers, so layers only
-     point down, and folders of one layer (gp/ and pp/, say) never include each other.
-  2. MPI (<mpi.h> or an MPI_ call) appears only in comm/.
-  3. Every folder of src/ is in the table below and has a README.md.
+  1. Every folder of src/ has a README.md with a sentence "May include: a/, b/." (or "every folder
+     of src/", or "nothing of src/ but itself"), and includes only its own headers and those of the
+     folders that sentence names.
+  2. What the READMEs allow has no cycle, so layers only point down.
+  3. MPI (<mpi.h> or an MPI_ call) appears only in comm/.
+  4. No source file is over 600 lines; in host/ and app/, none is over 400.
 """
 import os
 import re
 import sys
 import tempfile
 
-# Folder -> layer. Lower layers know nothing of higher ones.
-LAYERS = {
-    "core": 0,             # value types, math, configuration, file formats, render geometry
-    "comm": 1,             # messages and the transport (the only MPI)
-    "sim": 1,              # the simulated world
-    "gp": 1,               # graphics-processor stages (pure)
-    "pp": 1,               # pixel-processor stages (pure)
-    "interface_board": 1,  # the USB board's wire format, driver and emulator
-    "igtl": 1,             # the OpenIGTLink client
-    "viewer": 1,           # the live viewer's server
-    "calib": 1,            # probe calibration with an N-wire phantom
-    "parallel": 2,         # schedules, partitionings, parallel settings
-    "serial": 2,           # the single-process reference pipeline
-    "ranks": 3,            # the GP and PP rank loops
-    "host": 4,             # sources, acquisition, the one run loop and its two pipelines
-    "outputs": 5,          # the run's outputs as sinks of the run loop
-    "harness": 5,          # the partitioning benchmark's harness
-    "app": 6,              # the command line
-}
+MAX_LINES = 600
+MAX_LINES_BY_FOLDER = {"host": 400, "app": 400}  # the loop and the command line stay thin
 
 INCLUDE = re.compile(r'^\s*#\s*include\s*[<"]([^>"]+)[>"]')
 MPI_CALL = re.compile(r"\bMPI_[A-Z][A-Za-z_]*\b")
+MAY_INCLUDE = re.compile(r"May include:\s*(.*?)(?:\.\s|\.$)", re.S)
 SOURCE_EXT = (".hpp", ".cpp", ".h", ".cc", ".inl")
 
 
@@ -65,17 +51,61 @@ def strip_comments_and_strings(line, in_block):
     return "".join(out), in_block
 
 
-def check(src):
-    problems = []
-    folders = sorted(d for d in os.listdir(src) if os.path.isdir(os.path.join(src, d)))
+def allowed(src, folders):
+    """Folder -> the set of folders its README lets it include (None: no such sentence), and the problems."""
+    rules, problems = {}, []
     for d in folders:
-        if d not in LAYERS:
-            problems.append(f"src/{d}/: a folder the layering table of tests/layering.py does not know; give it a layer")
-        if not os.path.isfile(os.path.join(src, d, "README.md")):
+        readme = os.path.join(src, d, "README.md")
+        if not os.path.isfile(readme):
             problems.append(f"src/{d}/: no README.md saying what it holds and what it may include")
-    for d in folders:
-        if d not in LAYERS:
+            rules[d] = None
             continue
+        with open(readme, encoding="utf-8") as f:
+            m = MAY_INCLUDE.search(f.read())
+        if not m:
+            problems.append(f"src/{d}/README.md: no \"May include: ...\" sentence")
+            rules[d] = None
+            continue
+        sentence = m.group(1)
+        if "every folder" in sentence:
+            rules[d] = set(folders) - {d}
+            continue
+        if sentence.startswith("nothing of src/"):
+            rules[d] = set()
+            continue
+        names = set(re.findall(r"\b([a-z_]+)/", sentence))
+        for n in sorted(names - set(folders)):
+            problems.append(f"src/{d}/README.md: may include {n}/, which is no folder of src/")
+        rules[d] = names & set(folders)
+    return rules, problems
+
+
+def cycles(rules):
+    """One line per cycle in what the READMEs allow (each found once, from its first folder)."""
+    found, state = [], {}
+
+    def visit(d, path):
+        state[d] = 1
+        for n in sorted(rules.get(d) or ()):
+            if state.get(n) == 1:
+                found.append(" -> ".join(path[path.index(n):] + [n]) if n in path else f"{d} -> {n}")
+            elif n not in state:
+                visit(n, path + [n])
+        state[d] = 2
+
+    for d in sorted(rules):
+        if d not in state:
+            visit(d, [d])
+    return found
+
+
+def check(src):
+    folders = sorted(d for d in os.listdir(src) if os.path.isdir(os.path.join(src, d)))
+    rules, problems = allowed(src, folders)
+    for c in cycles(rules):
+        problems.append(f"the READMEs' \"May include\" lists have a cycle: {c}")
+    for d in folders:
+        limit = MAX_LINES_BY_FOLDER.get(d, MAX_LINES)
         for root, _, files in os.walk(os.path.join(src, d)):
             for name in sorted(files):
                 if not name.endswith(SOURCE_EXT):
@@ -84,21 +114,24 @@ def check(src):
                 rel = os.path.relpath(path, os.path.dirname(src))
                 in_block = False
                 with open(path, encoding="utf-8", errors="replace") as f:
-                    for n, line in enumerate(f, 1):
-                        m = INCLUDE.match(line)
-                        if m:
-                            target = m.group(1)
-                            if target == "mpi.h" and d != "comm":
-                                problems.append(f"{rel}:{n}: includes <mpi.h>; only comm/ may see MPI")
-                            top = target.split("/")[0]
-                            if "/" in target and top in LAYERS and top != d and LAYERS[top] >= LAYERS[d]:
-                                how = "the same layer" if LAYERS[top] == LAYERS[d] else "a higher layer"
-                                problems.append(f"{rel}:{n}: {d}/ (layer {LAYERS[d]}) includes {target}, "
-                                                f"of {how} ({top}/, layer {LAYERS[top]})")
-                            continue
-                        code, in_block = strip_comments_and_strings(line, in_block)
-                        if d != "comm" and MPI_CALL.search(code):
-                            problems.append(f"{rel}:{n}: {MPI_CALL.search(code).group(0)} outside comm/")
+                    lines = f.readlines()
+                if len(lines) > limit:
+                    problems.append(f"{rel}: {len(lines)} lines, over {d}/'s limit of {limit}")
+                for n, line in enumerate(lines, 1):
+                    m = INCLUDE.match(line)
+                    if m:
+                        target = m.group(1)
+                        if target == "mpi.h" and d != "comm":
+                            problems.append(f"{rel}:{n}: includes <mpi.h>; only comm/ may see MPI")
+                        top = target.split("/")[0]
+                        if "/" in target and top in rules and top != d and rules[d] is not None \
+                                and top not in rules[d]:
+                            problems.append(f"{rel}:{n}: {d}/ includes {target}, but src/{d}/README.md does not "
+                                            f"let it include {top}/")
+                        continue
+                    code, in_block = strip_comments_and_strings(line, in_block)
+                    if d != "comm" and MPI_CALL.search(code):
+                        problems.append(f"{rel}:{n}: {MPI_CALL.search(code).group(0)} outside comm/")
     return problems
 
 
@@ -114,37 +147,45 @@ def self_test():
             with open(p, "w") as f:
                 f.write(text)
 
-        for d in ("core", "gp", "pp", "comm", "parallel"):
-            write(f"{d}/README.md", "x\n")
+        write("core/README.md", "Core.\n\nMay include: nothing of src/ but itself.\n")
+        write("gp/README.md", "GP.\n\nMay include: core/. Never pp/.\n")
+        write("pp/README.md", "PP.\n\nMay include: core/.\n")
+        write("comm/README.md", "Comm.\n\nMay include: core/.\n")
+        write("parallel/README.md", "Parallel.\n\nMay include: core/, comm/, gp/ (its\nstages), pp/.\n")
+        write("app/README.md", "App.\n\nMay include: every folder of src/.\n")
         write("core/a.hpp", "#pragma once\n")
         write("gp/b.cpp", '#include "core/a.hpp"\n// MPI_Send in a comment is fine\nconst char* s = "MPI_Bcast(";\n')
         write("parallel/c.cpp", '#include "gp/b.hpp"\n#include "comm/t.hpp"\n')
         write("comm/t.cpp", "#include <mpi.h>\nvoid f() { MPI_Barrier(0); }\n")
+        write("app/m.cpp", '#include "parallel/c.hpp"\n' + "int x;\n" * 390)
         clean = check(src)
         if clean:
             print("self-test: a clean tree was refused:", *clean, sep="\n  ")
             ok = False
         breaks = {
-            "gp/up.cpp": ('#include "parallel/c.hpp"\n', "includes parallel/c.hpp, of a higher layer"),
-            "gp/side.cpp": ('#include "pp/r.hpp"\n', "includes pp/r.hpp, of the same layer"),
-            "core/down.cpp": ('#include "gp/b.hpp"\n', "core/ (layer 0) includes gp/b.hpp"),
+            "gp/up.cpp": ('#include "parallel/c.hpp"\n', "does not let it include parallel/"),
+            "gp/side.cpp": ('#include "pp/r.hpp"\n', "does not let it include pp/"),
+            "core/down.cpp": ('#include "gp/b.hpp"\n', "src/core/README.md does not let it include gp/"),
             "pp/mpi.cpp": ("#include <mpi.h>\n", "includes <mpi.h>; only comm/ may see MPI"),
             "parallel/call.cpp": ("void g() {\n  MPI_Barrier(MPI_COMM_WORLD);\n}\n", "MPI_Barrier outside comm/"),
-            "newfolder/x.cpp": ("\n", "src/newfolder/: a folder the layering table"),
+            "newfolder/x.cpp": ("\n", "src/newfolder/: no README.md"),
+            "gp/long.cpp": ("int y;\n" * 601, "601 lines, over gp/'s limit of 600"),
+            "app/long.cpp": ("int y;\n" * 401, "401 lines, over app/'s limit of 400"),
+            "pp/README.md": ("PP.\n\nMay include: core/, parallel/.\n", "have a cycle"),
+            "comm/README.md": ("Comm, which includes what it likes.\n", "src/comm/README.md: no \"May include"),
         }
         for rel, (text, want) in breaks.items():
+            path = os.path.join(src, rel)
+            before = open(path).read() if os.path.exists(path) else None
             write(rel, text)
             found = check(src)
             if not any(want in p for p in found):
-                print(f"self-test: adding {rel} was not caught as '{want}'; found:", *found, sep="\n  ")
+                print(f"self-test: writing {rel} was not caught as '{want}'; found:", *found, sep="\n  ")
                 ok = False
-            os.remove(os.path.join(src, rel))
-        write("serial/README.md", "x\n")
-        os.remove(os.path.join(src, "serial/README.md"))
-        write("serial/p.cpp", '#include "gp/b.hpp"\n')
-        if not any("src/serial/: no README.md" in p for p in check(src)):
-            print("self-test: a folder without a README was not caught")
-            ok = False
+            if before is None:
+                os.remove(path)
+            else:
+                write(rel, before)
     print("layering self-test:", "every break caught" if ok else "FAILED")
     return 0 if ok else 1
 

@@ -7,6 +7,8 @@
 #include <random>
 
 #include "core/error.hpp"
+#include "core/config.hpp"
+#include "gp/kernels.hpp"
 #include "gp/reconstruction.hpp"
 
 namespace {
@@ -155,6 +157,39 @@ TEST(Reconstruction, PlusOutputGridFollowsPlusRule) {
   g = pp5::gp::plusOutputGrid({pose}, 101, 41, s, Vec3(0.5));
   EXPECT_EQ(g.origin, Vec3(15, 22, 30));
   EXPECT_EQ(g.dims, pp5::Index3(21, 11, 1));  // clip end is origin + size (no -1), as in PLUS
+}
+
+}  // namespace
+
+namespace {
+
+// The registry (gp/kernels.hpp): every value of recon.method has one entry,
+// under the name a file gives it, and every option an entry names is one the
+// schema knows, so that what it tells the other stages is about real methods.
+TEST(Kernels, EveryMethodIsRegisteredOnceUnderItsNameWithRealOptions) {
+  using pp5::EnumNames;
+  namespace gp = pp5::gp;
+  const auto& names = EnumNames<gp::Method>::names;
+  EXPECT_EQ(gp::kernels().size(), names.size());
+  pp5::ConfigSchema schema;
+  gp::ReconSettings rs;
+  gp::registerOptions(schema, rs);
+  const std::string doc = schema.markdown();
+  for (const auto& [method, name] : names) {
+    const gp::Kernel& k = gp::kernelFor(method);
+    EXPECT_EQ(k.method, method);
+    EXPECT_EQ(k.name, name);
+    EXPECT_FALSE(k.summary.empty()) << name;
+    EXPECT_FALSE(k.options.empty()) << name;
+    for (const std::string_view o : k.options) EXPECT_NE(doc.find("`" + std::string(o) + "`"), std::string::npos) << o;
+    gp::ReconSettings s;
+    s.method = method;
+    EXPECT_GT(k.bytesPerVoxel(s), 0u) << name;
+    EXPECT_EQ(k.describe(s).rfind(std::string(name), 0), 0u) << k.describe(s);
+  }
+  // Only the tent kernel is bounded by the slice's reach, so only it can be windowed.
+  EXPECT_TRUE(gp::kernelFor(gp::Method::Tent).windowed);
+  EXPECT_FALSE(gp::kernelFor(gp::Method::Trilinear).windowed);
 }
 
 }  // namespace

@@ -18,6 +18,7 @@
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
+#include "gp/kernels.hpp"
 #include "app/bench_common.hpp"
 #include "app/settings.hpp"
 #include "core/error.hpp"
@@ -169,7 +170,7 @@ int runCostModel(const CostModelRun& run) {
   const int cores = std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
   // rankWork splits work as these settings do; refuse the others rather than mispredict.
   if (s.parallel.split() != parallel::SlabSplit::Longest || s.parallel.ghostVoxels != 1 ||
-      s.recon.method != gp::Method::Tent)
+      !gp::kernelFor(s.recon.method).tentKernel)
     throw InputError("cost model: it splits work as parallel.slab_split = \"longest\", parallel.ghost_voxels = 1 and "
                      "recon.method = \"tent\" do; this configuration sets another");
 

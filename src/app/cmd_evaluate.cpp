@@ -9,6 +9,7 @@
 #include <nlohmann/json.hpp>
 #include <spdlog/spdlog.h>
 
+#include "gp/kernels.hpp"
 #include "app/commands.hpp"
 #include "app/recon_run.hpp"
 #include "app/settings.hpp"
@@ -64,7 +65,7 @@ gp::ReconSettings reconSettings(const CommonOpts& o, const PosedSequence& seq, S
 
 // The tent kernel the reconstruction used (set, or derived from the frames).
 void addKernel(nlohmann::ordered_json& j, const gp::ReconSettings& rs) {
-  if (rs.method != gp::Method::Tent) return;
+  if (!gp::kernelFor(rs.method).tentKernel) return;
   j["kernel_mm"] = {rs.kernelLateralMm, rs.kernelAxialMm, rs.kernelElevationMm};
   j["kernel_from_frames"] = rs.kernelFromFrames;
 }
@@ -81,9 +82,7 @@ void emitJson(const std::string& where, const nlohmann::ordered_json& j) {
 }
 
 std::string describe(const gp::ReconSettings& rs) {
-  std::string d(enumName(rs.method));
-  if (rs.method != gp::Method::Tent) d += "/" + std::string(enumName(rs.compounding));
-  if (rs.method == gp::Method::Tent && rs.fillIn) d += "+fill-in";
+  std::string d = gp::kernelFor(rs.method).describe(rs);
   if (rs.fillHoles) d += "+holes";
   return d + " (" + std::string(enumName(rs.arithmetic)) + ")";
 }

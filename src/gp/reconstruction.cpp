@@ -1,4 +1,5 @@
 #include "gp/reconstruction.hpp"
+#include "gp/kernels.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -124,57 +125,28 @@ void Reconstructor::setWindow(const Box3& window) {
 
 Box3 reconstructionReach(const Grid& g, const ReconSettings& s, const Box3& window) {
   const Box3 all{Index3(0), g.dims};
-  Box3 w = window.intersect(all);
+  const Box3 w = window.intersect(all);
   if (w.empty()) return Box3{};
-  if (s.method == Method::Tent) {
-    if (s.replacement == Replacement::MotionVector) {
-      const std::int64_t b = std::max(1, s.motionVectorBrick);
-      w.lo = w.lo / Index3(b) * Index3(b);  // lo >= 0: division rounds down
-      w.hi = (w.hi + Index3(b - 1)) / Index3(b) * Index3(b);
-    }
-  } else if (s.fillHoles) {
-    const HoleFiller filler(s.holeFilling.empty() ? HoleFiller::defaultElements() : s.holeFilling,
-                            s.arithmetic == Arithmetic::Plus);
-    w = w.grown(filler.reach());
-  }
-  return w.intersect(all);
+  return kernelFor(s.method).reach(g, s, w).intersect(all);
 }
 
 void checkReconSettings(const ReconSettings& s) {
-  // PLUS's hole filling weighs the neighbours by the per-voxel weights of
-  // nearest and trilinear splatting; the tent kernel keeps no such weights
-  // and fills between slices itself (recon.fill_in). Silently ignoring the
-  // option would leave a user believing the holes were filled.
-  if (s.method == Method::Tent && (s.fillHoles || s.fillHolesIncremental || !s.holeFilling.empty()))
-    throw InputError(
-        "recon.fill_holes (and fill_holes_incremental, or a PLUS HoleFilling element) works with recon.method = "
-        "nearest or trilinear, whose per-voxel weights it needs; the tent method fills between slices itself "
-        "(recon.fill_in, recon.fill_in_max_gap_mm): set recon.method = trilinear for PLUS's hole filling, or "
-        "recon.fill_holes = false");
-  if (s.kernelFromFrames && s.method != Method::Tent)
-    throw InputError(fmt::format("recon.kernel_from_frames derives the tent kernel, but recon.method is '{}': use it "
-                                 "with recon.method = \"tent\"", enumName(s.method)));
+  kernelFor(s.method).check(s);
   if (s.fillHolesIncremental && !s.fillHoles)
     throw InputError("recon.fill_holes_incremental keeps the holes filled as frames arrive; it needs "
                      "recon.fill_holes = true");
-  // PLUS's fixed point is how PLUS splats pixels; the tent kernel has no PLUS
-  // counterpart and always computes in float.
-  if (s.method == Method::Tent && s.arithmetic == Arithmetic::Plus)
-    throw InputError("recon.arithmetic = \"plus\" reproduces PLUS's nearest and trilinear splatting; the tent method "
-                     "computes in float: set recon.method = nearest or trilinear, or recon.arithmetic = \"float\"");
 }
 
 std::unique_ptr<Reconstructor> makeReconstructor(const Grid& g, const ReconSettings& s,
                                                  std::uint64_t memoryLimitBytes, const std::string& what) {
   // Settings built in code are held to the names a file could give.
-  const Method m = checkedEnum(s.method);
+  const Kernel& k = kernelFor(checkedEnum(s.method));
   checkedEnum(s.compounding);
   checkedEnum(s.replacement);
   checkedEnum(s.arithmetic);
   checkReconSettings(s);
-  const std::uint64_t bpv = m == Method::Tent ? tentBytesPerVoxel(s) : pixelBytesPerVoxel(s);
-  checkGridFits(g, bpv, what, memoryLimitBytes);
-  return m == Method::Tent ? makeTentReconstructor(g, s) : makePixelReconstructor(g, s);
+  checkGridFits(g, k.bytesPerVoxel(s), what, memoryLimitBytes);
+  return k.make(g, s);
 }
 
 Grid plusOutputGrid(const std::vector<Mat4>& imageToReference, int width, int height, const ReconSettings& s,

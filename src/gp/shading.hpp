@@ -69,6 +69,9 @@ struct ShadeSettings {
 
 };
 
+// InputError for a value the schema would refuse (settings built in code
+// are held to the same ranges as files).
+void checkShadeSettings(const ShadeSettings& s);
 void registerOptions(ConfigSchema& schema, ShadeSettings& s);
 
 // Re-shades every voxel of `box` (clipped to the grid) from the grey values

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include "gp/kernels.hpp"
 #include "core/error.hpp"
 
 namespace pp5::host {
@@ -27,10 +28,7 @@ std::optional<std::array<std::array<double, 2>, 4>> outlineOnScreen(const Camera
 Coverage::Coverage(const Grid& grid, const gp::ReconSettings& recon, double cellMm) : grid_(grid) {
   const double finest = std::min(grid.spacing.x, std::min(grid.spacing.y, grid.spacing.z));
   cellMm_ = std::max(cellMm, finest);
-  if (recon.method == gp::Method::Tent)
-    limitMm_ = recon.fillIn ? recon.fillInMaxGapMm : 2.0 * recon.kernelElevationMm;
-  else  // PLUS's pixel methods reach the voxels next to the slice; hole filling is a later pass
-    limitMm_ = 2.0 * std::max(grid.spacing.x, std::max(grid.spacing.y, grid.spacing.z));
+  limitMm_ = gp::kernelFor(recon.method).gapLimitMm(recon, grid);
   for (int a = 0; a < 3; ++a)
     cells_[static_cast<std::size_t>(a)] =
         std::max<std::int64_t>(1, static_cast<std::int64_t>(std::ceil(grid.dims[a] * grid.spacing[a] / cellMm_)));

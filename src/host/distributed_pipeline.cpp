@@ -319,9 +319,7 @@ PipelineCounters DistributedPipeline::counters() const {
   c.ppBusyMs = ppBusyMs_;
   c.gps = L_.gps;
   c.pps = L_.pps;
-  const std::vector<double> last = latency_.measured(90);
-  c.latencyMedianMs = percentile(last, 0.5);
-  c.latencyP95Ms = percentile(last, 0.95);
+  latency_.recent(c);
   return c;
 }
 

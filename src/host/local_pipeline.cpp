@@ -109,9 +109,7 @@ PipelineCounters LocalPipeline::counters() const {
   c.images = images_;
   c.gpBusyMs = gpBusyMs_;
   c.ppBusyMs = ppBusyMs_;
-  const std::vector<double> last = latency_.measured(90);
-  c.latencyMedianMs = percentile(last, 0.5);
-  c.latencyP95Ms = percentile(last, 0.95);
+  latency_.recent(c);
   return c;
 }
 

@@ -80,6 +80,8 @@ public:
   }
   // The latencies set, of the last `n` of them at most (0: all), newest first.
   std::vector<double> measured(std::size_t n = 0) const;
+  // The median and 95th percentile of the last 90 set, into the counters.
+  void recent(PipelineCounters& c) const;
 
 private:
   std::vector<Clock::time_point> arrival_;

@@ -341,6 +341,12 @@ std::vector<double> FrameLatency::measured(std::size_t n) const {
   return out;
 }
 
+void FrameLatency::recent(PipelineCounters& c) const {
+  const std::vector<double> last = measured(90);
+  c.latencyMedianMs = percentile(last, 0.5);
+  c.latencyP95Ms = percentile(last, 0.95);
+}
+
 serial::ViewStats applyControl(serial::SerialPipeline& pipe, std::uint32_t changes, const ViewState& next,
                   const RenderSettings& base, const Grid& grid) {
   RenderSettings render = base;

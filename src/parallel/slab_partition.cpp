@@ -5,6 +5,7 @@
 // the GPs whose reconstruction the frame (and the fill-in before it) can
 // reach; the others get its pose, so that their fill-in and motion state
 // advance as the whole grid's would.
+#include "gp/kernels.hpp"
 #include "parallel/partition.hpp"
 
 namespace pp5::parallel {
@@ -46,8 +47,8 @@ public:
         slabs_(grid, layout.gps, s.split()),
         ghost_(s.ghostVoxels),
         workTile_(workTileSize(tiles)),
-        // The pose-only frames rest on the tent kernel's reach (gp::frameReach).
-        places_(recon.method == gp::Method::Tent) {
+        // The pose-only frames rest on the slice's reach (gp::frameReach).
+        places_(gp::kernelFor(recon.method).windowed) {
     // What each GP's reconstruction depends on, once for the run.
     for (int g = 0; g < layout.gps; ++g) reaches_.push_back(slabs_.reach(g, ghost_, recon));
   }

@@ -19,6 +19,15 @@
 
 namespace pp5::pp::composite {
 
+// Bounds the decode buffer each compositing thread keeps on its stack (render.cache.block_size).
+constexpr int kMaxBlockSize = 1024;
+
+// 0..1 to 0..255, rounded; NaN lands on 0 too.
+inline std::uint8_t toU8(float v) {
+  const float c = v > 0.0f ? (v < 1.0f ? v : 1.0f) : 0.0f;
+  return static_cast<std::uint8_t>(c * 255.0f + 0.5f);
+}
+
 using Partial = RayCache::Partial;
 
 // A block's state (RayCache::dirty_): its stored partial is valid; its
@@ -33,7 +42,7 @@ constexpr Partial identityPartial() {
   else return {0.f, 0.f, 0.f, 0.f};
 }
 
-Partial identityPartial(CompositeMode m) {
+inline Partial identityPartial(CompositeMode m) {
   switch (m) {
     case CompositeMode::Over: return identityPartial<CompositeMode::Over>();
     case CompositeMode::Additive: return identityPartial<CompositeMode::Additive>();
