@@ -5,27 +5,44 @@
 # run, and then every fuzz target for a bounded time (scripts/fuzz.sh).
 # Any finding fails the stage.
 #
-# Usage: scripts/sanitize.sh [FUZZ_SECONDS]   (default 10 per fuzz target)
+# Usage: scripts/sanitize.sh [FUZZ_SECONDS] [--build-only | --run-only]
+#   FUZZ_SECONDS  how long each fuzz target runs (default 10)
+#   --build-only  configure and build the sanitized programs and fuzz targets, and stop
+#                 (scripts/test.sh runs this at the lowest priority while CTest runs)
+#   --run-only    run the tests and fuzz targets of a build made before
 # Build folder: $PP5_FUZZ_BUILD_DIR, default build-fuzz/ (shared with scripts/fuzz.sh).
 # Exit status 77 when clang++ is not installed.
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 cd "$root"
-secs=${1:-10}
+secs=10 phase=all
+for a in "$@"; do
+  case "$a" in
+    --build-only) phase=build ;;
+    --run-only) phase=run ;;
+    *[!0-9]*|"") echo "sanitize.sh: unknown argument '$a' (FUZZ_SECONDS, --build-only or --run-only)" >&2; exit 2 ;;
+    *) secs=$a ;;
+  esac
+done
+fuzz_targets=(fuzz_decoder fuzz_metaio fuzz_nrrd fuzz_journal fuzz_plus_xml fuzz_toml fuzz_igtl fuzz_control)
 
 cxx=$(bash "$root/scripts/clang.sh") || exit 77
 dir=${PP5_FUZZ_BUILD_DIR:-$root/build-fuzz}
 jobs=$(nproc 2>/dev/null || echo 2)
 start=$(date +%s)
 
-echo "sanitize.sh: configuring $dir (clang, ASan + UBSan, fuzzer coverage)" >&2
-mkdir -p "$dir"  # the configure log goes inside it, not beside it in the checkout
-cmake -S . -B "$dir" -G Ninja -DCMAKE_CXX_COMPILER="$cxx" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DPP5_FUZZ=ON \
-  -DPP5_BUILD_TESTS=ON -DPP5_BUILD_BENCH=OFF -DMPIEXEC_PREFLAGS="--allow-run-as-root;--oversubscribe" >"$dir/configure.log" 2>&1 ||
-  { cat "$dir/configure.log" >&2; exit 1; }
-echo "sanitize.sh: building the sanitized pp5echo and tests with $jobs jobs (several minutes the first time)" >&2
-cmake --build "$dir" -j "$jobs" --target pp5echo test_io test_plus_config test_calibration test_cli test_igtl >&2
-echo "sanitize.sh: built in $(( $(date +%s) - start )) s" >&2
+if [ "$phase" != run ]; then
+  echo "sanitize.sh: configuring $dir (clang, ASan + UBSan, fuzzer coverage)" >&2
+  mkdir -p "$dir"  # the configure log goes inside it, not beside it in the checkout
+  cmake -S . -B "$dir" -G Ninja -DCMAKE_CXX_COMPILER="$cxx" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DPP5_FUZZ=ON \
+    -DPP5_BUILD_TESTS=ON -DPP5_BUILD_BENCH=OFF -DMPIEXEC_PREFLAGS="--allow-run-as-root;--oversubscribe" >"$dir/configure.log" 2>&1 ||
+    { cat "$dir/configure.log" >&2; exit 1; }
+  echo "sanitize.sh: building the sanitized pp5echo, tests and fuzz targets with $jobs jobs (several minutes the first time)" >&2
+  cmake --build "$dir" -j "$jobs" --target pp5echo test_io test_plus_config test_calibration test_cli test_igtl \
+    "${fuzz_targets[@]}" >&2
+  echo "sanitize.sh: built in $(( $(date +%s) - start )) s" >&2
+  [ "$phase" = build ] && exit 0
+fi
 
 export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 OMPI_MCA_rmaps_base_oversubscribe=1
 export UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1"

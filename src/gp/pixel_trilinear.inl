@@ -1,11 +1,8 @@
-// PLUS's trilinear splatting of one slab (gp/pixel_kernels.hpp).
-#include "gp/pixel_methods.hpp"
-#include "gp/pixel_walk.hpp"
-
-namespace pp5::gp::pixel::walk {
-
-namespace {
-
+// A part of gp/pixel_kernels.cpp, included there inside its unnamed
+// namespace: the pixel kernels are one translation unit, so that they compile
+// exactly as they did in one file (the compiler inlines a helper by how many
+// calls it sees), cut into the walk they share and one file per method to
+// keep each file short. Not a header: it includes nothing and stands alone.
 // ---------------------------------------------------------------------------
 // Trilinear. Consecutive pixels with the same lower corner n0 form a group
 // (float: a walker segment): their contributions to the eight corners are
@@ -19,7 +16,7 @@ using simd::I4;
 // Float: corner k = 4*bx + 2*by + bz; lanes 0..3 of the "lo" vectors are
 // bx = 0 (by, bz = 00, 01, 10, 11), of the "hi" vectors bx = 1.
 template <class Pix, Compounding C>
-void trilinearFloatT(const Job& job, FloatCell* cells, const Slab& slab, bool split, SlabOut& out) {
+void trilinearFloat(const Job& job, FloatCell* cells, const Slab& slab, bool split, SlabOut& out) {
   const Bounds bd(job, slab);
   const int sa = slab.axis;
   const std::int64_t sy = job.sy, sz = job.sz;
@@ -158,7 +155,7 @@ void trilinearFloatT(const Job& job, FloatCell* cells, const Slab& slab, bool sp
 // weight 0 skipped. PLUS visits corners k = 7..0, but corners of non-zero
 // weight are distinct voxels, so their order changes nothing.
 template <Compounding C>
-void trilinearPlusT(const Job& job, PlusCell* cells, const Slab& slab, bool split, SlabOut& out) {
+void trilinearPlus(const Job& job, PlusCell* cells, const Slab& slab, bool split, SlabOut& out) {
   using namespace plusmath;
   const Bounds bd(job, slab);
   const int sa = slab.axis;
@@ -262,29 +259,3 @@ void trilinearPlusT(const Job& job, PlusCell* cells, const Slab& slab, bool spli
   out.pixels += inserted;
 }
 
-
-}  // namespace
-
-void trilinearPlus(Compounding comp, const Job& job, PlusCell* c, const Slab& slab, bool split, SlabOut& so) {
-  switch (comp) {
-    case Compounding::Mean: trilinearPlusT<Compounding::Mean>(job, c, slab, split, so); break;
-    case Compounding::Latest: trilinearPlusT<Compounding::Latest>(job, c, slab, split, so); break;
-    case Compounding::Maximum: trilinearPlusT<Compounding::Maximum>(job, c, slab, split, so); break;
-  }
-}
-
-void trilinearFloat(Compounding comp, const Job& job, FloatCell* c, const Slab& slab, bool split, SlabOut& so) {
-  auto run = [&]<class Pix>() {
-    switch (comp) {
-      case Compounding::Mean: trilinearFloatT<Pix, Compounding::Mean>(job, c, slab, split, so); break;
-      case Compounding::Latest: trilinearFloatT<Pix, Compounding::Latest>(job, c, slab, split, so); break;
-      case Compounding::Maximum: trilinearFloatT<Pix, Compounding::Maximum>(job, c, slab, split, so); break;
-    }
-  };
-  if (job.u16)
-    run.template operator()<std::uint16_t>();
-  else
-    run.template operator()<std::uint8_t>();
-}
-
-}  // namespace pp5::gp::pixel::walk

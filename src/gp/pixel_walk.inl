@@ -1,25 +1,9 @@
-#pragma once
-// The pixel methods' shared walk (gp/pixel_kernels.cpp, pixel_nearest.cpp,
-// pixel_trilinear.cpp): a row's voxel runs, the slab bounds, the prefix sums
-// the segments use. Not for other files. Its helpers sit in an unnamed
-// namespace, as they did in the one file they came from, so that each of
-// the two files that includes it compiles them exactly as before.
-#include <algorithm>
-#include <bit>
-#include <cmath>
-#include <cstring>
-#include <limits>
-#if defined(__SSE2__)
-#include <emmintrin.h>
-#endif
-#include "core/error.hpp"
-#include "core/simd.hpp"
-#include "gp/pixel_kernels.hpp"
-
-namespace pp5::gp::pixel::walk {
-
-namespace {
-
+// A part of gp/pixel_kernels.cpp, included there inside its unnamed
+// namespace: the pixel kernels are one translation unit, so that they compile
+// exactly as they did in one file (the compiler inlines a helper by how many
+// calls it sees), cut into the walk they share and one file per method to
+// keep each file short. Not a header: it includes nothing and stands alone.
+// The shared walk: a row's voxel runs, the slab bounds, the prefix sums.
 
 // The voxels a row writes, appended to its slab's list the first time only,
 // without a branch (room for `extra` entries is made first). Kept in locals
@@ -304,6 +288,3 @@ void walkRun(const Axis (&ax)[3], int ia, int ib, Seg&& seg) {
   }
 }
 
-}  // namespace
-
-}  // namespace pp5::gp::pixel::walk

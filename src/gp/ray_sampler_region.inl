@@ -1,11 +1,9 @@
-// Sampling the lattice points in a D-buffer's intervals: what a frame's
-// update re-samples (gp/ray_sampler.hpp).
-#include "gp/ray_sampler.hpp"
-
-#include "gp/ray_walk.hpp"
-
-namespace pp5::gp {
-
+// A part of gp/ray_sampler.cpp, included there where it stood: sampling the
+// lattice points in a D-buffer's intervals, what a frame's update
+// re-samples. One translation unit with the rest of the sampler, so that it
+// compiles exactly as it did in one file (the compiler inlines the walk's
+// helpers by how many calls it sees); a file of its own to keep each short.
+// Not a header: it includes nothing and stands alone.
 void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const DBuffer& dbuffer,
                   const RenderSettings& settings, SampleSink& sink, const EmptySpaceMap* space,
                   const SamplerOptions& options, const EmptySpaceMap* before, CellMarks changedCells) {
@@ -210,4 +208,3 @@ void sampleRegion(const ShadeBuffer& shade, const SampleLattice& lattice, const 
   }
 }
 
-}  // namespace pp5::gp

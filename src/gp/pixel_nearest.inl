@@ -1,17 +1,14 @@
-// PLUS's nearest-neighbour splatting of one slab (gp/pixel_kernels.hpp).
-#include "gp/pixel_methods.hpp"
-#include "gp/pixel_walk.hpp"
-
-namespace pp5::gp::pixel::walk {
-
-namespace {
-
+// A part of gp/pixel_kernels.cpp, included there inside its unnamed
+// namespace: the pixel kernels are one translation unit, so that they compile
+// exactly as they did in one file (the compiler inlines a helper by how many
+// calls it sees), cut into the walk they share and one file per method to
+// keep each file short. Not a header: it includes nothing and stands alone.
 // ---------------------------------------------------------------------------
 // Nearest neighbour: the pixels of one segment are one voxel's, so the
 // segment's update is gathered in registers and the voxel written once.
 
 template <class Pix, Compounding C>
-void nearestFloatT(const Job& job, FloatCell* cells, const Slab& slab, bool split, SlabOut& out) {
+void nearestFloat(const Job& job, FloatCell* cells, const Slab& slab, bool split, SlabOut& out) {
   const Bounds bd(job, slab);
   const std::int64_t sy = job.sy, sz = job.sz;
   const int rej = job.rejectBelow;
@@ -102,7 +99,7 @@ void nearestFloatT(const Job& job, FloatCell* cells, const Slab& slab, bool spli
 // of the fixed position, PLUS's compounding applied pixel by pixel (in
 // registers along a segment).
 template <Compounding C>
-void nearestPlusT(const Job& job, PlusCell* cells, const Slab& slab, bool split, SlabOut& out) {
+void nearestPlus(const Job& job, PlusCell* cells, const Slab& slab, bool split, SlabOut& out) {
   using namespace plusmath;
   const Bounds bd(job, slab);
   const std::int64_t sy = job.sy, sz = job.sz;
@@ -161,29 +158,3 @@ void nearestPlusT(const Job& job, PlusCell* cells, const Slab& slab, bool split,
   out.pixels += inserted;
 }
 
-
-}  // namespace
-
-void nearestPlus(Compounding comp, const Job& job, PlusCell* c, const Slab& slab, bool split, SlabOut& so) {
-  switch (comp) {
-    case Compounding::Mean: nearestPlusT<Compounding::Mean>(job, c, slab, split, so); break;
-    case Compounding::Latest: nearestPlusT<Compounding::Latest>(job, c, slab, split, so); break;
-    case Compounding::Maximum: nearestPlusT<Compounding::Maximum>(job, c, slab, split, so); break;
-  }
-}
-
-void nearestFloat(Compounding comp, const Job& job, FloatCell* c, const Slab& slab, bool split, SlabOut& so) {
-  auto run = [&]<class Pix>() {
-    switch (comp) {
-      case Compounding::Mean: nearestFloatT<Pix, Compounding::Mean>(job, c, slab, split, so); break;
-      case Compounding::Latest: nearestFloatT<Pix, Compounding::Latest>(job, c, slab, split, so); break;
-      case Compounding::Maximum: nearestFloatT<Pix, Compounding::Maximum>(job, c, slab, split, so); break;
-    }
-  };
-  if (job.u16)
-    run.template operator()<std::uint16_t>();
-  else
-    run.template operator()<std::uint8_t>();
-}
-
-}  // namespace pp5::gp::pixel::walk
