@@ -20,10 +20,9 @@
 
 namespace pp5::host {
 
-// What the user steers while the run goes on: the view, shading, transfer
-// function and live composition mode, whole (so that nothing needs history).
-// The same plain struct travels in a control message.
-using ViewState = comm::ControlState;
+// What the user steers while the run goes on (core/view_state.hpp); a control
+// message carries it as it is.
+using ViewState = pp5::ViewState;
 
 // An image the pipeline made: RGBA floats (premultiplied), holding every
 // frame up to `frame` in `epoch`'s view. `latest`: of the newest epoch (an
