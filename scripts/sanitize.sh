@@ -41,7 +41,7 @@ if [ "$phase" != run ]; then
   cmake --build "$dir" -j "$jobs" --target pp5echo test_io test_plus_config test_calibration test_cli test_igtl \
     "${fuzz_targets[@]}" >&2
   echo "sanitize.sh: built in $(( $(date +%s) - start )) s" >&2
-  [ "$phase" = build ] && exit 0
+  if [ "$phase" = build ]; then exit 0; fi
 fi
 
 export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 OMPI_MCA_rmaps_base_oversubscribe=1
