@@ -25,4 +25,7 @@ inline CliResult runCli(const std::string& args) {
   return {WIFEXITED(st) ? WEXITSTATUS(st) : -1, out};
 }
 
+// runCli under the short name the command-line tests use.
+inline CliResult run(const std::string& args) { return runCli(args); }
+
 }  // namespace pp5::test

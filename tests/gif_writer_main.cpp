@@ -10,7 +10,7 @@
 #include <fstream>
 #include <vector>
 
-#include "core/image_io.hpp"
+#include "formats/image_io.hpp"
 
 int main(int argc, char** argv) {
   if (argc != 2) {

@@ -11,6 +11,9 @@ Rules:
   2. What the READMEs allow has no cycle, so layers only point down.
   3. MPI (<mpi.h> or an MPI_ call) appears only in comm/.
   4. No source file is over 600 lines; in host/ and app/, none is over 400.
+  5. A README may split its folder into sides with a sentence "Sides: the X side (a, b, c) is
+     included by no file of the Y side": the files named a, b, c (any extension) may be included
+     only by each other.
 """
 import os
 import re
@@ -23,6 +26,7 @@ MAX_LINES_BY_FOLDER = {"host": 400, "app": 400}  # the loop and the command line
 INCLUDE = re.compile(r'^\s*#\s*include\s*[<"]([^>"]+)[>"]')
 MPI_CALL = re.compile(r"\bMPI_[A-Z][A-Za-z_]*\b")
 MAY_INCLUDE = re.compile(r"May include:\s*(.*?)(?:\.\s|\.$)", re.S)
+SIDES = re.compile(r"Sides:\s*the (\w+) side \(([^)]*)\) is\s+included by no file of the (\w+) side", re.S)
 SOURCE_EXT = (".hpp", ".cpp", ".h", ".cc", ".inl")
 
 
@@ -80,6 +84,23 @@ def allowed(src, folders):
     return rules, problems
 
 
+def sides(src, d):
+    """The stems of the files of d/ that only each other may include, and the sides' names (or None)."""
+    readme = os.path.join(src, d, "README.md")
+    if not os.path.isfile(readme):
+        return None
+    with open(readme, encoding="utf-8") as f:
+        m = SIDES.search(f.read())
+    if not m:
+        return None
+    stems = {s.strip() for s in m.group(2).split(",") if s.strip()}
+    return stems, m.group(1), m.group(3)
+
+
+def stem(name):
+    return name.split(".")[0]
+
+
 def cycles(rules):
     """One line per cycle in what the READMEs allow (each found once, from its first folder)."""
     found, state = [], {}
@@ -106,6 +127,7 @@ def check(src):
         problems.append(f"the READMEs' \"May include\" lists have a cycle: {c}")
     for d in folders:
         limit = MAX_LINES_BY_FOLDER.get(d, MAX_LINES)
+        split = sides(src, d)
         for root, _, files in os.walk(os.path.join(src, d)):
             for name in sorted(files):
                 if not name.endswith(SOURCE_EXT):
@@ -124,6 +146,10 @@ def check(src):
                         if target == "mpi.h" and d != "comm":
                             problems.append(f"{rel}:{n}: includes <mpi.h>; only comm/ may see MPI")
                         top = target.split("/")[0]
+                        if split and top == d and stem(target.split("/")[-1]) in split[0] \
+                                and stem(name) not in split[0]:
+                            problems.append(f"{rel}:{n}: the {split[2]} side includes {target}, of the "
+                                            f"{split[1]} side (src/{d}/README.md)")
                         if "/" in target and top in rules and top != d and rules[d] is not None \
                                 and top not in rules[d]:
                             problems.append(f"{rel}:{n}: {d}/ includes {target}, but src/{d}/README.md does not "
@@ -153,6 +179,11 @@ def self_test():
         write("comm/README.md", "Comm.\n\nMay include: core/.\n")
         write("parallel/README.md", "Parallel.\n\nMay include: core/, comm/, gp/ (its\nstages), pp/.\n")
         write("app/README.md", "App.\n\nMay include: every folder of src/.\n")
+        write("render/README.md", "Render.\n\nSides: the PP side (cache, tiles) is\nincluded by no file of the GP "
+              "side.\n\nMay include: core/.\n")
+        write("render/cache.hpp", "#pragma once\n")
+        write("render/tiles.cpp", '#include "render/cache.hpp"\n')
+        write("render/shade.cpp", '#include "render/shade.hpp"\n')
         write("core/a.hpp", "#pragma once\n")
         write("gp/b.cpp", '#include "core/a.hpp"\n// MPI_Send in a comment is fine\nconst char* s = "MPI_Bcast(";\n')
         write("parallel/c.cpp", '#include "gp/b.hpp"\n#include "comm/t.hpp"\n')
@@ -169,6 +200,7 @@ def self_test():
             "pp/mpi.cpp": ("#include <mpi.h>\n", "includes <mpi.h>; only comm/ may see MPI"),
             "parallel/call.cpp": ("void g() {\n  MPI_Barrier(MPI_COMM_WORLD);\n}\n", "MPI_Barrier outside comm/"),
             "newfolder/x.cpp": ("\n", "src/newfolder/: no README.md"),
+            "render/sample.cpp": ('#include "render/cache.hpp"\n', "the GP side includes render/cache.hpp"),
             "gp/long.cpp": ("int y;\n" * 601, "601 lines, over gp/'s limit of 600"),
             "app/long.cpp": ("int y;\n" * 401, "401 lines, over app/'s limit of 400"),
             "pp/README.md": ("PP.\n\nMay include: core/, parallel/.\n", "have a cycle"),

@@ -5,8 +5,8 @@
 #include <functional>
 
 #include "core/error.hpp"
-#include "core/sequence_io.hpp"
-#include "core/volume_io.hpp"
+#include "formats/sequence_io.hpp"
+#include "formats/volume_io.hpp"
 #include "io_test_util.hpp"
 
 namespace pp5 {

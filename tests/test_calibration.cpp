@@ -10,12 +10,12 @@
 #include <numbers>
 #include <random>
 
-#include "calib/nwire.hpp"
-#include "calib/probe_calibration.hpp"
-#include "calib/recording.hpp"
-#include "calib/wire_segmentation.hpp"
+#include "analysis/nwire.hpp"
+#include "analysis/probe_calibration.hpp"
+#include "analysis/recording.hpp"
+#include "analysis/wire_segmentation.hpp"
 #include "core/error.hpp"
-#include "core/plus_config.hpp"
+#include "formats/plus_config.hpp"
 
 namespace pp5 {
 namespace {

@@ -9,11 +9,11 @@
 
 #include <nlohmann/json.hpp>
 
-#include "calib/probe_calibration.hpp"
-#include "calib/recording.hpp"
-#include "calib/wire_segmentation.hpp"
+#include "analysis/probe_calibration.hpp"
+#include "analysis/recording.hpp"
+#include "analysis/wire_segmentation.hpp"
 #include "cli_test_util.hpp"
-#include "core/plus_config.hpp"
+#include "formats/plus_config.hpp"
 #include "sim/calibration_sweep.hpp"
 
 namespace pp5 {

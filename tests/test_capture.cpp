@@ -19,10 +19,10 @@
 #include <thread>
 
 #include "core/error.hpp"
-#include "core/sequence_io.hpp"
+#include "formats/sequence_io.hpp"
 #include "host/acquisition.hpp"
 #include "host/capture.hpp"
-#include "host/outputs.hpp"
+#include "outputs/outputs.hpp"
 #include "host/recorder.hpp"
 
 namespace {

@@ -12,8 +12,8 @@
 #include <random>
 #include <vector>
 
-#include "gp/change_tracker.hpp"
-#include "gp/shading.hpp"
+#include "rendering/change_tracker.hpp"
+#include "rendering/shading.hpp"
 
 namespace {
 

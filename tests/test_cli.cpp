@@ -18,13 +18,13 @@
 #include <unistd.h>
 
 #include "core/error.hpp"
-#include "core/volume_io.hpp"
-#include "gp/reconstruction.hpp"
+#include "formats/volume_io.hpp"
+#include "reconstruction/reconstruction.hpp"
 
 namespace {
 
 using Result = pp5::test::CliResult;
-Result run(const std::string& args) { return pp5::test::runCli(args); }
+using pp5::test::run;
 
 std::string readFile(const std::filesystem::path& p) {
   std::ifstream in(p);

@@ -18,15 +18,15 @@
 
 #include <nlohmann/json.hpp>
 
-#include "core/sequence_io.hpp"
-#include "core/volume_io.hpp"
+#include "formats/sequence_io.hpp"
+#include "formats/volume_io.hpp"
 
 namespace {
 
 namespace fs = std::filesystem;
 
 using Result = pp5::test::CliResult;
-Result run(const std::string& args) { return pp5::test::runCli(args); }
+using pp5::test::run;
 
 nlohmann::json readJson(const fs::path& p) {
   std::ifstream in(p);

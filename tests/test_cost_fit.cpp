@@ -16,10 +16,10 @@
 #include <nlohmann/json.hpp>
 
 #include "core/error.hpp"
-#include "harness/cost_fit.hpp"
-#include "parallel/schedule.hpp"
-#include "serial/serial_pipeline.hpp"
-#include "serial/work_census.hpp"
+#include "benchmark/cost_fit.hpp"
+#include "pipeline/schedule.hpp"
+#include "pipeline/serial_pipeline.hpp"
+#include "pipeline/work_census.hpp"
 #include "sim/simulate.hpp"
 #include "sweep_test_util.hpp"
 

@@ -2,7 +2,7 @@
 
 #include <random>
 
-#include "gp/dirty_region.hpp"
+#include "reconstruction/dirty_region.hpp"
 
 namespace {
 

@@ -7,8 +7,8 @@
 #include <cmath>
 
 #include "core/error.hpp"
-#include "gp/evaluation.hpp"
-#include "gp/reconstruction.hpp"
+#include "analysis/evaluation.hpp"
+#include "reconstruction/reconstruction.hpp"
 
 namespace {
 

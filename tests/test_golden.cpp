@@ -14,8 +14,8 @@
 #include <string>
 #include <vector>
 
-#include "core/image_io.hpp"
-#include "serial/serial_pipeline.hpp"
+#include "formats/image_io.hpp"
+#include "pipeline/serial_pipeline.hpp"
 #include "sim/simulate.hpp"
 
 namespace {

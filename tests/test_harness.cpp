@@ -15,10 +15,10 @@
 
 #include <unistd.h>
 
-#include "harness/child_process.hpp"
-#include "harness/cost_model.hpp"
-#include "harness/layouts.hpp"
-#include "harness/report.hpp"
+#include "benchmark/child_process.hpp"
+#include "benchmark/cost_model.hpp"
+#include "benchmark/layouts.hpp"
+#include "benchmark/report.hpp"
 
 namespace {
 

@@ -10,9 +10,9 @@
 #include <vector>
 
 #include "core/error.hpp"
-#include "gp/hole_fill.hpp"
-#include "gp/reconstruction.hpp"
-#include "gp/splat_pixel.hpp"
+#include "reconstruction/hole_fill.hpp"
+#include "reconstruction/reconstruction.hpp"
+#include "reconstruction/splat_pixel.hpp"
 
 namespace {
 

@@ -22,7 +22,7 @@
 #include <thread>
 
 #include "core/error.hpp"
-#include "core/sequence_io.hpp"
+#include "formats/sequence_io.hpp"
 #include "igtl/igtl_client.hpp"
 
 #include <igtlImageMessage.h>

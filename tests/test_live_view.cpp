@@ -13,10 +13,10 @@
 #include <nlohmann/json.hpp>
 
 #include "core/error.hpp"
-#include "host/coverage.hpp"
-#include "host/live_view.hpp"
-#include "host/slices.hpp"
-#include "parallel/parallel_settings.hpp"
+#include "outputs/coverage.hpp"
+#include "outputs/live_view.hpp"
+#include "outputs/slices.hpp"
+#include "pipeline/parallel_settings.hpp"
 #include "viewer/drag_stride.hpp"
 #include "viewer/rate_limit.hpp"
 #include "ws_client.hpp"

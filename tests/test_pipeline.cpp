@@ -9,7 +9,7 @@
 #include <string>
 #include <vector>
 
-#include "serial/serial_pipeline.hpp"
+#include "pipeline/serial_pipeline.hpp"
 #include "sim/simulate.hpp"
 #include "sweep_test_util.hpp"
 

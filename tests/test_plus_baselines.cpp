@@ -13,10 +13,10 @@
 #include <string>
 #include <vector>
 
-#include "core/plus_config.hpp"
-#include "core/sequence_io.hpp"
-#include "core/volume_io.hpp"
-#include "gp/reconstruction.hpp"
+#include "formats/plus_config.hpp"
+#include "formats/sequence_io.hpp"
+#include "formats/volume_io.hpp"
+#include "reconstruction/reconstruction.hpp"
 
 namespace {
 

@@ -14,7 +14,7 @@
 
 #include "core/error.hpp"
 #include "core/frame.hpp"
-#include "core/plus_config.hpp"
+#include "formats/plus_config.hpp"
 
 namespace fs = std::filesystem;
 using ::testing::HasSubstr;

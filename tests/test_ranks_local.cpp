@@ -25,9 +25,9 @@
 #include "host/local_pipeline.hpp"
 #include "outputs/sinks.hpp"
 #include "host/sources.hpp"
-#include "parallel/parallel_settings.hpp"
-#include "ranks/gp_rank.hpp"
-#include "ranks/pp_rank.hpp"
+#include "pipeline/parallel_settings.hpp"
+#include "pipeline/gp_rank.hpp"
+#include "pipeline/pp_rank.hpp"
 #include "sim/simulate.hpp"
 
 namespace {

@@ -15,7 +15,7 @@
 #include "core/config.hpp"
 #include "core/error.hpp"
 #include "core/half_float.hpp"
-#include "pp/ray_cache.hpp"
+#include "rendering/ray_cache.hpp"
 
 namespace {
 

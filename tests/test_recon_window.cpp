@@ -27,7 +27,7 @@
 
 #include "core/error.hpp"
 #include "core/transform.hpp"
-#include "gp/reconstruction.hpp"
+#include "reconstruction/reconstruction.hpp"
 
 namespace pp5::gp {
 namespace {

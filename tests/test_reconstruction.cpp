@@ -8,8 +8,8 @@
 
 #include "core/error.hpp"
 #include "core/config.hpp"
-#include "gp/kernels.hpp"
-#include "gp/reconstruction.hpp"
+#include "reconstruction/kernels.hpp"
+#include "reconstruction/reconstruction.hpp"
 
 namespace {
 

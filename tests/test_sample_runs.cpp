@@ -8,7 +8,7 @@
 #include <vector>
 
 #include "core/half_float.hpp"
-#include "core/sample_runs.hpp"
+#include "formats/sample_runs.hpp"
 
 namespace {
 

@@ -17,11 +17,11 @@
 #include "core/error.hpp"
 #include "core/grid.hpp"
 #include "core/render_settings.hpp"
-#include "gp/dbuffer.hpp"
-#include "gp/dirty_region.hpp"
-#include "gp/ray_sampler.hpp"
+#include "rendering/dbuffer.hpp"
+#include "reconstruction/dirty_region.hpp"
+#include "rendering/ray_sampler.hpp"
 #include "core/sample_lattice.hpp"
-#include "gp/shade_buffer.hpp"
+#include "rendering/shade_buffer.hpp"
 
 #include "geometry_test_util.hpp"
 

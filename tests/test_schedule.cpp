@@ -16,18 +16,18 @@
 
 #include <glm/gtc/quaternion.hpp>
 
-#include "parallel/schedule.hpp"
+#include "pipeline/schedule.hpp"
 #include "core/camera.hpp"
 #include "core/error.hpp"
 #include "core/frame.hpp"
 #include "core/grid.hpp"
 #include "core/render_settings.hpp"
-#include "core/volume_io.hpp"
-#include "gp/ray_sampler.hpp"
-#include "gp/reconstruction.hpp"
+#include "formats/volume_io.hpp"
+#include "rendering/ray_sampler.hpp"
+#include "reconstruction/reconstruction.hpp"
 #include "core/sample_lattice.hpp"
-#include "gp/slice_geometry.hpp"
-#include "gp/splat_tent.hpp"
+#include "reconstruction/slice_geometry.hpp"
+#include "reconstruction/splat_tent.hpp"
 
 namespace {
 

@@ -6,8 +6,8 @@
 #include <random>
 
 #include "core/error.hpp"
-#include "core/recording_journal.hpp"
-#include "core/sequence_io.hpp"
+#include "formats/recording_journal.hpp"
+#include "formats/sequence_io.hpp"
 #include "io_test_util.hpp"
 
 namespace pp5 {

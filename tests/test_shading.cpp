@@ -12,10 +12,10 @@
 #include "core/config.hpp"
 #include "core/error.hpp"
 #include "core/transfer_function.hpp"
-#include "core/volume_io.hpp"
-#include "gp/dirty_region.hpp"
-#include "gp/shade_buffer.hpp"
-#include "gp/shading.hpp"
+#include "formats/volume_io.hpp"
+#include "reconstruction/dirty_region.hpp"
+#include "rendering/shade_buffer.hpp"
+#include "rendering/shading.hpp"
 
 namespace {
 

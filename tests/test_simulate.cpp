@@ -14,10 +14,10 @@
 #include <sstream>
 
 #include "core/error.hpp"
-#include "core/image_io.hpp"
-#include "core/plus_config.hpp"
-#include "core/sequence_io.hpp"
-#include "core/volume_io.hpp"
+#include "formats/image_io.hpp"
+#include "formats/plus_config.hpp"
+#include "formats/sequence_io.hpp"
+#include "formats/volume_io.hpp"
 #include "sim/simulate.hpp"
 
 namespace fs = std::filesystem;

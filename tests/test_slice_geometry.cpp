@@ -18,10 +18,10 @@
 #include "core/error.hpp"
 #include "core/frame.hpp"
 #include "core/grid.hpp"
-#include "core/volume_io.hpp"
-#include "gp/reconstruction.hpp"
-#include "gp/slice_geometry.hpp"
-#include "gp/splat_tent.hpp"
+#include "formats/volume_io.hpp"
+#include "reconstruction/reconstruction.hpp"
+#include "reconstruction/slice_geometry.hpp"
+#include "reconstruction/splat_tent.hpp"
 
 namespace {
 

@@ -9,7 +9,7 @@
 #include <vector>
 
 #include "core/error.hpp"
-#include "gp/speckle_cell.hpp"
+#include "analysis/speckle_cell.hpp"
 #include "sim/bmode.hpp"
 #include "sim/simulate.hpp"
 

@@ -12,10 +12,10 @@
 #include <vector>
 
 #include "core/error.hpp"
-#include "gp/fan_mask.hpp"
-#include "gp/fixed_point.hpp"
-#include "gp/reconstruction.hpp"
-#include "gp/splat_pixel.hpp"
+#include "reconstruction/fan_mask.hpp"
+#include "reconstruction/fixed_point.hpp"
+#include "reconstruction/reconstruction.hpp"
+#include "reconstruction/splat_pixel.hpp"
 
 namespace {
 

@@ -14,8 +14,8 @@
 
 #include "core/error.hpp"
 #include "core/transform.hpp"
-#include "gp/fan_mask.hpp"
-#include "gp/splat_tent.hpp"
+#include "reconstruction/fan_mask.hpp"
+#include "reconstruction/splat_tent.hpp"
 #include "sim/simulate.hpp"
 
 namespace pp5::gp {

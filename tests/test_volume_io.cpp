@@ -7,7 +7,7 @@
 #include <random>
 
 #include "core/error.hpp"
-#include "core/volume_io.hpp"
+#include "formats/volume_io.hpp"
 #include "io_test_util.hpp"
 
 namespace pp5 {

@@ -7,8 +7,8 @@
 #include <vector>
 
 #include "app/sweep_cache.hpp"
-#include "harness/cost_model.hpp"
-#include "harness/layouts.hpp"
+#include "benchmark/cost_model.hpp"
+#include "benchmark/layouts.hpp"
 
 namespace pp5::app {
 

@@ -18,15 +18,15 @@
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
-#include "gp/kernels.hpp"
+#include "reconstruction/kernels.hpp"
 #include "app/bench_common.hpp"
 #include "app/settings.hpp"
 #include "core/error.hpp"
 #include "core/io_util.hpp"
-#include "harness/child_process.hpp"
-#include "harness/cost_fit.hpp"
-#include "parallel/parallel_settings.hpp"
-#include "gp/reconstruction.hpp"
+#include "benchmark/child_process.hpp"
+#include "benchmark/cost_fit.hpp"
+#include "pipeline/parallel_settings.hpp"
+#include "reconstruction/reconstruction.hpp"
 
 namespace pp5::app {
 

@@ -45,12 +45,12 @@
 #include "comm/mpi.hpp"
 #include "core/error.hpp"
 #include "core/io_util.hpp"
-#include "core/plus_config.hpp"
-#include "core/sequence_io.hpp"
-#include "harness/child_process.hpp"
-#include "harness/cost_model.hpp"
-#include "harness/layouts.hpp"
-#include "harness/report.hpp"
+#include "formats/plus_config.hpp"
+#include "formats/sequence_io.hpp"
+#include "benchmark/child_process.hpp"
+#include "benchmark/cost_model.hpp"
+#include "benchmark/layouts.hpp"
+#include "benchmark/report.hpp"
 #include "sim/simulate.hpp"
 
 

@@ -16,7 +16,7 @@
 #include "app/sources.hpp"
 #include "core/error.hpp"
 #include "core/io_util.hpp"
-#include "core/sequence_io.hpp"
+#include "formats/sequence_io.hpp"
 #include "interface_board/board_emulator.hpp"
 #include "interface_board/board_frames.hpp"
 #include "sim/simulate.hpp"

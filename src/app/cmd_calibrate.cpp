@@ -15,13 +15,13 @@
 #include <nlohmann/json.hpp>
 
 #include "app/commands.hpp"
-#include "calib/probe_calibration.hpp"
-#include "calib/recording.hpp"
+#include "analysis/probe_calibration.hpp"
+#include "analysis/recording.hpp"
 #include "core/error.hpp"
-#include "core/image_io.hpp"
+#include "formats/image_io.hpp"
 #include "core/io_util.hpp"
-#include "core/plus_config.hpp"
-#include "core/sequence_io.hpp"
+#include "formats/plus_config.hpp"
+#include "formats/sequence_io.hpp"
 #include "sim/calibration_sweep.hpp"
 
 namespace pp5::app {

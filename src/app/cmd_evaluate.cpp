@@ -9,15 +9,15 @@
 #include <nlohmann/json.hpp>
 #include <spdlog/spdlog.h>
 
-#include "gp/kernels.hpp"
+#include "reconstruction/kernels.hpp"
 #include "app/commands.hpp"
 #include "app/recon_run.hpp"
 #include "app/settings.hpp"
 #include "app/speckle_run.hpp"
 #include "core/error.hpp"
-#include "core/volume_io.hpp"
-#include "gp/evaluation.hpp"
-#include "gp/speckle_cell.hpp"
+#include "formats/volume_io.hpp"
+#include "analysis/evaluation.hpp"
+#include "analysis/speckle_cell.hpp"
 
 namespace pp5::app {
 

@@ -6,8 +6,8 @@
 
 #include "app/commands.hpp"
 #include "core/error.hpp"
-#include "core/image_io.hpp"
-#include "core/sequence_io.hpp"
+#include "formats/image_io.hpp"
+#include "formats/sequence_io.hpp"
 
 namespace pp5::app {
 

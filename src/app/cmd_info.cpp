@@ -11,9 +11,9 @@
 #include <string>
 
 #include "app/commands.hpp"
-#include "core/recording_journal.hpp"
-#include "core/sequence_io.hpp"
-#include "core/volume_io.hpp"
+#include "formats/recording_journal.hpp"
+#include "formats/sequence_io.hpp"
+#include "formats/volume_io.hpp"
 
 namespace pp5::app {
 

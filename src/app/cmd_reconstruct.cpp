@@ -11,7 +11,7 @@
 #include "app/speckle_run.hpp"
 #include "core/error.hpp"
 #include "core/io_util.hpp"
-#include "core/volume_io.hpp"
+#include "formats/volume_io.hpp"
 
 namespace pp5::app {
 

@@ -9,7 +9,7 @@
 #include <string>
 
 #include "app/commands.hpp"
-#include "core/recording_journal.hpp"
+#include "formats/recording_journal.hpp"
 
 namespace pp5::app {
 

@@ -9,11 +9,11 @@
 #include <vector>
 
 #include "app/settings.hpp"
-#include "core/plus_config.hpp"
-#include "core/posed_sequence.hpp"
-#include "core/sequence_io.hpp"
-#include "gp/fan_mask.hpp"
-#include "gp/reconstruction.hpp"
+#include "formats/plus_config.hpp"
+#include "formats/posed_sequence.hpp"
+#include "formats/sequence_io.hpp"
+#include "reconstruction/fan_mask.hpp"
+#include "reconstruction/reconstruction.hpp"
 
 namespace pp5::app {
 

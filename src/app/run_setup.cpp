@@ -15,7 +15,7 @@
 #include "core/error.hpp"
 #include "core/io_util.hpp"
 #include "host/capture.hpp"
-#include "parallel/parallel_settings.hpp"
+#include "pipeline/parallel_settings.hpp"
 
 namespace pp5::app {
 

@@ -9,8 +9,8 @@
 #include "app/recon_run.hpp"
 #include "app/sweep_cache.hpp"
 #include "core/error.hpp"
-#include "core/plus_config.hpp"
-#include "core/recording_journal.hpp"
+#include "formats/plus_config.hpp"
+#include "formats/recording_journal.hpp"
 #include "host/sources.hpp"
 #include "sim/simulate.hpp"
 

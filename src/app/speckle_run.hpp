@@ -9,7 +9,7 @@
 
 #include "app/recon_run.hpp"
 #include "core/config.hpp"
-#include "gp/speckle_cell.hpp"
+#include "analysis/speckle_cell.hpp"
 
 namespace pp5::app {
 

@@ -19,9 +19,9 @@
 #include "core/config.hpp"
 #include "core/error.hpp"
 #include "core/io_util.hpp"
-#include "core/plus_config.hpp"
-#include "core/posed_sequence.hpp"
-#include "core/sequence_io.hpp"
+#include "formats/plus_config.hpp"
+#include "formats/posed_sequence.hpp"
+#include "formats/sequence_io.hpp"
 #include "sim/simulate.hpp"
 
 namespace pp5::app {

@@ -7,7 +7,6 @@
 namespace pp5 {
 
 namespace {
-constexpr double kDeg = std::numbers::pi / 180.0;
 }  // namespace
 
 Mat4 probeMountRotation() {
@@ -19,7 +18,7 @@ Mat4 probeMountRotation() {
 }
 
 Mat4 armProbeToTracker(const ArmPose& p, double probeZ) {
-  return translation(Vec3(p.xMm, p.yMm, probeZ)) * rotationAxisAngle(Vec3(0, 0, 1), p.thetaDeg * kDeg) *
+  return translation(Vec3(p.xMm, p.yMm, probeZ)) * rotationAxisAngle(Vec3(0, 0, 1), p.thetaDeg * kDegToRad) *
          probeMountRotation();
 }
 

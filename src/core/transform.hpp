@@ -7,6 +7,7 @@
 // GLM stores matrices column-major (m[col][row]); PLUS writes them row-major.
 // Always go through fromRowMajor/toRowMajor at the file boundary.
 #include <array>
+#include <numbers>
 #include <optional>
 #include <span>
 #include <string>
@@ -27,6 +28,9 @@ std::array<double, 16> toRowMajor(const Mat4& m);
 std::optional<Mat4> parseRowMajor(const std::string& text, std::string* why = nullptr);
 // Row-major text, enough digits to round-trip doubles exactly.
 std::string formatRowMajor(const Mat4& m);
+
+// Degrees to radians.
+inline constexpr double kDegToRad = std::numbers::pi / 180.0;
 
 // Transforms a point (w = 1).
 inline Vec3 transformPoint(const Mat4& m, const Vec3& p) { return Vec3(m * Vec4(p, 1.0)); }

@@ -6,8 +6,8 @@
 #include <fmt/format.h>
 
 #include "core/error.hpp"
-#include "gp/slice_geometry.hpp"
-#include "parallel/schedule.hpp"
+#include "reconstruction/slice_geometry.hpp"
+#include "pipeline/schedule.hpp"
 
 namespace pp5::host {
 

@@ -19,9 +19,9 @@
 #include "comm/transport.hpp"
 #include "host/pipeline.hpp"
 #include "host/run_loop.hpp"
-#include "parallel/partition.hpp"
-#include "parallel/rank_stats.hpp"
-#include "serial/serial_pipeline.hpp"
+#include "pipeline/partition.hpp"
+#include "pipeline/rank_stats.hpp"
+#include "pipeline/serial_pipeline.hpp"
 
 namespace pp5::host {
 

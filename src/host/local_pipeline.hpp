@@ -9,8 +9,8 @@
 
 #include "host/pipeline.hpp"
 #include "host/run_loop.hpp"
-#include "serial/serial_pipeline.hpp"
-#include "serial/work_census.hpp"
+#include "pipeline/serial_pipeline.hpp"
+#include "pipeline/work_census.hpp"
 
 namespace pp5::host {
 

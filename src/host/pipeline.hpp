@@ -14,9 +14,9 @@
 
 #include "comm/messages.hpp"
 #include "core/grid.hpp"
-#include "core/volume_io.hpp"
+#include "formats/volume_io.hpp"
 #include "host/acquisition.hpp"
-#include "pp/ray_cache.hpp"
+#include "rendering/ray_cache.hpp"
 
 namespace pp5::host {
 

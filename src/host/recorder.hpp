@@ -13,9 +13,9 @@
 #include <thread>
 
 #include "core/frame.hpp"
-#include "core/plus_config.hpp"
-#include "core/recording_journal.hpp"
-#include "core/sequence_io.hpp"
+#include "formats/plus_config.hpp"
+#include "formats/recording_journal.hpp"
+#include "formats/sequence_io.hpp"
 #include "core/transform.hpp"
 
 namespace pp5::host {

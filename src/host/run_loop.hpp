@@ -14,11 +14,10 @@
 #include "host/acquisition.hpp"
 #include "host/pipeline.hpp"
 #include "host/sink.hpp"
-#include "host/slices.hpp"
 #include "host/view_settings.hpp"
-#include "parallel/parallel_settings.hpp"
-#include "parallel/schedule.hpp"
-#include "serial/serial_pipeline.hpp"
+#include "pipeline/parallel_settings.hpp"
+#include "pipeline/schedule.hpp"
+#include "pipeline/serial_pipeline.hpp"
 
 namespace pp5::host {
 

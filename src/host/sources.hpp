@@ -13,8 +13,8 @@
 #include <string>
 
 #include "core/grid.hpp"
-#include "core/plus_config.hpp"
-#include "core/posed_sequence.hpp"
+#include "formats/plus_config.hpp"
+#include "formats/posed_sequence.hpp"
 #include "host/acquisition.hpp"
 #include "igtl/igtl_client.hpp"
 #include "interface_board/arm_calibration.hpp"

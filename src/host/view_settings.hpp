@@ -8,6 +8,14 @@ class ConfigSchema;
 
 namespace pp5::host {
 
+// How a slice through the volume looks: the MPR images a run writes
+// (run.mpr_*) and the viewer's slices (outputs/slices.hpp).
+struct SliceLook {
+  int longSide = 512;      // pixels on the slice's longer side; the other keeps the proportions
+  double window = 255.0;   // grey levels mapped from black to white ...
+  double level = 127.5;    // ... centred here
+};
+
 // [view]
 struct ViewSettings {
   std::string listen;        // "[ADDR:]PORT"; "" = no viewer (`run --view` sets it)

@@ -30,7 +30,7 @@
 #include <igtl_header.h>
 
 #include "core/error.hpp"
-#include "core/sequence_io.hpp"
+#include "formats/sequence_io.hpp"
 #include "igtl/igtl_client.hpp"
 #include "igtl/igtl_wire.hpp"
 

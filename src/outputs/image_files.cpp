@@ -4,10 +4,10 @@
 #include <memory>
 #include <optional>
 
-#include "core/image_io.hpp"
+#include "formats/image_io.hpp"
 #include "core/enum_names.hpp"
 #include "host/run_loop.hpp"
-#include "pp/tile_caches.hpp"
+#include "rendering/tile_caches.hpp"
 
 namespace pp5::outputs {
 

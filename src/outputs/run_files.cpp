@@ -6,7 +6,7 @@
 #include <optional>
 
 #include "core/io_util.hpp"
-#include "host/outputs.hpp"
+#include "outputs/outputs.hpp"
 #include "host/run_loop.hpp"
 
 namespace pp5::outputs {

@@ -3,7 +3,7 @@
 #include <cstdio>
 #include <memory>
 
-#include "host/live_view.hpp"
+#include "outputs/live_view.hpp"
 #include "host/run_loop.hpp"
 #include "outputs/sinks.hpp"
 

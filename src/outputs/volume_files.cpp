@@ -3,9 +3,9 @@
 #include <filesystem>
 #include <memory>
 
-#include "core/volume_io.hpp"
+#include "formats/volume_io.hpp"
 #include "host/run_loop.hpp"
-#include "host/slices.hpp"
+#include "outputs/slices.hpp"
 
 namespace pp5::outputs {
 

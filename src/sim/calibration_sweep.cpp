@@ -11,12 +11,11 @@
 namespace pp5::sim {
 namespace {
 
-constexpr double kDeg = std::numbers::pi / 180.0;
 
 // The tracker's marker on the probe is not at the transducer: a fixed, made-up
 // offset, so a calibration has a rotation and a translation to find.
 Mat4 markerFromTransducer() {
-  return translation(Vec3(12.0, 46.0, -4.0)) * rotationAxisAngle(glm::normalize(Vec3(0.2, 0.3, 0.93)), 100.0 * kDeg);
+  return translation(Vec3(12.0, 46.0, -4.0)) * rotationAxisAngle(glm::normalize(Vec3(0.2, 0.3, 0.93)), 100.0 * kDegToRad);
 }
 
 }  // namespace
@@ -100,7 +99,7 @@ CalibrationSweep simulateCalibrationSweep(const PlusPhantomDefinition& def, cons
   out.mmPerPixel = probe.spacingX();
   const Mat4 marker = markerFromTransducer();
   out.imageToProbe = marker * probe.imageToProbe();
-  const Mat4 referenceToTracker = translation(Vec3(150.0, -40.0, 320.0)) * rotationAxisAngle(Vec3(1, 0, 0), 30.0 * kDeg);
+  const Mat4 referenceToTracker = translation(Vec3(150.0, -40.0, 320.0)) * rotationAxisAngle(Vec3(1, 0, 0), 30.0 * kDegToRad);
   // Smooth, seeded wobble: each degree of freedom a sum of two sinusoids.
   const std::uint64_t key = mixSeed(s.seed, 0xCA11B);
   auto wobble = [&](int dof, double t) {
@@ -116,9 +115,9 @@ CalibrationSweep simulateCalibrationSweep(const PlusPhantomDefinition& def, cons
   for (int i = 0; i < s.frames; ++i) {
     const double t = s.frames > 1 ? static_cast<double>(i) / (s.frames - 1) : 0.5;
     const Vec3 pos(centre.x + 3.0 * wobble(0, t), centre.y + s.slideMm * (t - 0.5), faceZ + 2.0 * wobble(1, t));
-    const Mat4 tilt = rotationAxisAngle(Vec3(1, 0, 0), s.tiltDeg * kDeg * wobble(2, t)) *
-                      rotationAxisAngle(Vec3(0, 1, 0), s.tiltDeg * kDeg * wobble(3, t)) *
-                      rotationAxisAngle(Vec3(0, 0, 1), s.tiltDeg * kDeg * wobble(4, t));
+    const Mat4 tilt = rotationAxisAngle(Vec3(1, 0, 0), s.tiltDeg * kDegToRad * wobble(2, t)) *
+                      rotationAxisAngle(Vec3(0, 1, 0), s.tiltDeg * kDegToRad * wobble(3, t)) *
+                      rotationAxisAngle(Vec3(0, 0, 1), s.tiltDeg * kDegToRad * wobble(4, t));
     transducerToReference[static_cast<std::size_t>(i)] = phantomToReference * translation(pos) * tilt * lookDown;
   }
   out.frames.resize(static_cast<std::size_t>(s.frames));
@@ -134,7 +133,7 @@ CalibrationSweep simulateCalibrationSweep(const PlusPhantomDefinition& def, cons
     const std::uint64_t nk = mixSeed(s.seed, 0x7AC0 + static_cast<std::uint64_t>(i));
     Vec3 dr, dt;
     for (int a = 0; a < 3; ++a) {
-      dr[a] = s.trackerNoiseDeg * kDeg * gaussianFromHash(latticeHash(nk, a, 0, 0));
+      dr[a] = s.trackerNoiseDeg * kDegToRad * gaussianFromHash(latticeHash(nk, a, 0, 0));
       dt[a] = s.trackerNoiseMm * gaussianFromHash(latticeHash(nk, a, 1, 0));
     }
     const double angle = glm::length(dr);

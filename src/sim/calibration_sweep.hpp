@@ -9,7 +9,7 @@
 #include <vector>
 
 #include "core/frame.hpp"
-#include "core/plus_config.hpp"
+#include "formats/plus_config.hpp"
 #include "sim/phantom.hpp"
 
 namespace pp5::sim {

@@ -15,7 +15,6 @@ namespace pp5::sim {
 
 namespace {
 
-constexpr double kDeg = std::numbers::pi / 180.0;
 // The hand crank is uneven: the speed varies by this fraction around its mean.
 constexpr double kSpeedWobble = 0.15;
 // Repositioning between parallel passes (capture off) is faster than a pass.
@@ -75,7 +74,7 @@ ArmPose ArmTrajectory::pose(double t) const {
 
 FreehandPath::FreehandPath(const FreehandSettings& s, const Vec3& start, const Vec3& end, double surfaceZ,
                            double headingDeg, double speed, std::uint64_t seed)
-    : s_(s), start_(start), end_(end), surfaceZ_(surfaceZ), headingRad_(headingDeg * kDeg) {
+    : s_(s), start_(start), end_(end), surfaceZ_(surfaceZ), headingRad_(headingDeg * kDegToRad) {
   duration_ = std::max(glm::length(end - start) / speed, 0.1);
   std::uint64_t salt = 0;
   // Slow wander: three waves of 0.05..0.3 Hz whose amplitudes add up to `peak`.
@@ -129,9 +128,9 @@ Mat4 FreehandPath::probeToReference(double t) const {
   // Never above the water surface: the probe must stay coupled.
   p.z = surfaceZ_ - s_.heaveMm - s_.tremorMm + sum(heave_, t);
   p += Vec3(sum(tremor_[0], t), sum(tremor_[1], t), sum(tremor_[2], t));
-  const double yaw = headingRad_ + (sum(yaw_, t) + sum(tremor_[5], t)) * kDeg;
-  const double tilt = (sum(tilt_, t) + sum(tremor_[3], t)) * kDeg;
-  const double roll = (sum(roll_, t) + sum(tremor_[4], t)) * kDeg;
+  const double yaw = headingRad_ + (sum(yaw_, t) + sum(tremor_[5], t)) * kDegToRad;
+  const double tilt = (sum(tilt_, t) + sum(tremor_[3], t)) * kDegToRad;
+  const double roll = (sum(roll_, t) + sum(tremor_[4], t)) * kDegToRad;
   return translation(p) * rotationAxisAngle(Vec3(0, 0, 1), yaw) * probeMountRotation() *
          rotationAxisAngle(Vec3(1, 0, 0), tilt) * rotationAxisAngle(Vec3(0, 0, 1), roll);
 }
@@ -247,7 +246,7 @@ Mat4 trackerReading(const Mat4& truth, const FreehandSettings& f, std::uint64_t 
             gaussianFromHash(latticeHash(key, k, 2, 0)));
   const double len = glm::length(axis);
   axis = len > 0.0 ? axis / len : Vec3(0, 0, 1);
-  const double angle = f.trackerNoiseDeg * kDeg * gaussianFromHash(latticeHash(key, k, 3, 0));
+  const double angle = f.trackerNoiseDeg * kDegToRad * gaussianFromHash(latticeHash(key, k, 3, 0));
   const Vec3 shift(f.trackerNoiseMm * gaussianFromHash(latticeHash(key, k, 4, 0)),
                    f.trackerNoiseMm * gaussianFromHash(latticeHash(key, k, 5, 0)),
                    f.trackerNoiseMm * gaussianFromHash(latticeHash(key, k, 6, 0)));
@@ -290,7 +289,7 @@ Sweep planSweep(const SimSettings& s, const ScanSetup& scan, const std::vector<V
   const SweepSettings& sw = s.sweep;
   const double len = sw.lengthMm > 0.0 ? sw.lengthMm : scan.sweepLengthMm;
   const double heading = sw.kind == SweepKind::Angled ? sw.angleDeg : 0.0;
-  const Vec3 d(std::cos(heading * kDeg), std::sin(heading * kDeg), 0.0);
+  const Vec3 d(std::cos(heading * kDegToRad), std::sin(heading * kDegToRad), 0.0);
   const Vec3 side(-d.y, d.x, 0.0);
   const Vec3 center = Vec3(scan.sweepCenter.x, scan.sweepCenter.y, 0.0) + sw.lateralOffsetMm * side;
   const Vec3 offset = s.arm.referenceToTrackerMm;

@@ -12,7 +12,7 @@
 
 #include "core/frame.hpp"
 #include "core/grid.hpp"
-#include "core/volume_io.hpp"
+#include "formats/volume_io.hpp"
 #include "sim/bmode.hpp"
 #include "sim/phantom.hpp"
 #include "sim/probe_motion.hpp"

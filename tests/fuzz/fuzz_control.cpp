@@ -14,10 +14,10 @@
 #include "comm/messages.hpp"
 #include "core/render_settings.hpp"
 #include "core/transfer_function.hpp"
-#include "gp/reconstruction.hpp"
-#include "gp/shading.hpp"
-#include "host/live_view.hpp"
-#include "parallel/parallel_settings.hpp"
+#include "reconstruction/reconstruction.hpp"
+#include "rendering/shading.hpp"
+#include "outputs/live_view.hpp"
+#include "pipeline/parallel_settings.hpp"
 #include "fuzz_util.hpp"
 
 namespace {

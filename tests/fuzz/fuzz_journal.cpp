@@ -9,7 +9,7 @@
 #include <cstdlib>
 #include <string>
 
-#include "core/recording_journal.hpp"
+#include "formats/recording_journal.hpp"
 #include "fuzz_util.hpp"
 
 namespace {

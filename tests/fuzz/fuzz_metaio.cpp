@@ -3,8 +3,8 @@
 // read it. The corpus is made from ../shared/data (scripts/fuzz.sh).
 #include <algorithm>
 
-#include "core/sequence_io.hpp"
-#include "core/volume_io.hpp"
+#include "formats/sequence_io.hpp"
+#include "formats/volume_io.hpp"
 #include "fuzz_util.hpp"
 
 namespace {

@@ -2,8 +2,8 @@
 // and `calibrate` read it (the coordinate definitions and the chain from Image
 // to Reference, the VolumeReconstruction element, the phantom and the
 // segmentation). The corpus is the configs of ../shared/data (scripts/fuzz.sh).
-#include "calib/recording.hpp"
-#include "core/plus_config.hpp"
+#include "analysis/recording.hpp"
+#include "formats/plus_config.hpp"
 #include "fuzz_util.hpp"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
