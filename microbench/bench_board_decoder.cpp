@@ -5,7 +5,7 @@
 //  - Decoder/512: 512-byte transfers (one full-speed bulk packet each).
 //  - DecoderResync/16384: every 8th frame cut short after half its payload,
 //    so each costs a payload CRC failure and a rescan.
-// Run: build/bench/pp5_bench --benchmark_filter=Decoder
+// Run: build/microbench/pp5_bench --benchmark_filter=Decoder
 #include <benchmark/benchmark.h>
 
 #include <algorithm>

@@ -1,5 +1,5 @@
 // Google Benchmark suite. Speed targets live here, never in unit tests.
-// Run: build/bench/pp5_bench [--benchmark_filter=...]
+// Run: build/microbench/pp5_bench [--benchmark_filter=...]
 #include <benchmark/benchmark.h>
 
 #include <string>

@@ -7,7 +7,7 @@
 //    counted (its own benchmark is BM_TentInsert).
 //  - BM_PipelineViewChange: a full re-render after the view turns by 10
 //    degrees (lattice, re-shade, re-sample, composite), both cores (target 150 ms).
-// Run: build/bench/pp5_bench --benchmark_filter=Pipeline --benchmark_repetitions=5 --benchmark_report_aggregates_only=true
+// Run: build/microbench/pp5_bench --benchmark_filter=Pipeline --benchmark_repetitions=5 --benchmark_report_aggregates_only=true
 #include <benchmark/benchmark.h>
 #include <sys/resource.h>
 

@@ -1,4 +1,4 @@
-// The pixel processor's ray-sample cache (pp/ray_cache.hpp) on a 512x512 tile.
+// The pixel processor's ray-sample cache (rendering/ray_cache.hpp) on a 512x512 tile.
 // Rays cross a sphere that fills the tile: up to 512 samples at the centre,
 // none in the corners (268 on average, 70 M samples). Samples are speckle:
 // a quarter empty, the rest at a per-ray opacity level log-uniform in
@@ -18,7 +18,7 @@
 // Counters: rays and blocks composited per iteration, the cache's memory,
 // samples and blocks; CacheIncremental also the least thread CPU time of its
 // put and its composite.
-// Run: build/bench/pp5_bench --benchmark_filter=Cache
+// Run: build/microbench/pp5_bench --benchmark_filter=Cache
 #include <benchmark/benchmark.h>
 
 #include <algorithm>

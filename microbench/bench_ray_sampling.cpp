@@ -13,7 +13,7 @@
 //    reach for shading) swept along x: stencil boxes, D-buffer, sampleRegion,
 //    one thread. region 0: the frame's exact voxel box; region 1: the 16-voxel
 //    bricks the reconstruction reports for it (addOrientedSlab).
-// Run: build/bench/pp5_bench --benchmark_filter='Sample|DBuffer|EmptySpace'
+// Run: build/microbench/pp5_bench --benchmark_filter='Sample|DBuffer|EmptySpace'
 #include <benchmark/benchmark.h>
 
 #include <algorithm>

@@ -5,7 +5,7 @@
 // one thread. Time per inserted frame, output update included.
 // Targets (one core, Release): nearest <= 2 ms, trilinear <= 10 ms per frame
 // (PLUS: 4.1 ms and 44 ms on this machine class).
-// Run: build/bench/pp5_bench --benchmark_filter=PixelInsert
+// Run: build/microbench/pp5_bench --benchmark_filter=PixelInsert
 #include <benchmark/benchmark.h>
 
 #include <memory>

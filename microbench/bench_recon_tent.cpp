@@ -6,7 +6,7 @@
 //    apart are within its 3 mm elevational reach: no fill-in.
 //  - TentInsertFillIn: the earlier default, 1 x 0.75 x 1.5 mm, which needs
 //    one intermediate slice per gap (fill_in_per_frame = 1).
-// Run: build/bench/pp5_bench --benchmark_filter=TentInsert
+// Run: build/microbench/pp5_bench --benchmark_filter=TentInsert
 #include <benchmark/benchmark.h>
 
 #include <algorithm>

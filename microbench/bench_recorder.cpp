@@ -6,7 +6,7 @@
 //  - BM_RecordQueued: host::RecorderThread, which the host's loop now calls:
 //    a copy into the queue, the writing on the recorder's own thread (each
 //    iteration's time is the caller's alone; the writes go on beside it).
-// Run: build/bench/pp5_bench --benchmark_filter=Record --benchmark_repetitions=3 --benchmark_report_aggregates_only=true
+// Run: build/microbench/pp5_bench --benchmark_filter=Record --benchmark_repetitions=3 --benchmark_report_aggregates_only=true
 #include <benchmark/benchmark.h>
 
 #include <unistd.h>

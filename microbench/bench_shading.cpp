@@ -1,4 +1,4 @@
-// Shading (gp/shading.hpp) on a 256^3 grid of 0.8 mm voxels holding smooth
+// Shading (rendering/shading.hpp) on a 256^3 grid of 0.8 mm voxels holding smooth
 // value noise (grey levels 0..255), default transfer function, Phong lit from
 // the viewer of the default perspective view: the per-voxel normalisation of
 // the direction to the eye makes this the dearest of the lightings.
@@ -12,7 +12,7 @@
 //  - ShadeDirtySlab: the dirty region of one frame tilted 30 degrees across
 //    the grid (16-voxel bricks), grown by the gradient margin; shadingBoxes()
 //    included; ShadingBoxes times that decomposition alone.
-// Run: build/bench/pp5_bench --benchmark_filter=Shade
+// Run: build/microbench/pp5_bench --benchmark_filter=Shade
 #include <benchmark/benchmark.h>
 
 #include <algorithm>

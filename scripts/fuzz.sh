@@ -3,7 +3,7 @@
 #   decoder  the interface board's frame decoder (corpus: tests/fuzz/corpus)
 #   metaio   a MetaIO file read as a sequence and as a volume
 #   nrrd     the same for NRRD
-#   journal  a cut-off recording's journal (core/recording_journal.hpp)
+#   journal  a cut-off recording's journal (formats/recording_journal.hpp)
 #   plus_xml a PLUS device-set config (coordinates, reconstruction, phantom, segmentation)
 #   toml     a TOML settings file with every section pp5echo registers
 #   igtl     an OpenIGTLink stream decoded by the live source's client

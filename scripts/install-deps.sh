@@ -19,11 +19,11 @@ pkgs=(
   libpugixml-dev
   libspdlog-dev libfmt-dev
   zlib1g-dev
-  libgif-dev  # giflib: buildup.gif and orbit.gif, whole frames (src/core/image_io)
+  libgif-dev  # giflib: buildup.gif and orbit.gif, whole frames (src/formats/image_io)
   nlohmann-json3-dev
   libboost-dev  # Boost.Beast: the live viewer's HTTP and WebSocket server (src/viewer)
   libturbojpeg0-dev  # the viewer's JPEG images (src/viewer/jpeg)
-  libeigen3-dev  # least squares: the bench's cost model (src/harness/cost_fit)
+  libeigen3-dev  # least squares: the bench's cost model (src/benchmark/cost_fit)
   libgtest-dev libgmock-dev
   libbenchmark-dev
   python3-matplotlib  # the plots of `pp5echo bench` (scripts/bench_plots.py)

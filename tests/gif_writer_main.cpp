@@ -1,4 +1,4 @@
-// Writes an animated GIF through pp5echo's writer (core/image_io AnimatedGif)
+// Writes an animated GIF through pp5echo's writer (formats/image_io AnimatedGif)
 // together with each frame's source as raw RGB, for tests/gif_frames.py to
 // decode the animation and compare frame by frame. The frames are like an
 // orbit's: a bright shape that turns over a dark, slightly noisy background,

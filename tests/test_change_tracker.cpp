@@ -1,4 +1,4 @@
-// The change tracker (gp/change_tracker.hpp) against brute force: shading
+// The change tracker (rendering/change_tracker.hpp) against brute force: shading
 // only the runs it lists gives the bits of a full re-shade, for random
 // changes of values, visible and transparent, for every voxel type, in both
 // its forms (comparing with a copy, and told the changed rows); and the

@@ -1,4 +1,4 @@
-// The partitioning benchmark's harness (src/harness): layouts, child
+// The partitioning benchmark's harness (src/benchmark): layouts, child
 // processes, the cost model and the tables, on inputs made here.
 #include <gtest/gtest.h>
 

@@ -163,7 +163,7 @@ TEST(Reconstruction, PlusOutputGridFollowsPlusRule) {
 
 namespace {
 
-// The registry (gp/kernels.hpp): every value of recon.method has one entry,
+// The registry (reconstruction/kernels.hpp): every value of recon.method has one entry,
 // under the name a file gives it, and every option an entry names is one the
 // schema knows, so that what it tells the other stages is about real methods.
 TEST(Kernels, EveryMethodIsRegisteredOnceUnderItsNameWithRealOptions) {

@@ -1,4 +1,4 @@
-// The samples' wire form (core/sample_runs.hpp): what a PP decodes is what
+// The samples' wire form (formats/sample_runs.hpp): what a PP decodes is what
 // the GP encoded (float exactly; half exactly as the half cache stores it),
 // transparent runs cost a header, and malformed input is refused.
 #include <gtest/gtest.h>

@@ -1,4 +1,4 @@
-// The distributed pipeline's schedules (parallel/schedule.hpp), tested
+// The distributed pipeline's schedules (pipeline/schedule.hpp), tested
 // exhaustively for small counts (1..16 ranks, owners and GPs, odd and prime
 // ones included) against brute-force loops.
 #include <gtest/gtest.h>

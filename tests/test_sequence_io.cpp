@@ -431,7 +431,7 @@ TEST(SequenceIo, ProbeTellsSequencesFromVolumes) {
   EXPECT_EQ(probeImageFile(test::dataFile("SpinePhantomFreehandReconstructed.mha")), ImageFileKind::Volume);
 }
 
-// ---- a recording's journal (core/recording_journal.hpp) ----
+// ---- a recording's journal (formats/recording_journal.hpp) ----
 
 // Journals `frames` for a sequence at `seq` and leaves the journal behind, as a
 // killed recording does.

@@ -1,4 +1,4 @@
-// The slice geometry (gp/slice_geometry.hpp): a frame's reach and the fill-in
+// The slice geometry (reconstruction/slice_geometry.hpp): a frame's reach and the fill-in
 // slices' reach hold every point the tent kernel can write, and stay within a
 // pad of the exact hull; checked against sampled kernel points and against
 // the voxels a real tent splat changes.
@@ -213,7 +213,7 @@ TEST(FrameReach, ClipRectangleAndErrors) {
   EXPECT_THROW(pp5::gp::frameReach(id, 0, 10, s), InputError);
 }
 
-// interpolatePose (gp/splat_tent.cpp), written out: origin linear, rotation
+// interpolatePose (reconstruction/splat_tent.cpp), written out: origin linear, rotation
 // by slerp the short way, pixel steps linear.
 struct SliceAt {
   Vec3 origin, u, v, n;

@@ -1,5 +1,5 @@
 // The resolution cell measured from the differences of consecutive frames
-// (gp/speckle_cell.hpp): against speckle of a known correlation, and against
+// (analysis/speckle_cell.hpp): against speckle of a known correlation, and against
 // the simulator's beams.
 #include <gtest/gtest.h>
 

@@ -1,7 +1,7 @@
 #pragma once
 // ImageToProbe from an N-wire phantom: where each frame's image plane cuts the
 // middle wires is known in the Phantom frame from the dots' spacing alone
-// (calib/nwire.hpp), and the tracker gives PhantomToProbe per frame, so the
+// (analysis/nwire.hpp), and the tracker gives PhantomToProbe per frame, so the
 // pixel of each middle dot has a known place in the Probe frame. A linear least
 // squares fit of those pairs, with points beyond mean + 2 sd rejected and the
 // fit repeated, gives the start; a refinement then minimises the mean 3D

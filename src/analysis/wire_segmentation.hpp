@@ -29,7 +29,7 @@ struct WireSegmentation {
   bool found = false;
   // When found: one entry per pattern, the dots in the order of their image x
   // (left to right). Which end is wire 0 is the calibration's choice
-  // (calib/probe_calibration.hpp), the same for every frame of a recording.
+  // (analysis/probe_calibration.hpp), the same for every frame of a recording.
   std::vector<PatternDots> patterns;
   std::string why;  // when not found: what was missing
 };

@@ -287,7 +287,7 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     exitCode = 0;
   });
 
-  // The resolution cell the frames show (gp/speckle_cell.hpp).
+  // The resolution cell the frames show (analysis/speckle_cell.hpp).
   struct SpeckleOpts : CommonOpts {
     int maxPairs = 32;
     int maxLag = 64;

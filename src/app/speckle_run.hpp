@@ -1,7 +1,7 @@
 #pragma once
 // Shared by `evaluate speckle` and, where recon.kernel_from_frames is on, by
 // `reconstruct` and `evaluate truth|leave-out`: the resolution cell a PLUS
-// sequence's frames show (gp/speckle_cell.hpp), and the tent kernel derived
+// sequence's frames show (analysis/speckle_cell.hpp), and the tent kernel derived
 // from it and from the frames' spacing.
 #include <cstdint>
 #include <functional>

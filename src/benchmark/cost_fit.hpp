@@ -1,7 +1,7 @@
 #pragma once
 // The predictive cost model of `pp5echo bench --cost-model` (issue 17):
 //  1. a census of the sweep, counted once on the serial pipeline
-//     (serial/work_census.hpp), says where its work lies;
+//     (pipeline/work_census.hpp), says where its work lies;
 //  2. rankWork() gives each rank of any layout its share of that work: the
 //     frames it handles, the voxels it reconstructs, the dirty voxels its
 //     change tracker scans, the samples it makes or receives, the frame

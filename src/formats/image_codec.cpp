@@ -1,5 +1,5 @@
 // The PNG (and other OpenImageIO formats') encoder and decoder, built as a
-// module of its own that core/image_io.cpp loads on first use. Loading
+// module of its own that formats/image_io.cpp loads on first use. Loading
 // OpenImageIO maps Debian's whole tree of its plugins' libraries (some 260)
 // and takes a third of a second of CPU before main; most processes (the GP
 // and PP ranks, most tests) never write or read an image, and now never pay

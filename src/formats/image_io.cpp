@@ -19,7 +19,7 @@
 namespace pp5 {
 namespace {
 
-// The image codec module (core/image_codec.cpp), loaded on first use: the
+// The image codec module (formats/image_codec.cpp), loaded on first use: the
 // build tree's, PP5_IMAGE_CODEC's, or the one installed beside the program.
 struct Codec {
   int (*encode)(const char*, int, int, int, const unsigned char*, unsigned char**, std::size_t*, char*, std::size_t);

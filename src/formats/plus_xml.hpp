@@ -1,6 +1,6 @@
 #pragma once
-// The PLUS configuration reader's XML helpers (core/plus_config.cpp and
-// core/plus_config_calibration.cpp): the file with its line numbers, an
+// The PLUS configuration reader's XML helpers (formats/plus_config.cpp and
+// formats/plus_config_calibration.cpp): the file with its line numbers, an
 // element's attributes read and checked one by one, PLUS's number syntax.
 // Not for other files.
 #include <array>
@@ -215,7 +215,7 @@ inline void loadXml(XmlFile& f) {
   }
 }
 
-// The calibration's elements (core/plus_config_calibration.cpp).
+// The calibration's elements (formats/plus_config_calibration.cpp).
 PlusSegmentation readSegmentation(const XmlFile& f, pugi::xml_node n);
 PlusPhantomDefinition readPhantomDefinition(const XmlFile& f, pugi::xml_node n);
 

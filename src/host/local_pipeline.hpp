@@ -1,5 +1,5 @@
 #pragma once
-// The pipeline in one process: the serial pipeline (serial/serial_pipeline.hpp)
+// The pipeline in one process: the serial pipeline (pipeline/serial_pipeline.hpp)
 // behind the run loop's interface, what `pp5echo run --serial` (and any run
 // without mpirun) drives. Every call is synchronous.
 #include <memory>

@@ -22,7 +22,7 @@ namespace pp5::host {
 
 // Writes every frame a source produces to `path`, closing the file when the
 // source ends (however it ends), so that nothing acquired is lost. Each frame
-// goes to the recording's journal first (core/recording_journal.hpp), so that
+// goes to the recording's journal first (formats/recording_journal.hpp), so that
 // a process killed in the middle keeps every frame it had: `pp5echo restore`
 // makes the sequence from it. An empty path writes nothing.
 class Recorder {

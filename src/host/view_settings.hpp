@@ -1,5 +1,5 @@
 #pragma once
-// [view]: the live viewer's settings (the viewer itself: host/live_view.hpp).
+// [view]: the live viewer's settings (the viewer itself: outputs/live_view.hpp).
 #include <string>
 
 namespace pp5 {

@@ -1,5 +1,5 @@
 #pragma once
-// The live viewer's inside (host/live_view.hpp), shared by its three files:
+// The live viewer's inside (outputs/live_view.hpp), shared by its three files:
 // live_view.cpp (the public calls, from the pipeline's thread),
 // live_view_control.cpp (the page's control messages, on the server's
 // thread) and live_view_encoder.cpp (the encoder's thread: JPEGs, slices and

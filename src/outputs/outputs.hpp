@@ -1,6 +1,6 @@
 #pragma once
 // A run's output folder, and the per-frame statistics file a run writes (its
-// slices: host/slices.hpp).
+// slices: outputs/slices.hpp).
 #include <cstdint>
 #include <cstdio>
 #include <string>

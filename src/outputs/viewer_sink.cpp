@@ -1,4 +1,4 @@
-// The live viewer as a sink (host/live_view.hpp): what the pipeline makes,
+// The live viewer as a sink (outputs/live_view.hpp): what the pipeline makes,
 // streamed to browsers, and what they change, handed back as the run's steering.
 #include <cstdio>
 #include <memory>

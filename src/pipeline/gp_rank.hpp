@@ -1,7 +1,7 @@
 #pragma once
 // The graphics-processor rank: frames in from the host, ray samples out to the
 // pixel processors. It calls the same stages as the serial pipeline
-// (serial/serial_pipeline.hpp), restricted to its share of the work:
+// (pipeline/serial_pipeline.hpp), restricted to its share of the work:
 //  - slab: it reconstructs only its window of the grid (its cells plus ghost
 //    layers), shades the voxels its cells' samples read, and samples only the
 //    lattice points of its cells;

@@ -1,7 +1,7 @@
 #pragma once
 // The pixel-processor rank: ray samples in from the graphics processors, the
 // changed tiles of the image out to the host. It holds one hierarchical
-// ray-sample cache (pp/ray_cache.hpp) per screen tile it owns.
+// ray-sample cache (rendering/ray_cache.hpp) per screen tile it owns.
 //
 // An update (a frame, or the full re-sample after a control change) is
 // complete when every GP's GpDone for it has arrived; messages from one GP

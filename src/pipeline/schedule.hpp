@@ -14,7 +14,7 @@
 //    exactly one owner. A GP keeps the voxels of its window exact: its cells'
 //    voxels plus ghost layers for the gradient and the stencil.
 //  - gpsTouched: which GPs a frame (and the fill-in between it and the
-//    previous frame) can change, from the reach gp/slice_geometry.hpp bounds.
+//    previous frame) can change, from the reach reconstruction/slice_geometry.hpp bounds.
 #include <cstdint>
 #include <span>
 #include <string>

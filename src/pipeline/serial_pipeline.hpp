@@ -1,7 +1,7 @@
 #pragma once
 // The single-process pipeline: one graphics processor's update
-// (gp/gp_update.hpp) on the whole grid and screen, feeding one pixel
-// processor's caches (pp/tile_caches.hpp) that hold the whole image, frame by
+// (rendering/gp_update.hpp) on the whole grid and screen, feeding one pixel
+// processor's caches (rendering/tile_caches.hpp) that hold the whole image, frame by
 // frame. The GP and PP ranks run the same two objects on their shares, so
 // this is the reference that every distributed run is held to (design.md,
 // "one serial reference").

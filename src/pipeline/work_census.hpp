@@ -1,7 +1,7 @@
 #pragma once
 // Where a sweep's work lies, counted once on the serial pipeline so that the
 // benchmark's cost model can say how much of it any GP / PP layout gives each
-// rank without running that layout (harness/cost_fit.hpp).
+// rank without running that layout (benchmark/cost_fit.hpp).
 //
 // Per incremental frame it adds up:
 //  - the reconstruction's dirty voxels, by voxel layer along each grid axis

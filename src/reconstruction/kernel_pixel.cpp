@@ -1,4 +1,4 @@
-// The registry's entry (gp/kernels.hpp) of PLUS's pixel methods, nearest and trilinear (gp/splat_pixel.cpp).
+// The registry's entry (reconstruction/kernels.hpp) of PLUS's pixel methods, nearest and trilinear (reconstruction/splat_pixel.cpp).
 #include <algorithm>
 #include <string>
 
@@ -41,7 +41,7 @@ std::string describePixel(const ReconSettings& s) {
 
 }  // namespace
 
-// Nearest and trilinear differ only inside the splatting (gp/splat_pixel.cpp).
+// Nearest and trilinear differ only inside the splatting (reconstruction/splat_pixel.cpp).
 constexpr Kernel pixelKernel(Method m, std::string_view name, std::string_view summary) {
   return {m,          name,       summary,   kPixelOptions, pixelBytesPerVoxel, makePixelReconstructor, checkPixel,
           pixelReach, /*windowed=*/false, /*tentKernel=*/false, pixelGapLimitMm, describePixel};

@@ -1,4 +1,4 @@
-// The registry's entry (gp/kernels.hpp) of the 1990 paper's tent kernel (gp/splat_tent.cpp).
+// The registry's entry (reconstruction/kernels.hpp) of the 1990 paper's tent kernel (reconstruction/splat_tent.cpp).
 #include <algorithm>
 #include <string>
 

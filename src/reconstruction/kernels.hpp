@@ -3,9 +3,9 @@
 // needs to know it: the stages outside reconstruction (the slab partition,
 // the viewer's coverage, `evaluate`, the cost model) ask a method's entry
 // here rather than testing its name. Each method defines its entry in its own
-// file (gp/splat_tent.cpp: tent; gp/splat_pixel.cpp: nearest, trilinear);
+// file (reconstruction/splat_tent.cpp: tent; reconstruction/splat_pixel.cpp: nearest, trilinear);
 // kernels.cpp lists them. Adding a method is its files, an enum value in
-// gp/reconstruction.hpp and one line in kernels.cpp.
+// reconstruction/reconstruction.hpp and one line in kernels.cpp.
 #include <memory>
 #include <span>
 #include <string>
@@ -30,7 +30,7 @@ struct Kernel {
   // A window of the grid grown to what its voxels depend on (setWindow).
   Box3 (*reach)(const Grid&, const ReconSettings&, const Box3& window);
   // Whether a frame's writes are bounded by the slice's reach
-  // (gp/slice_geometry.hpp), so that a slab GP out of reach gets the frame's
+  // (reconstruction/slice_geometry.hpp), so that a slab GP out of reach gets the frame's
   // pose only and a window of the grid can be reconstructed alone.
   bool windowed;
   // Whether it reads the tent kernel's half-widths (recon.kernel_*_mm,

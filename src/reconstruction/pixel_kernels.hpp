@@ -1,5 +1,5 @@
 #pragma once
-// The kernels of the PLUS-compatible pixel splatting (gp/splat_pixel.cpp):
+// The kernels of the PLUS-compatible pixel splatting (reconstruction/splat_pixel.cpp):
 // nearest neighbour and trilinear, each with MEAN / LATEST / MAXIMUM
 // compounding, in PLUS's own arithmetic ("plus") or in exact float arithmetic
 // ("float"), over one thread's slab of the grid. Internal to splat_pixel; the

@@ -1,4 +1,4 @@
-// A part of gp/pixel_kernels.cpp, included there inside its unnamed
+// A part of reconstruction/pixel_kernels.cpp, included there inside its unnamed
 // namespace: the pixel kernels are one translation unit, so that they compile
 // exactly as they did in one file (the compiler inlines a helper by how many
 // calls it sees), cut into the walk they share and one file per method to

@@ -109,7 +109,7 @@ public:
   virtual InsertResult insert(const Frame& f, const Mat4& imageToReference, double timeS) = 0;
   // Whether insert() lists the voxels whose output bits it changed
   // (InsertResult::changedRuns), so that later stages need not compare the
-  // dirty region's values with a copy (gp/change_tracker.hpp).
+  // dirty region's values with a copy (rendering/change_tracker.hpp).
   virtual bool reportsChangedRuns() const { return false; }
   // Final passes that are not incremental (e.g. hole filling when
   // fill_holes_incremental = false). Idempotent.

@@ -94,7 +94,7 @@ int fillInCount(double maxCornerDisplacementMm, double elevationHalfWidthMm) {
 
 // ------------------------------------------------------------------ reach --
 //
-// What the tent splat writes (gp/splat_tent.cpp): a slice at pose (origin,
+// What the tent splat writes (reconstruction/splat_tent.cpp): a slice at pose (origin,
 // image axes ex, ey) writes a voxel only when some selected pixel's kernel
 // reaches it with a positive weight, i.e. when the voxel lies strictly inside
 // pixel + (du u + dv v + dn n) with |du| < hl, |dv| < ha, |dn| < he, where u =
@@ -193,7 +193,7 @@ WorldBox frameReach(const Mat4& imageToReference, int width, int height, const R
   return padded(reachOf(poseFromMatrix(imageToReference, "the frame"), clipRect(width, height, recon), recon));
 }
 
-// The fill-in slices (gp/splat_tent.cpp, interpolatePose) between poses a
+// The fill-in slices (reconstruction/splat_tent.cpp, interpolatePose) between poses a
 // and b: at t in (0, 1), origin o(t) = lerp(o_a, o_b, t), rotation R(t) =
 // R_a E(t theta), E the rotation by the angle theta between the frames about
 // a fixed axis w (in a's axes), and pixel steps (sx, eyu, syv) linear in t.

@@ -2,8 +2,8 @@
 // Where a frame's slice lies and what it can reach: the one place that turns
 // an image-to-reference matrix into a slice's axes, interpolates the fill-in
 // slices between two frames, and bounds the voxels the tent kernel can write
-// from them. The tent reconstructor (gp/splat_tent.cpp) splats with it, and
-// the host's schedule (parallel/schedule.hpp) decides with it which GPs a
+// from them. The tent reconstructor (reconstruction/splat_tent.cpp) splats with it, and
+// the host's schedule (pipeline/schedule.hpp) decides with it which GPs a
 // frame reaches, so the two cannot disagree.
 #include <string>
 

@@ -4,7 +4,7 @@
 // pixel rejection, in PLUS's fixed-point arithmetic or in exact float.
 //
 // Pixel selection (both arithmetics): PLUS's clip rectangle (end included)
-// and fan, as runs per row (gp/fan_mask.hpp); pixels darker than
+// and fan, as runs per row (reconstruction/fan_mask.hpp); pixels darker than
 // pixel_rejection_threshold are skipped. SkipInterval is the caller's.
 //
 // arithmetic = "plus" (docs/notes/plus-reconstruction.md): PLUS's FULL
@@ -37,7 +37,7 @@
 // Any thread count gives the same bits (slabs of the grid owned by one thread
 // each, pixels visited in row-major order by every thread). insert() updates
 // output() inside the returned dirty region, hole filling included when it is
-// incremental; see gp/hole_fill.hpp for the hole filling.
+// incremental; see reconstruction/hole_fill.hpp for the hole filling.
 #include <memory>
 
 #include "reconstruction/reconstruction.hpp"

@@ -1,6 +1,6 @@
 #pragma once
 // The tent kernel's in-plane machinery (the notes at the top of
-// gp/splat_tent.cpp): the pixels a slice splats, the knot lattice of the
+// reconstruction/splat_tent.cpp): the pixels a slice splats, the knot lattice of the
 // rows' lateral profiles, the profiles themselves and the axial window, and
 // the in-plane sums a voxel reads from them. Internal to the tent
 // reconstructor; header-only so that its voxel loops inline them.

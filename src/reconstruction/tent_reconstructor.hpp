@@ -1,9 +1,9 @@
 #pragma once
-// The tent reconstructor's class (gp/splat_tent.cpp, the 1990 paper's
+// The tent reconstructor's class (reconstruction/splat_tent.cpp, the 1990 paper's
 // method), shared by the two files that define it: splat_tent.cpp (the
 // kernel's sums, fill-in, the stream of frames) and tent_replacement.cpp (the
 // replacement of aging data). Internal to them; the rest of the program makes
-// one with makeTentReconstructor (gp/splat_tent.hpp). The voxel update and the
+// one with makeTentReconstructor (reconstruction/splat_tent.hpp). The voxel update and the
 // row loop are here, inline, because the kernel's voxel loops run them.
 #include <algorithm>
 #include <limits>

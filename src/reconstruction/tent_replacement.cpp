@@ -1,5 +1,5 @@
 // The tent reconstructor's replacement of aging data (the notes above
-// TentReconstructor in gp/tent_reconstructor.hpp): the contributions stored
+// TentReconstructor in reconstruction/tent_reconstructor.hpp): the contributions stored
 // for motion vectors applied once the cells to rebase are known, and the
 // rebasing itself. The decay and the motion-vector value are part of the
 // voxel update (TentReconstructor::applyVoxel).

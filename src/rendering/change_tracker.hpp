@@ -11,14 +11,14 @@
 //     compares it with the reconstruction's output inside the dirty region,
 //     row by row, updating the copy (every other reconstructor). A voxel's
 //     shade reads its own value and its six face neighbours'
-//     (gp/shading.hpp), so only voxels within one face step of a changed
+//     (rendering/shading.hpp), so only voxels within one face step of a changed
 //     value can shade differently, and of those only the ones visible now (a
 //     voxel the transfer function makes transparent shades to zero, as it
 //     did before unless its own value changed from a visible one, or, without
 //     the copy, unless its shade was not zero): shadingRuns() lists them, as
 //     row runs of the boxes this GP shades.
 //  2. Shades. shade() reports the voxels whose shade it changed. A ray
-//     sample reads the 8 voxels of one cell (gp/stencil.hpp), so only a
+//     sample reads the 8 voxels of one cell (rendering/stencil.hpp), so only a
 //     sample whose cell has a changed voxel can differ from what the PP's
 //     cache holds: changedCells() marks those cells, changedBricks()
 //     holds the kBrick^3-voxel bricks with a changed shade for the D-buffer,

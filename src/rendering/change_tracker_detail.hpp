@@ -1,5 +1,5 @@
 #pragma once
-// What gp/change_tracker.cpp and gp/change_tracker_sync.cpp share. Not for
+// What rendering/change_tracker.cpp and rendering/change_tracker_sync.cpp share. Not for
 // other files; in an unnamed namespace, as it was in the one file.
 #include <climits>
 #include <cstdint>

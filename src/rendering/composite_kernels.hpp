@@ -4,7 +4,7 @@
 // is what makes incremental and full renders equal bit for bit.
 
 //
-// Internal to the ray cache (pp/ray_cache.cpp), which instantiates them for
+// Internal to the ray cache (rendering/ray_cache.cpp), which instantiates them for
 // each sample format and composition mode.
 #include <algorithm>
 #include <cstdint>

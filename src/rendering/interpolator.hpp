@@ -1,7 +1,7 @@
 #pragma once
 // Trilinear interpolation of the shade buffer at the sample lattice's points,
 // four consecutive samples of a ray at a time: which cell each sample reads
-// (the stencil rule, gp/stencil.hpp) and its premultiplied RGBA there. Used
+// (the stencil rule, rendering/stencil.hpp) and its premultiplied RGBA there. Used
 // by the sampler's loops; header-only so they inline it.
 #include <algorithm>
 #include <cstdint>

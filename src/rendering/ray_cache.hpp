@@ -72,7 +72,7 @@ enum class SampleFormat : std::uint8_t {
 };
 SampleFormat sampleFormatFromName(const std::string& name);  // "rgba8" | "half" | "float"
 // The wire form GPs send samples in for caches of format f: half for half
-// (exact, see core/sample_runs.hpp), float otherwise.
+// (exact, see formats/sample_runs.hpp), float otherwise.
 inline SampleWire sampleWireFor(SampleFormat f) { return f == SampleFormat::Half ? SampleWire::Half : SampleWire::Float; }
 const char* sampleFormatName(SampleFormat f);
 std::size_t sampleFormatBytes(SampleFormat f);

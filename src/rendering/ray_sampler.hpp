@@ -23,8 +23,8 @@
 // IEEE arithmetic without contraction into FMAs: ISO C++ mode, no
 // -ffast-math, as the build sets it.)
 //
-// Which samples a changed voxel affects: gp/stencil.hpp. Empty space, which
-// sampleAll jumps over without changing the output: gp/empty_space.hpp.
+// Which samples a changed voxel affects: rendering/stencil.hpp. Empty space, which
+// sampleAll jumps over without changing the output: rendering/empty_space.hpp.
 //
 // Output goes to a SampleSink in batches. The image is cut into square work
 // tiles of SamplerOptions::tileSize pixels (a divisor of the PP's tile, so a

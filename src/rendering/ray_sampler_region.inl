@@ -1,4 +1,4 @@
-// A part of gp/ray_sampler.cpp, included there where it stood: sampling the
+// A part of rendering/ray_sampler.cpp, included there where it stood: sampling the
 // lattice points in a D-buffer's intervals, what a frame's update
 // re-samples. One translation unit with the rest of the sampler, so that it
 // compiles exactly as it did in one file (the compiler inlines the walk's

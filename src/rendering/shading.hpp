@@ -92,7 +92,7 @@ void shade(const Volume& values, const TransferFunction& tf, const ShadeSettings
 // one parallel pass over all of them, with the lighting set up once: prefer
 // it to a loop of single-box calls. `changed` (optional): the linear index
 // of every voxel whose shade this call changed is appended, in ascending
-// order (what a ray sample can have changed from: gp/change_tracker.hpp).
+// order (what a ray sample can have changed from: rendering/change_tracker.hpp).
 void shade(const Volume& values, const TransferFunction& tf, const ShadeSettings& s, const Camera& view,
            std::span<const Box3> boxes, ShadeBuffer& out, std::vector<std::int64_t>* changed = nullptr);
 

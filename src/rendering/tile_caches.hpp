@@ -1,6 +1,6 @@
 #pragma once
 // One pixel processor's ray caches: a hierarchical ray-sample cache
-// (pp/ray_cache.hpp) for each screen tile it holds, all for one view. The
+// (rendering/ray_cache.hpp) for each screen tile it holds, all for one view. The
 // serial pipeline holds one tile, the whole image; a PP rank holds its share
 // of the tiles, and keeps two sets as a double buffer so that a control
 // change's caches are made while the old ones still take the frames sent

@@ -23,7 +23,7 @@ public:
 
   int stride() const { return stride_; }
 
-  // A drag's view rendered at `stride` took `seconds` (host/live_view: from its
+  // A drag's view rendered at `stride` took `seconds` (outputs/live_view: from its
   // message's arrival, or the last view's image if later, to its own image).
   // A view made at another stride than the current one (it was asked for
   // before the last change) says nothing about this one.

@@ -1,4 +1,4 @@
-// libFuzzer target: a recording's journal (core/recording_journal.hpp), the
+// libFuzzer target: a recording's journal (formats/recording_journal.hpp), the
 // file a cut-off recording leaves and `pp5echo info` and `restore` read. A
 // journal is damaged by definition (cut at any byte, its last record torn),
 // so the reader must keep what is whole and refuse only a header that is not
