@@ -26,9 +26,9 @@
 #include <spdlog/spdlog.h>
 #include "app/bench_common.hpp"
 #include "app/commands.hpp"
-#include "app/recon_run.hpp"
+#include "reconstruction/recon_run.hpp"
 #include "app/settings.hpp"
-#include "app/sweep_cache.hpp"
+#include "sim/sweep_cache.hpp"
 #include "comm/mpi.hpp"
 #include "core/error.hpp"
 #include "core/io_util.hpp"
@@ -46,7 +46,7 @@ namespace fs = std::filesystem;
 using namespace pp5::harness;
 
 std::vector<std::string> serialArgv(const std::string& exe, const std::string& file,
-                                    const std::vector<std::string>& overrides, const SimulatedSweep& seq,
+                                    const std::vector<std::string>& overrides, const sim::SimulatedSweep& seq,
                                     const std::string& dir, const std::string& census) {
   std::vector<std::string> argv = {exe, "run", fs::absolute(file).string(), "--serial", "-o", dir};
   if (!census.empty()) {

@@ -6,7 +6,7 @@
 #include <string>
 #include <vector>
 
-#include "app/sweep_cache.hpp"
+#include "sim/sweep_cache.hpp"
 #include "benchmark/cost_model.hpp"
 #include "benchmark/layouts.hpp"
 
@@ -23,7 +23,7 @@ std::vector<std::string> layoutArgv(const std::string& mpirun, const std::string
                                     bool baseline);
 // `pp5echo run FILE --serial -o DIR [--census CENSUS] --set ...`, one thread.
 std::vector<std::string> serialArgv(const std::string& exe, const std::string& file,
-                                    const std::vector<std::string>& overrides, const SimulatedSweep& seq,
+                                    const std::vector<std::string>& overrides, const sim::SimulatedSweep& seq,
                                     const std::string& dir, const std::string& census);
 // Two ranks bounce messages (the hidden `bench --pingpong`); its log goes to dir.
 harness::Bandwidth measureBandwidth(const std::string& mpirun, const std::string& exe, const std::string& dir,

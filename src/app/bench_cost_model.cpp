@@ -97,7 +97,7 @@ std::vector<Layout> predictLayouts(bool quick) {
 }
 
 // Runs one layout once; a run that succeeds adds an observation to m.
-void runLayout(const CostModelRun& run, const std::vector<std::string>& overrides, const SimulatedSweep& seq,
+void runLayout(const CostModelRun& run, const std::vector<std::string>& overrides, const sim::SimulatedSweep& seq,
                Measured& m) {
   const std::string dir = fs::absolute(fs::path(run.outDir) / "layouts" / m.layout.name() /
                                        fmt::format("run{}", m.runs.size() + 1))
@@ -134,7 +134,7 @@ void runLayout(const CostModelRun& run, const std::vector<std::string>& override
 }
 
 // Every layout of a set run.repeats times, round-robin.
-void runSet(const CostModelRun& run, const std::vector<std::string>& overrides, const SimulatedSweep& seq,
+void runSet(const CostModelRun& run, const std::vector<std::string>& overrides, const sim::SimulatedSweep& seq,
             std::vector<Measured>& set, std::size_t& done, std::size_t total) {
   for (int k = 0; k < run.repeats; ++k)
     for (Measured& m : set) {
@@ -176,7 +176,7 @@ int runCostModel(const CostModelRun& run) {
 
   std::printf("cost model: simulating the sweep once (frames every 0.5 mm) into %s/sequence\n", run.outDir.c_str());
   std::fflush(stdout);
-  const SimulatedSweep seq = simulateSweep(s, (fs::path(run.outDir) / "sequence").string());
+  const sim::SimulatedSweep seq = sim::simulateSweep(s.sim, sweepGridOf(s), (fs::path(run.outDir) / "sequence").string());
   std::printf("cost model: %zu frames in %.1f s\n", seq.frames, seq.simulateS);
   const Bandwidth shm = measureBandwidth(run.mpirun, run.exe, run.outDir, false, run.stop);
   const Bandwidth tcp = measureBandwidth(run.mpirun, run.exe, run.outDir, true, run.stop);

@@ -39,9 +39,9 @@
 
 #include "app/bench_common.hpp"
 #include "app/commands.hpp"
-#include "app/recon_run.hpp"
+#include "reconstruction/recon_run.hpp"
 #include "app/settings.hpp"
-#include "app/sweep_cache.hpp"
+#include "sim/sweep_cache.hpp"
 #include "comm/mpi.hpp"
 #include "core/error.hpp"
 #include "core/io_util.hpp"
@@ -99,7 +99,7 @@ int runPingPong() {
 
 // `pp5echo run --serial` on the same sequence, one thread: what one core does
 // per frame with no messages (the serial path has no scripted view change).
-SerialRef runSerialReference(const std::string& exe, const BenchOptions& o, const SimulatedSweep& seq, double timeoutS) {
+SerialRef runSerialReference(const std::string& exe, const BenchOptions& o, const sim::SimulatedSweep& seq, double timeoutS) {
   SerialRef r;
   const std::string dir = fs::absolute(fs::path(o.outDir) / "layouts" / "serial").string();
   std::error_code ec;
@@ -203,7 +203,7 @@ int runBench(BenchOptions o) {
 
   std::printf("bench: simulating the sweep once into %s/sequence\n", o.outDir.c_str());
   std::fflush(stdout);
-  const SimulatedSweep seq = simulateSweep(s, (fs::path(o.outDir) / "sequence").string());
+  const sim::SimulatedSweep seq = sim::simulateSweep(s.sim, sweepGridOf(s), (fs::path(o.outDir) / "sequence").string());
   std::printf("bench: %zu frames in %.1f s; read back with identical pixels, poses within %.1e mm\n", seq.frames,
               seq.simulateS, seq.maxPoseError);
   const Bandwidth bw = measureBandwidth(mpirun, exe, o.outDir, false, &gStop);

@@ -11,9 +11,9 @@
 
 #include "reconstruction/kernels.hpp"
 #include "app/commands.hpp"
-#include "app/recon_run.hpp"
+#include "reconstruction/recon_run.hpp"
 #include "app/settings.hpp"
-#include "app/speckle_run.hpp"
+#include "analysis/speckle_run.hpp"
 #include "core/error.hpp"
 #include "formats/volume_io.hpp"
 #include "analysis/evaluation.hpp"
@@ -117,7 +117,7 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
                  "against it", notFinite);
     // On the truth's grid ([grid]'s extent and spacing do not apply), within [grid]'s memory limit.
     auto recon = gp::makeReconstructor(truthVol.grid, rs, tomlSettings(*t) ? s.grid.memoryLimitBytes() : 0, t->truth);
-    const ReconRunStats st = runReconstruction(seq, *recon);
+    const gp::ReconRunStats st = runReconstruction(seq, *recon);
     std::vector<Mat4> poses;
     for (const auto& p : seq.poses)
       if (p) poses.push_back(*p);
@@ -220,14 +220,14 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     const Grid grid = commandGrid(seq, rs, useToml ? &s.grid : nullptr, plusSpacing);
     auto recon = gp::makeReconstructor(grid, rs, useToml ? s.grid.memoryLimitBytes() : 0,
                                        useToml && !l->config.empty() ? l->config : l->plusConfig);
-    const ReconRunStats st = runReconstruction(seq, *recon, inserted);
+    const gp::ReconRunStats st = runReconstruction(seq, *recon, inserted);
 
     // Second pass over the file for the held-out frames.
     auto reader = SequenceReader::open(l->sequence);
     const auto cov = [&](std::size_t i) { return recon->hasValue(i); };
     gp::LeaveOutMetrics m;
     Frame f;
-    FrameRuns runs(rs);
+    gp::FrameRuns runs(rs);
     for (std::uint64_t i = 0; reader->next(f); ++i) {
       if (i % k == 0 || !seq.poses[i]) continue;
       gp::compareHeldOutFrame(recon->output(), cov, f, *seq.poses[i], runs.of(f), m, reading);
@@ -306,7 +306,7 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     Vec3 plusSpacing;  // not used
     // The clip rectangle and fan only: this command measures the cell itself.
     const gp::ReconSettings rs = reconSettings(*sp, seq, s, &plusSpacing, {}, false);
-    const SpeckleRun m = measureSpeckle(seq, rs, sp->maxPairs, sp->maxLag);
+    const gp::SpeckleRun m = measureSpeckle(seq, rs, sp->maxPairs, sp->maxLag);
     const gp::SpeckleCell& c = m.cell;
     const glm::dvec2 pixelMm = m.pixelMm;
     const double step = m.frameSpacingMm;

@@ -6,9 +6,9 @@
 #include <spdlog/spdlog.h>
 
 #include "app/commands.hpp"
-#include "app/recon_run.hpp"
+#include "reconstruction/recon_run.hpp"
 #include "app/settings.hpp"
-#include "app/speckle_run.hpp"
+#include "analysis/speckle_run.hpp"
 #include "core/error.hpp"
 #include "core/io_util.hpp"
 #include "formats/volume_io.hpp"
@@ -70,7 +70,7 @@ void addReconstructCommand(CLI::App& app, int& exitCode) {
                  seq.reader->info().frameCount, seq.reader->info().width, seq.reader->info().height, grid.dims.x,
                  grid.dims.y, grid.dims.z, grid.spacing.x, enumName(rs.method), enumName(rs.compounding), enumName(rs.arithmetic));
 
-    const ReconRunStats st = runReconstruction(seq, *recon);
+    const gp::ReconRunStats st = runReconstruction(seq, *recon);
     writeVolume(o->output, recon->output().as(o->type == "float32" ? ScalarType::F32 : ScalarType::U8));
     if (!o->writeSettings.empty()) {
       s.recon = rs;  // as used: the derived kernel, the --threads override

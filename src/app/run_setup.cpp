@@ -9,9 +9,9 @@
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
-#include "app/recon_run.hpp"
-#include "app/speckle_run.hpp"
-#include "app/sweep_cache.hpp"
+#include "reconstruction/recon_run.hpp"
+#include "analysis/speckle_run.hpp"
+#include "sim/sweep_cache.hpp"
 #include "core/error.hpp"
 #include "core/io_util.hpp"
 #include "host/capture.hpp"
@@ -67,9 +67,9 @@ void deriveRunKernel(Settings& s, const ConfigSchema& schema) {
   if (s.run.source == SourceKind::Simulator) {
     // The sweep the run streams, filled into the cache now rather than once the viewer's URL is out.
     spdlog::info("run: recon.kernel_from_frames: the simulated sweep first (from the cache, or simulated into it)");
-    SimulatedSweep sweep;
+    sim::SimulatedSweep sweep;
     try {
-      sweep = cachedSweep(s);
+      sweep = sim::cachedSweep(s.sim, sweepGridOf(s), s.run.sweepCache);
     } catch (const InputError& e) {
       throw InputError(fmt::format("recon.kernel_from_frames measures the simulated sweep in its cache: {}; set "
                                    "run.sweep_cache to a folder that can be written, or set the kernel by hand",

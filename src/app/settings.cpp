@@ -10,24 +10,7 @@ namespace pp5::app {
 void registerAll(ConfigSchema& schema, Settings& s) {
   sim::registerOptions(schema, s.sim);
 
-  schema.section("grid", "The reconstruction grid, which is also the grid of the simulated truth volume. "
-                         "`reconstruct` and `evaluate leave-out` with TOML settings use it; with a PLUS config alone, "
-                         "its OutputSpacing (and OutputOrigin and OutputExtent, where it gives both); `evaluate "
-                         "truth` reconstructs on the truth volume's grid.");
-  schema.option("grid.auto_extent", &s.grid.autoExtent, true,
-                "Fit the grid around every frame's corners (PLUS's rule), plus `grid.margin_mm`; "
-                "otherwise use `grid.origin` and `grid.dims`.");
-  schema.option("grid.origin", &s.grid.origin, {0.0, 0.0, 0.0}, -1e6, 1e6,
-                "Centre of voxel (0,0,0) in mm, in the Reference frame (when `auto_extent = false`).");
-  schema.option("grid.spacing", &s.grid.spacing, {1.0, 1.0, 1.0}, 1e-3, 100.0, "Voxel size in mm along x, y, z.");
-  schema.option("grid.dims", &s.grid.dims, {256, 256, 256}, 1, 100000,
-                "Voxels along x, y, z (when `auto_extent = false`).");
-  schema.option("grid.margin_mm", &s.grid.marginMm, 2.0, 0.0, 1000.0,
-                "Margin added on every side of an automatic extent, in mm.");
-  schema.option("grid.memory_limit_gib", &s.grid.memoryLimitGiB, 0.0, 0.0, 1e6,
-                "Largest grid memory allowed, in GiB; 0 means the memory the machine has available. "
-                "A grid over the limit is refused before anything is allocated.");
-
+  gp::registerOptions(schema, s.grid);
   gp::registerOptions(schema, s.recon);
   registerOptions(schema, s.render);
   gp::registerOptions(schema, s.shading);
@@ -147,20 +130,16 @@ void registerAll(ConfigSchema& schema, Settings& s) {
                 "How many input frames `simulate` also writes as PNG, evenly spread over the sweep.");
 }
 
-Grid GridSettings::fixedGrid() const {
-  Grid g;
-  g.origin = origin;
-  g.spacing = spacing;
-  g.dims = Index3(dims);
-  return g;
+sim::SweepGrid sweepGridOf(const Settings& s) {
+  return [grid = s.grid](const sim::SweepSimulator& sim) {
+    if (!grid.autoExtent) return grid.fixedGrid();
+    std::vector<Mat4> poses;
+    for (std::size_t i = 0; i < sim.frameCount(); ++i) poses.push_back(sim.imageToReference(i));
+    return sim::fitGrid(poses, sim.probe().width, sim.probe().height, grid.spacing, grid.marginMm);
+  };
 }
 
-Grid sweepGrid(const Settings& s, const sim::SweepSimulator& sim) {
-  if (!s.grid.autoExtent) return s.grid.fixedGrid();
-  std::vector<Mat4> poses;
-  for (std::size_t i = 0; i < sim.frameCount(); ++i) poses.push_back(sim.imageToReference(i));
-  return sim::fitGrid(poses, sim.probe().width, sim.probe().height, s.grid.spacing, s.grid.marginMm);
-}
+Grid sweepGrid(const Settings& s, const sim::SweepSimulator& sim) { return sweepGridOf(s)(sim); }
 
 void makeOutputDir(const std::string& dir) {
   std::error_code ec;

@@ -9,6 +9,7 @@
 #include "core/grid.hpp"
 #include "core/render_settings.hpp"
 #include "core/transfer_function.hpp"
+#include "reconstruction/recon_run.hpp"
 #include "reconstruction/reconstruction.hpp"
 #include "rendering/shading.hpp"
 #include "host/acquisition.hpp"
@@ -17,28 +18,11 @@
 #include "pipeline/parallel_settings.hpp"
 #include "rendering/ray_cache.hpp"
 #include "sim/sim_settings.hpp"
-
-namespace pp5::sim {
-class SweepSimulator;
-}
+#include "sim/sweep_cache.hpp"
 
 namespace pp5::app {
 
-// [grid]: the reconstruction grid (also the grid of the simulated truth volume).
-struct GridSettings {
-  bool autoExtent = true;        // fit the grid around the sweep (PLUS's rule)
-  glm::dvec3 origin{0.0};        // centre of voxel 0, mm (when auto_extent = false)
-  glm::dvec3 spacing{1.0};       // mm
-  glm::ivec3 dims{256, 256, 256};
-  double marginMm = 2.0;         // added around an automatic extent
-  double memoryLimitGiB = 0.0;   // 0 = what the machine has available
-
-  std::uint64_t memoryLimitBytes() const {
-    return static_cast<std::uint64_t>(memoryLimitGiB * 1024.0 * 1024.0 * 1024.0);
-  }
-  // The grid of origin, spacing and dims (what auto_extent = false asks for).
-  Grid fixedGrid() const;
-};
+using gp::GridSettings;
 
 // [output]
 struct OutputSettings {
@@ -82,7 +66,7 @@ struct RunSettings {
   std::string plusConfig;            // ... and its PLUS device-set XML (calibration)
   // run.source = "simulator": simulate each frame as it streams (the
   // simulator on the host's path), or the sweep once into the cache folder
-  // (app/sweep_cache.hpp), streamed from there.
+  // (sim/sweep_cache.hpp), streamed from there.
   bool simulateLive = false;
   std::string sweepCache;  // "" = $XDG_CACHE_HOME/pp5echo/sweeps or ~/.cache/pp5echo/sweeps
   int buildupEvery = 1;              // every n-th frame goes into the build-up animation
@@ -127,6 +111,8 @@ void registerAll(ConfigSchema& schema, Settings& s);
 // reconstruction of the recorded sequence would fit it) plus the margin, or
 // the fixed grid when grid.auto_extent is false.
 Grid sweepGrid(const Settings& s, const sim::SweepSimulator& sim);
+// The same, as the function the sweep cache (sim/sweep_cache.hpp) asks.
+sim::SweepGrid sweepGridOf(const Settings& s);
 
 // Creates the output folder (and its parents); InputError when it cannot.
 void makeOutputDir(const std::string& dir);

@@ -6,8 +6,8 @@
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
-#include "app/recon_run.hpp"
-#include "app/sweep_cache.hpp"
+#include "reconstruction/recon_run.hpp"
+#include "sim/sweep_cache.hpp"
 #include "core/error.hpp"
 #include "formats/plus_config.hpp"
 #include "formats/recording_journal.hpp"
@@ -75,9 +75,9 @@ host::Source makeSource(const Settings& s) {
     host::Source inner;
     void ready() {
       std::call_once(once, [this] {
-        SimulatedSweep sweep;
+        sim::SimulatedSweep sweep;
         try {
-          sweep = cachedSweep(s);
+          sweep = sim::cachedSweep(s.sim, sweepGridOf(s), s.run.sweepCache);
         } catch (const InputError& e) {
           spdlog::warn("run: {}; simulating every frame live instead (run.simulate_live)", e.what());
           inner = host::simulatorSource(sim, grid, s.sim.threads);

@@ -53,7 +53,7 @@ struct ReconSettings {
   double kernelAxialMm = 1.0;
   double kernelElevationMm = 3.0;
   // Derive the half-widths the user did not set from the frames (batch
-  // commands only; app/speckle_run.hpp).
+  // commands only; analysis/speckle_run.hpp).
   bool kernelFromFrames = false;
 
   // Inter-slice fill-in (tent method).

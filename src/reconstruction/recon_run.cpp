@@ -1,4 +1,4 @@
-#include "app/recon_run.hpp"
+#include "reconstruction/recon_run.hpp"
 
 #include <algorithm>
 #include <chrono>
@@ -6,9 +6,10 @@
 
 #include <spdlog/spdlog.h>
 
+#include "core/config.hpp"
 #include "core/error.hpp"
 
-namespace pp5::app {
+namespace pp5::gp {
 
 void checkNoOutlierPose(const PosedSequence& seq) {
   // A pose far from all others (a tracker glitch) would stretch the automatic
@@ -47,7 +48,7 @@ void checkNoOutlierPose(const PosedSequence& seq) {
                index[worst], d, typical);
 }
 
-Grid chooseGrid(const PosedSequence& seq, const gp::ReconSettings& s, const Vec3& spacing, double marginMm,
+Grid chooseGrid(const PosedSequence& seq, const ReconSettings& s, const Vec3& spacing, double marginMm,
                 bool useConfigExtent) {
   const auto& vr = seq.config.volumeReconstruction;
   if (useConfigExtent && vr && vr->outputOrigin && vr->outputExtent) {
@@ -64,7 +65,7 @@ Grid chooseGrid(const PosedSequence& seq, const gp::ReconSettings& s, const Vec3
     if (p) poses.push_back(*p);
   const SequenceInfo& info = seq.reader->info();
   checkNoOutlierPose(seq);
-  Grid g = gp::plusOutputGrid(poses, info.width, info.height, s, spacing);
+  Grid g = plusOutputGrid(poses, info.width, info.height, s, spacing);
   if (marginMm > 0.0) {
     const Index3 pad(std::llround(marginMm / spacing.x), std::llround(marginMm / spacing.y),
                      std::llround(marginMm / spacing.z));
@@ -74,12 +75,12 @@ Grid chooseGrid(const PosedSequence& seq, const gp::ReconSettings& s, const Vec3
   return g;
 }
 
-Grid commandGrid(const PosedSequence& seq, const gp::ReconSettings& s, const GridSettings* toml, const Vec3& plusSpacing) {
+Grid commandGrid(const PosedSequence& seq, const ReconSettings& s, const GridSettings* toml, const Vec3& plusSpacing) {
   if (!toml) return chooseGrid(seq, s, plusSpacing, 0.0, true);
   return toml->autoExtent ? chooseGrid(seq, s, toml->spacing, toml->marginMm, false) : toml->fixedGrid();
 }
 
-ReconRunStats runReconstruction(PosedSequence& seq, gp::Reconstructor& recon,
+ReconRunStats runReconstruction(PosedSequence& seq, Reconstructor& recon,
                                 const std::function<bool(std::uint64_t)>& keep) {
   using Clock = std::chrono::steady_clock;
   const auto start = Clock::now();
@@ -116,4 +117,32 @@ ReconRunStats runReconstruction(PosedSequence& seq, gp::Reconstructor& recon,
   return st;
 }
 
-}  // namespace pp5::app
+Grid GridSettings::fixedGrid() const {
+  Grid g;
+  g.origin = origin;
+  g.spacing = spacing;
+  g.dims = Index3(dims);
+  return g;
+}
+
+void registerOptions(ConfigSchema& schema, GridSettings& s) {
+  schema.section("grid", "The reconstruction grid, which is also the grid of the simulated truth volume. "
+                         "`reconstruct` and `evaluate leave-out` with TOML settings use it; with a PLUS config alone, "
+                         "its OutputSpacing (and OutputOrigin and OutputExtent, where it gives both); `evaluate "
+                         "truth` reconstructs on the truth volume's grid.");
+  schema.option("grid.auto_extent", &s.autoExtent, true,
+                "Fit the grid around every frame's corners (PLUS's rule), plus `grid.margin_mm`; "
+                "otherwise use `grid.origin` and `grid.dims`.");
+  schema.option("grid.origin", &s.origin, {0.0, 0.0, 0.0}, -1e6, 1e6,
+                "Centre of voxel (0,0,0) in mm, in the Reference frame (when `auto_extent = false`).");
+  schema.option("grid.spacing", &s.spacing, {1.0, 1.0, 1.0}, 1e-3, 100.0, "Voxel size in mm along x, y, z.");
+  schema.option("grid.dims", &s.dims, {256, 256, 256}, 1, 100000,
+                "Voxels along x, y, z (when `auto_extent = false`).");
+  schema.option("grid.margin_mm", &s.marginMm, 2.0, 0.0, 1000.0,
+                "Margin added on every side of an automatic extent, in mm.");
+  schema.option("grid.memory_limit_gib", &s.memoryLimitGiB, 0.0, 0.0, 1e6,
+                "Largest grid memory allowed, in GiB; 0 means the memory the machine has available. "
+                "A grid over the limit is refused before anything is allocated.");
+}
+
+}  // namespace pp5::gp

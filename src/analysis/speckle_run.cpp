@@ -1,4 +1,4 @@
-#include "app/speckle_run.hpp"
+#include "analysis/speckle_run.hpp"
 
 #include <algorithm>
 #include <cstdio>
@@ -8,9 +8,9 @@
 
 #include "core/error.hpp"
 
-namespace pp5::app {
+namespace pp5::gp {
 
-SpeckleRun measureSpeckle(const PosedSequence& seq, const gp::ReconSettings& rs, int maxPairs, int maxLag,
+SpeckleRun measureSpeckle(const PosedSequence& seq, const ReconSettings& rs, int maxPairs, int maxLag,
                           const std::function<bool(std::uint64_t)>& use) {
   const auto& info = seq.reader->info();
   const glm::dvec4 centre(0.5 * info.width, 0.5 * info.height, 0.0, 1.0);
@@ -33,7 +33,7 @@ SpeckleRun measureSpeckle(const PosedSequence& seq, const gp::ReconSettings& rs,
 
   SpeckleRun out;
   out.pairsAvailable = pairs;
-  gp::SpeckleCellMeter meter(maxLag);
+  SpeckleCellMeter meter(maxLag);
   auto reader = SequenceReader::open(seq.path);
   Frame prev2, prev, cur;  // used frames j - 2, j - 1 and j
   FrameRuns runs(rs);
@@ -53,7 +53,7 @@ SpeckleRun measureSpeckle(const PosedSequence& seq, const gp::ReconSettings& rs,
     ++j;
   }
   out.cell = meter.result();
-  const gp::SpeckleCell& c = out.cell;
+  const SpeckleCell& c = out.cell;
   if (c.pairs == 0)
     inputError(seq.path, "none of the {} pairs measured shows speckle inside the clip rectangle and fan (their "
                "differences are zero, or white noise): no resolution cell to measure", want);
@@ -71,16 +71,16 @@ SpeckleRun measureSpeckle(const PosedSequence& seq, const gp::ReconSettings& rs,
   return out;
 }
 
-void deriveKernelFromFrames(const PosedSequence& seq, gp::ReconSettings& rs, const ConfigSchema& schema,
+void deriveKernelFromFrames(const PosedSequence& seq, ReconSettings& rs, const ConfigSchema& schema,
                             const std::function<bool(std::uint64_t)>& use, glm::dvec2 insertedPixelScale) {
   if (!rs.kernelFromFrames) return;
-  gp::checkReconSettings(rs);  // what the reconstruction would refuse, before the measurement
+  checkReconSettings(rs);  // what the reconstruction would refuse, before the measurement
   // The frames the reconstruction is given: `use`'s, or every skip_interval-th.
   const auto skip = static_cast<std::uint64_t>(std::max(1, rs.skipInterval));
   const SpeckleRun m =
       measureSpeckle(seq, rs, 32, 64, use ? use : [skip](std::uint64_t i) { return i % skip == 0; });
   const glm::dvec2 inserted = m.pixelMm * insertedPixelScale;
-  const auto k = gp::kernelFromCell(m.cell, m.pixelMm.x, m.pixelMm.y, m.frameSpacingMm, inserted.x, inserted.y);
+  const auto k = kernelFromCell(m.cell, m.pixelMm.x, m.pixelMm.y, m.frameSpacingMm, inserted.x, inserted.y);
   if (!k)
     inputError(seq.path, "recon.kernel_from_frames: the speckle's {} half width is wider than 64 px, so no kernel can "
                "be derived from it; set recon.kernel_lateral_mm, recon.kernel_axial_mm and recon.kernel_elevation_mm",
@@ -120,4 +120,4 @@ void deriveKernelFromFrames(const PosedSequence& seq, gp::ReconSettings& rs, con
   std::fflush(stdout);
 }
 
-}  // namespace pp5::app
+}  // namespace pp5::gp

@@ -1,4 +1,4 @@
-#include "app/sweep_cache.hpp"
+#include "sim/sweep_cache.hpp"
 
 #include <unistd.h>
 
@@ -24,7 +24,7 @@
 #include "formats/sequence_io.hpp"
 #include "sim/simulate.hpp"
 
-namespace pp5::app {
+namespace pp5::sim {
 
 namespace fs = std::filesystem;
 using Clock = std::chrono::steady_clock;
@@ -41,9 +41,9 @@ PlusVolumeReconstruction reconstructionElement(const Grid& g) {
   return r;
 }
 
-std::string stem(const Settings& s) { return std::string(enumName(s.sim.phantom)); }
+std::string stem(const SimSettings& s) { return std::string(enumName(s.phantom)); }
 
-SimulatedSweep pathsIn(const Settings& s, const std::string& dir) {
+SimulatedSweep pathsIn(const SimSettings& s, const std::string& dir) {
   SimulatedSweep out;
   out.sequencePath = fs::absolute(fs::path(dir) / (stem(s) + "_sweep.igs.mha")).string();
   out.configPath = fs::absolute(fs::path(dir) / (stem(s) + "_config.xml")).string();
@@ -88,12 +88,14 @@ void prune(const fs::path& folder, const std::string& prefix) {
 
 }  // namespace
 
-SimulatedSweep simulateSweep(const Settings& s, const std::string& dir) {
+SimulatedSweep simulateSweep(const SimSettings& s, const SweepGrid& grid, const std::string& dir) {
   const auto t0 = Clock::now();
-  const sim::SweepSimulator sim(s.sim);
+  const SweepSimulator sim(s);
   const std::size_t n = sim.frameCount();
   if (n == 0) throw InputError("sim.sweep: the sweep captured no frames; lengthen it or lower sim.sweep.capture_interval_mm");
-  makeOutputDir(dir);
+  std::error_code made;
+  fs::create_directories(dir, made);
+  if (made || !fs::is_directory(dir)) throw InputError(dir + ": cannot create the folder for the simulated sweep");
   SimulatedSweep out = pathsIn(s, dir);
   out.frames = n;
   // What each frame must read back as: a hash of its pixels, not the pixels
@@ -113,16 +115,16 @@ SimulatedSweep simulateSweep(const Settings& s, const std::string& dir) {
   wo.fields = {{"UltrasoundImageType", "BRIGHTNESS"}};
   auto writer = SequenceWriter::create(out.sequencePath, wo);
   auto first = SequenceWriter::create(out.firstPath, wo);
-  sim.run(s.sim.threads, [&](Frame&& f) {
+  sim.run(s.threads, [&](Frame&& f) {
     want.push_back({f.index, f.timestamp, hashOf(f.pixels), sim.imageToReference(f.index)});
     if (want.size() == 1) first->write(f);
     writer->write(f);
   });
   writer->close();
   first->close();
-  writePlusConfig(out.configPath, {{"Image", "Probe", sim.imageToProbe()}}, reconstructionElement(sweepGrid(s, sim)),
-                  fmt::format("pp5echo: simulated {} phantom, {} probe, {} sweep, seed {}", enumName(s.sim.phantom),
-                              sim.probe().name, enumName(s.sim.sweep.kind), s.sim.seed));
+  writePlusConfig(out.configPath, {{"Image", "Probe", sim.imageToProbe()}}, reconstructionElement(grid(sim)),
+                  fmt::format("pp5echo: simulated {} phantom, {} probe, {} sweep, seed {}", enumName(s.phantom),
+                              sim.probe().name, enumName(s.sweep.kind), s.seed));
 
   PosedSequence seq = openPosedSequence(out.sequencePath, out.configPath);
   if (seq.poses.size() != n)
@@ -145,11 +147,11 @@ SimulatedSweep simulateSweep(const Settings& s, const std::string& dir) {
   return out;
 }
 
-std::string sweepCacheKey(const Settings& s) {
-  sim::SimSettings copy;
+std::string sweepCacheKey(const SimSettings& s) {
+  SimSettings copy;
   ConfigSchema schema;
-  sim::registerOptions(schema, copy);  // resets copy; the entries read it from here on
-  copy = s.sim;
+  registerOptions(schema, copy);  // resets copy; the entries read it from here on
+  copy = s;
   std::string text = "pp5echo simulated sweep 1\n";
   for (const ConfigSchema::Entry& e : schema.entries())
     if (e.key != "sim.threads") text += e.key + "=" + e.current() + "\n";
@@ -163,15 +165,15 @@ std::string sweepCacheKey(const Settings& s) {
   return fmt::format("{:016x}", fnv1a(text));
 }
 
-std::string sweepCacheFolder(const Settings& s) {
-  if (!s.run.sweepCache.empty()) return s.run.sweepCache;
+std::string sweepCacheFolder(const std::string& configured) {
+  if (!configured.empty()) return configured;
   if (const char* x = std::getenv("XDG_CACHE_HOME"); x && *x) return (fs::path(x) / "pp5echo" / "sweeps").string();
   if (const char* h = std::getenv("HOME"); h && *h) return (fs::path(h) / ".cache" / "pp5echo" / "sweeps").string();
   throw InputError("run.sweep_cache: neither XDG_CACHE_HOME nor HOME is set; give the cache folder");
 }
 
-SimulatedSweep cachedSweep(const Settings& s) {
-  const fs::path dir = fs::path(sweepCacheFolder(s)) / (stem(s) + "-" + sweepCacheKey(s));
+SimulatedSweep cachedSweep(const SimSettings& s, const SweepGrid& grid, const std::string& folder) {
+  const fs::path dir = fs::path(sweepCacheFolder(folder)) / (stem(s) + "-" + sweepCacheKey(s));
   SimulatedSweep hit = pathsIn(s, dir.string());
   std::error_code ec;
   // A folder under the final name is complete: it is only ever renamed into place.
@@ -192,7 +194,7 @@ SimulatedSweep cachedSweep(const Settings& s) {
                                                        ::getpid(), std::random_device{}());
   spdlog::info("run: simulating the sweep once into {} (later runs with these [sim] settings stream it from there)",
                dir.string());
-  SimulatedSweep made = simulateSweep(s, tmp.string());
+  SimulatedSweep made = simulateSweep(s, grid, tmp.string());
   fs::rename(tmp, dir, ec);
   if (ec) {
     // Another run put the same sweep there first (the folder is not empty):
@@ -213,4 +215,4 @@ SimulatedSweep cachedSweep(const Settings& s) {
   return hit;
 }
 
-}  // namespace pp5::app
+}  // namespace pp5::sim
