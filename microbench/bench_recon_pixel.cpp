@@ -52,8 +52,8 @@ void BM_PixelInsert(benchmark::State& state) {
   gp::ReconSettings s = gp::fromPlus(*rec.cfg.volumeReconstruction);
   s.method = state.range(0) == 0 ? gp::Method::Nearest : gp::Method::Trilinear;
   s.arithmetic = state.range(1) == 0 ? gp::Arithmetic::Float : gp::Arithmetic::Plus;
-  s.compounding = pp5::gp::Compounding::Mean;
-  s.fillHoles = false;
+  s.pixel.compounding = pp5::gp::Compounding::Mean;
+  s.pixel.fillHoles = false;
   s.threads = 1;
   const Grid g = gp::plusOutputGrid(rec.poses, rec.frames[0].width, rec.frames[0].height, s, Vec3(0.5));
   std::unique_ptr<gp::Reconstructor> r;

@@ -100,9 +100,9 @@ BENCHMARK(BM_TentInsert)
 
 void BM_TentInsertFillIn(benchmark::State& state) {
   pp5::gp::ReconSettings s;
-  s.kernelLateralMm = 1.0;
-  s.kernelAxialMm = 0.75;
-  s.kernelElevationMm = 1.5;
+  s.tent.kernelLateralMm = 1.0;
+  s.tent.kernelAxialMm = 0.75;
+  s.tent.kernelElevationMm = 1.5;
   tentInsert(state, s);
 }
 BENCHMARK(BM_TentInsertFillIn)

@@ -129,16 +129,16 @@ TEST(Cli, SettingsThatCannotWorkAreRefusedUpFront) {
   // With a pixel method, hole filling is taken.
   pp5::gp::ReconSettings s;
   s.method = pp5::gp::Method::Trilinear;
-  s.fillHoles = true;
+  s.pixel.fillHoles = true;
   EXPECT_NO_THROW(pp5::gp::checkReconSettings(s));
   s.method = pp5::gp::Method::Tent;
   EXPECT_THROW(pp5::gp::checkReconSettings(s), pp5::InputError);
   // Incremental hole filling without hole filling did nothing, without a word.
   s = {};
   s.method = pp5::gp::Method::Nearest;
-  s.fillHolesIncremental = true;
+  s.pixel.fillHolesIncremental = true;
   EXPECT_THROW(pp5::gp::checkReconSettings(s), pp5::InputError);
-  s.fillHoles = true;
+  s.pixel.fillHoles = true;
   EXPECT_NO_THROW(pp5::gp::checkReconSettings(s));
   // PLUS's arithmetic with the tent method, which computes in float: refused, and named on the command line.
   r = run("run " + doll + " --serial -o /tmp/pp5cli-never --set recon.arithmetic=plus");

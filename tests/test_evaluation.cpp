@@ -228,7 +228,7 @@ TEST(Evaluation, HoleFilledVoxelsHaveAValueButAreNotCovered) {
   for (bool fill : {false, true}) {
     ReconSettings s;
     s.method = pp5::gp::Method::Nearest;
-    s.fillHoles = fill;
+    s.pixel.fillHoles = fill;
     auto r = makeReconstructor(g, s);
     r->insert(f, pose(2.0), 0.0);
     r->insert(f, pose(8.0), 0.1);

@@ -49,9 +49,9 @@ std::vector<std::uint8_t> render(const GoldenCase& c, const std::string& mode, i
   ps.render.compositing = {pp5::enumFromName<pp5::CompositeMode>(mode)};
   ps.render.threads = 2;
   if (c.phantom == "forearm") {  // as configs/forearm.toml
-    ps.recon.kernelLateralMm = 0.8;
-    ps.recon.kernelAxialMm = 0.4;
-    ps.recon.kernelElevationMm = 5.0;
+    ps.recon.tent.kernelLateralMm = 0.8;
+    ps.recon.tent.kernelAxialMm = 0.4;
+    ps.recon.tent.kernelElevationMm = 5.0;
     ps.tf.opacity = {{0, 0.0, 0, 0}, {150, 0.0, 0, 0}, {190, 0.25, 0, 0}, {255, 0.8, 0, 0}};
     ps.tf.colour = {{0, 0.0, 0.0, 0.0}, {150, 0.75, 0.6, 0.5}, {220, 1.0, 0.95, 0.85}, {255, 1.0, 1.0, 1.0}};
     ps.render.azimuthDeg = -60.0;

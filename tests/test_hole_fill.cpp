@@ -310,7 +310,7 @@ std::vector<std::vector<PlusHoleFillingElement>> kernelSets(bool all) {
 }
 
 Volume finalPass(const Sweep& s, ReconSettings st, std::size_t frames) {
-  st.fillHolesIncremental = false;
+  st.pixel.fillHolesIncremental = false;
   auto r = makePixelReconstructor(s.grid, st);
   for (std::size_t k = 0; k < frames; ++k) r->insert(s.frames[k], s.poses[k], 0);
   r->finish();
@@ -325,11 +325,11 @@ TEST(HoleFill, IncrementalEqualsFinalPassAfterEveryFrame) {
         ReconSettings st;
         st.arithmetic = pp5::enumFromName<pp5::gp::Arithmetic>(ar);
         st.method = pp5::enumFromName<pp5::gp::Method>(m);
-        st.compounding = pp5::gp::Compounding::Mean;
+        st.pixel.compounding = pp5::gp::Compounding::Mean;
         st.threads = 1 + (ks.size() % 2);
-        st.fillHoles = true;
-        st.fillHolesIncremental = true;
-        st.holeFilling = ks;
+        st.pixel.fillHoles = true;
+        st.pixel.fillHolesIncremental = true;
+        st.pixel.holeFilling = ks;
         auto r = makePixelReconstructor(s.grid, st);
         std::size_t filled = 0;
         for (std::size_t k = 0; k < s.frames.size(); ++k) {
@@ -368,7 +368,7 @@ TEST(HoleFill, InsertAfterFinish) {
     ReconSettings st;
     st.arithmetic = pp5::enumFromName<pp5::gp::Arithmetic>(ar);
     st.method = pp5::gp::Method::Nearest;
-    st.fillHoles = true;
+    st.pixel.fillHoles = true;
     auto r = makePixelReconstructor(s.grid, st);
     for (std::size_t k = 0; k < 3; ++k) r->insert(s.frames[k], s.poses[k], 0);
     r->finish();
@@ -386,11 +386,11 @@ TEST(HoleFill, DefaultKernel) {
   ReconSettings st;
   st.arithmetic = pp5::gp::Arithmetic::Plus;
   st.method = pp5::gp::Method::Trilinear;
-  st.fillHoles = true;
+  st.pixel.fillHoles = true;
   const Volume byDefault = finalPass(s, st, s.frames.size());
-  st.holeFilling = {stick(9, 1)};
+  st.pixel.holeFilling = {stick(9, 1)};
   EXPECT_TRUE(byDefault.bytes == finalPass(s, st, s.frames.size()).bytes);
-  st.holeFilling = {stick(3, 1)};
+  st.pixel.holeFilling = {stick(3, 1)};
   EXPECT_FALSE(byDefault.bytes == finalPass(s, st, s.frames.size()).bytes);
 }
 

@@ -197,7 +197,7 @@ Mat4 framePose(double x0, double z0) {
 TEST(Coverage, SweptCellsGapsAndOutline) {
   const Grid g = smallGrid();
   gp::ReconSettings recon;
-  recon.fillInMaxGapMm = 6.0;
+  recon.tent.fillInMaxGapMm = 6.0;
   host::Coverage cov(g, recon, 4.0);
   EXPECT_EQ(cov.fraction(), 0.0);
   cov.add(framePose(5.0, 10.0), 20, 10);

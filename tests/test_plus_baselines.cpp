@@ -167,7 +167,7 @@ TEST(PlusBaselineFloat, AgreementRecorded) {
                 a.within1, a.equal, a.meanDiff);
     RecordProperty(std::string(b.name) + "_float_within1", std::to_string(a.within1));
     RecordProperty(std::string(b.name) + "_float_mean_diff", std::to_string(a.meanDiff));
-    const pp5::gp::Compounding mode = c.settings.compounding;
+    const pp5::gp::Compounding mode = c.settings.pixel.compounding;
     if (mode == pp5::gp::Compounding::Mean && c.settings.method == pp5::gp::Method::Nearest) {
       // PLUS truncates its running mean at every step, so its values sink
       // below the exact mean as hits accumulate.

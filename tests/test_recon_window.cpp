@@ -110,14 +110,14 @@ Sweep makeSweep(unsigned seed) {
 ReconSettings tentSettings(const std::string& replacement) {
   ReconSettings s;
   s.threads = 1;
-  s.kernelLateralMm = 1.0;
-  s.kernelAxialMm = 0.75;
-  s.kernelElevationMm = 1.5;
-  s.fillIn = true;
-  s.fillInMaxGapMm = 8.0;
-  s.replacement = pp5::enumFromName<pp5::gp::Replacement>(replacement);
-  s.motionVectorBrick = 5;  // does not divide the grid: the last cells are partial
-  s.decayTauS = 0.3;
+  s.tent.kernelLateralMm = 1.0;
+  s.tent.kernelAxialMm = 0.75;
+  s.tent.kernelElevationMm = 1.5;
+  s.tent.fillIn = true;
+  s.tent.fillInMaxGapMm = 8.0;
+  s.tent.replacement = pp5::enumFromName<pp5::gp::Replacement>(replacement);
+  s.tent.motionVectorBrick = 5;  // does not divide the grid: the last cells are partial
+  s.tent.decayTauS = 0.3;
   return s;
 }
 
@@ -509,9 +509,9 @@ TEST_P(PixelWindow, WindowEqualsTheUnrestrictedReconstruction) {
   ReconSettings s;
   s.threads = 1;
   s.method = pp5::enumFromName<pp5::gp::Method>(c.method);
-  s.compounding = pp5::enumFromName<pp5::gp::Compounding>(c.compounding);
-  s.fillHoles = c.fillHoles;
-  s.fillHolesIncremental = c.fillHoles;
+  s.pixel.compounding = pp5::enumFromName<pp5::gp::Compounding>(c.compounding);
+  s.pixel.fillHoles = c.fillHoles;
+  s.pixel.fillHolesIncremental = c.fillHoles;
   const Sweep sw = makeSweep(13);
   const Reference ref = referenceRun(g, s, sw);
   WindowStats st;
@@ -539,7 +539,7 @@ TEST(PixelWindow, HoleFillingGrowsTheReach) {
   s.method = pp5::gp::Method::Nearest;
   const Box3 w{Index3(10), Index3(12)};
   EXPECT_EQ(reconstructionReach(g, s, w), w);
-  s.fillHoles = true;  // the default STICK kernel of length 9
+  s.pixel.fillHoles = true;  // the default STICK kernel of length 9
   const Box3 r = reconstructionReach(g, s, w);
   EXPECT_LT(r.lo.x, w.lo.x);
   EXPECT_GT(r.hi.x, w.hi.x);

@@ -63,8 +63,8 @@ std::vector<Case> cases() {
   for (const char* rep : {"accumulate", "motion_vector", "decay"}) {
     pp5::gp::ReconSettings s;
     s.method = pp5::gp::Method::Tent;
-    s.replacement = pp5::enumFromName<pp5::gp::Replacement>(rep);
-    s.decayTauS = 0.5;
+    s.tent.replacement = pp5::enumFromName<pp5::gp::Replacement>(rep);
+    s.tent.decayTauS = 0.5;
     out.push_back({std::string("tent_") + rep, s});
   }
   for (const char* m : {"nearest", "trilinear"})
@@ -72,14 +72,14 @@ std::vector<Case> cases() {
       for (const char* a : {"float", "plus"}) {
         pp5::gp::ReconSettings s;
         s.method = pp5::enumFromName<pp5::gp::Method>(m);
-        s.compounding = pp5::enumFromName<pp5::gp::Compounding>(c);
+        s.pixel.compounding = pp5::enumFromName<pp5::gp::Compounding>(c);
         s.arithmetic = pp5::enumFromName<pp5::gp::Arithmetic>(a);
         out.push_back({std::string(m) + "_" + c + "_" + a, s});
       }
   pp5::gp::ReconSettings holes;
   holes.method = pp5::gp::Method::Nearest;
-  holes.fillHoles = true;
-  holes.fillHolesIncremental = true;
+  holes.pixel.fillHoles = true;
+  holes.pixel.fillHolesIncremental = true;
   out.push_back({"nearest_mean_holes_incremental", holes});
   return out;
 }

@@ -570,8 +570,8 @@ TEST(GpsTouched, MatchesABruteForceVoxelLoop) {
     boxes.push_back({g.maxCorner() + Vec3(1.0), g.maxCorner() + Vec3(2.0)});
     // The tent's windows as they are, and grown to whole motion-vector cells.
     ReconSettings plain, motion;
-    motion.replacement = pp5::gp::Replacement::MotionVector;
-    motion.motionVectorBrick = 4;
+    motion.tent.replacement = pp5::gp::Replacement::MotionVector;
+    motion.tent.motionVectorBrick = 4;
     for (const ReconSettings* recon : {&plain, &motion})
       for (int G = 1; G <= 16; ++G)
         for (const SlabSplit split : {SlabSplit::Longest, SlabSplit::Grid3d})
@@ -585,7 +585,7 @@ TEST(GpsTouched, MatchesABruteForceVoxelLoop) {
                 ASSERT_EQ(pp5::parallel::gpsTouched(g, reaches, boxes[b]), expect)
                     << "dims " << dims.x << "x" << dims.y << "x" << dims.z << ", " << G << " GPs, "
                     << pp5::parallel::slabSplitName(split) << ", ghost " << ghost << ", box " << b << ", "
-                    << pp5::enumName(recon->replacement);
+                    << pp5::enumName(recon->tent.replacement);
                 ++checks;
                 if (!expect.empty() && static_cast<int>(expect.size()) < G) ++nonTrivial;
               }

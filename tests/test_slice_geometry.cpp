@@ -84,9 +84,9 @@ Mat4 randomPose(std::mt19937& rng, int kind) {
 ReconSettings randomRecon(std::mt19937& rng, int width, int height) {
   std::uniform_real_distribution<double> U(0.0, 1.0);
   ReconSettings s;
-  s.kernelLateralMm = 0.2 + 3.0 * U(rng);
-  s.kernelAxialMm = 0.2 + 2.0 * U(rng);
-  s.kernelElevationMm = 0.2 + 4.0 * U(rng);
+  s.tent.kernelLateralMm = 0.2 + 3.0 * U(rng);
+  s.tent.kernelAxialMm = 0.2 + 2.0 * U(rng);
+  s.tent.kernelElevationMm = 0.2 + 4.0 * U(rng);
   const int kind = static_cast<int>(U(rng) * 4);
   if (kind == 1) {  // inside the frame
     s.clipOrigin = glm::ivec2(static_cast<int>(U(rng) * width / 2), static_cast<int>(U(rng) * height / 2));
@@ -140,11 +140,11 @@ void forReachPoints(std::mt19937& rng, const Rect& r, const ReconSettings& s, F&
   for (int i = 0; i < 12; ++i) px.emplace_back(r.x0 + (r.x1 - r.x0) * U(rng), r.y0 + (r.y1 - r.y0) * U(rng));
   std::vector<Vec3> ks;
   for (int c = 0; c < 8; ++c)
-    ks.emplace_back((c & 1) ? s.kernelLateralMm : -s.kernelLateralMm, (c & 2) ? s.kernelAxialMm : -s.kernelAxialMm,
-                    (c & 4) ? s.kernelElevationMm : -s.kernelElevationMm);
+    ks.emplace_back((c & 1) ? s.tent.kernelLateralMm : -s.tent.kernelLateralMm, (c & 2) ? s.tent.kernelAxialMm : -s.tent.kernelAxialMm,
+                    (c & 4) ? s.tent.kernelElevationMm : -s.tent.kernelElevationMm);
   for (int i = 0; i < 6; ++i)
-    ks.emplace_back((2 * U(rng) - 1) * s.kernelLateralMm, (2 * U(rng) - 1) * s.kernelAxialMm,
-                    (2 * U(rng) - 1) * s.kernelElevationMm);
+    ks.emplace_back((2 * U(rng) - 1) * s.tent.kernelLateralMm, (2 * U(rng) - 1) * s.tent.kernelAxialMm,
+                    (2 * U(rng) - 1) * s.tent.kernelElevationMm);
   for (const auto& [c, y] : px)
     for (const Vec3& k : ks) f(c, y, k);
 }
@@ -182,9 +182,9 @@ TEST(FrameReach, HoldsEveryKernelPointAndIsTheHullPlusAPad) {
 
 TEST(FrameReach, ClipRectangleAndErrors) {
   ReconSettings s;
-  s.kernelLateralMm = 1.0;
-  s.kernelAxialMm = 0.5;
-  s.kernelElevationMm = 2.0;
+  s.tent.kernelLateralMm = 1.0;
+  s.tent.kernelAxialMm = 0.5;
+  s.tent.kernelElevationMm = 2.0;
   // Identity pose: pixel (c, r) at (c, r, 0) mm.
   const Mat4 id(1.0);
   WorldBox b = pp5::gp::frameReach(id, 100, 50, s);
@@ -279,7 +279,7 @@ TEST(FillInReach, HoldsEverySlerpedSliceAndStaysNearTheHull) {
     SCOPED_TRACE(testing::Message() << "trial " << trial);
     const int w = size(rng), h = size(rng);
     ReconSettings s = randomRecon(rng, w, h);
-    s.fillInMaxAngleDeg = 20.0;
+    s.tent.fillInMaxAngleDeg = 20.0;
     const Mat4 m0 = randomPose(rng, trial);
     const Mat4 m1 = nextPose(rng, m0, 20.0, trial);
     const WorldBox box = pp5::gp::fillInReach(m0, m1, w, h, s);
@@ -319,8 +319,8 @@ TEST(FillInReach, HoldsEverySlerpedSliceAndStaysNearTheHull) {
       for (const double r : {rect.y0, rect.y1}) {
         dmax = std::max(dmax, glm::length(a0.point(c, r, Vec3(0.0)) - b0.point(c, r, Vec3(0.0))));
         for (int k = 0; k < 8; ++k) {
-          const Vec3 kk((k & 1) ? s.kernelLateralMm : -s.kernelLateralMm, (k & 2) ? s.kernelAxialMm : -s.kernelAxialMm,
-                        (k & 4) ? s.kernelElevationMm : -s.kernelElevationMm);
+          const Vec3 kk((k & 1) ? s.tent.kernelLateralMm : -s.tent.kernelLateralMm, (k & 2) ? s.tent.kernelAxialMm : -s.tent.kernelAxialMm,
+                        (k & 4) ? s.tent.kernelElevationMm : -s.tent.kernelElevationMm);
           rho = std::max({rho, glm::length(a0.point(c, r, kk)), glm::length(b0.point(c, r, kk))});
         }
       }
@@ -345,7 +345,7 @@ TEST(FillInReach, NoGrowthWithoutFillIn) {
     const Mat4 m1 = nextPose(rng, m0, 20.0, trial);
     const WorldBox a = pp5::gp::frameReach(m0, 120, 80, s), b = pp5::gp::frameReach(m1, 120, 80, s);
     const WorldBox grown = pp5::gp::fillInReach(m0, m1, 120, 80, s);
-    s.fillIn = false;
+    s.tent.fillIn = false;
     const WorldBox u = pp5::gp::fillInReach(m0, m1, 120, 80, s);
     for (int i = 0; i < 3; ++i) {  // equal up to the relative part of the pad
       EXPECT_NEAR(u.lo[i], std::min(a.lo[i], b.lo[i]), 1e-12 + 2e-9 * std::max(std::abs(u.lo[i]), std::abs(u.hi[i])));
@@ -383,9 +383,9 @@ Mat4 rockingPose(double deg, double pixelMm) {
 TEST(FillInReach, RockingSweepNeedsTheSagitta) {
   std::mt19937 rng(8);
   ReconSettings s;
-  s.kernelLateralMm = 1.0;
-  s.kernelAxialMm = 0.5;
-  s.kernelElevationMm = 0.5;
+  s.tent.kernelLateralMm = 1.0;
+  s.tent.kernelAxialMm = 0.5;
+  s.tent.kernelElevationMm = 0.5;
   const int w = 100, h = 241;  // 120 mm deep at 0.5 mm
   const Mat4 m0 = rockingPose(-9.0, 0.5), m1 = rockingPose(9.0, 0.5);
   const WorldBox box = pp5::gp::fillInReach(m0, m1, w, h, s);
@@ -420,9 +420,9 @@ TEST(FillInReach, RockingSweepNeedsTheSagitta) {
 TEST(FillInReach, ContainsEveryVoxelTheFillInWrites) {
   ReconSettings s;
   s.threads = 1;
-  s.kernelLateralMm = 0.5;
-  s.kernelAxialMm = 0.5;
-  s.kernelElevationMm = 0.5;
+  s.tent.kernelLateralMm = 0.5;
+  s.tent.kernelAxialMm = 0.5;
+  s.tent.kernelElevationMm = 0.5;
   Grid g;
   g.origin = Vec3(-2.0, -1.0, -6.5);
   g.spacing = Vec3(0.25, 0.1, 0.25);
@@ -466,7 +466,7 @@ TEST(FrameReach, ContainsEveryVoxelTheTentSplatWrites) {
     const int w = 40 + static_cast<int>(U(rng) * 30), h = 30 + static_cast<int>(U(rng) * 30);
     ReconSettings s = randomRecon(rng, w, h);
     s.threads = 1;
-    s.kernelElevationMm = 0.6 + U(rng);  // thin, so a few mm between frames fill in
+    s.tent.kernelElevationMm = 0.6 + U(rng);  // thin, so a few mm between frames fill in
     auto rec = pp5::gp::makeTentReconstructor(g, s);
     pp5::Frame f;
     f.allocate(w, h, pp5::PixelType::U8);

@@ -78,7 +78,7 @@ ReconSettings settingsFor(const std::string& arithmetic, const std::string& meth
   ReconSettings s;
   s.arithmetic = pp5::enumFromName<pp5::gp::Arithmetic>(arithmetic);
   s.method = pp5::enumFromName<pp5::gp::Method>(method);
-  s.compounding = pp5::enumFromName<pp5::gp::Compounding>(compounding);
+  s.pixel.compounding = pp5::enumFromName<pp5::gp::Compounding>(compounding);
   s.threads = threads;
   return s;
 }
@@ -453,8 +453,8 @@ TEST(SplatPixel, AnyThreadCountGivesTheSameBits) {
     for (int t : {1, 2, 3, 7}) {
       ReconSettings s = sceneSettings(c, t);
       // Hole filling runs on threads too (two combinations keep the test short).
-      s.fillHoles = name(c) == "float/trilinear/mean" || name(c) == "plus/nearest/mean";
-      s.fillHolesIncremental = true;
+      s.pixel.fillHoles = name(c) == "float/trilinear/mean" || name(c) == "plus/nearest/mean";
+      s.pixel.fillHolesIncremental = true;
       auto r = makePixelReconstructor(sc.grid, s);
       std::vector<std::uint64_t> pixels;
       for (std::size_t k = 0; k < sc.frames.size(); ++k)
@@ -478,8 +478,8 @@ TEST(SplatPixel, IncrementalEqualsBatchAndDirtyCoversEveryChange) {
     for (bool fill : {false, true}) {
       if (fill && std::string(c.compounding) != "mean") continue;  // (keeps the test short)
       ReconSettings s = sceneSettings(c, 2);
-      s.fillHoles = fill;
-      s.fillHolesIncremental = true;
+      s.pixel.fillHoles = fill;
+      s.pixel.fillHolesIncremental = true;
       auto r = makePixelReconstructor(sc.grid, s);
       Volume before = r->output();
       Volume beforeW = r->weights();
@@ -561,11 +561,11 @@ TEST(SplatPixel, InvalidInputThrowsAndChangesNothing) {
   // Settings.
   EXPECT_THROW(settingsFor("float", "nearest", "median"), InputError);  // refused where the name is read
   ReconSettings bad = settingsFor("float", "nearest", "mean");
-  bad.compounding = static_cast<pp5::gp::Compounding>(7);  // and settings built in code are checked too
+  bad.pixel.compounding = static_cast<pp5::gp::Compounding>(7);  // and settings built in code are checked too
   EXPECT_THROW(makePixelReconstructor(g, bad), InputError);
   bad = settingsFor("float", "nearest", "mean");
-  bad.fillHoles = true;
-  bad.holeFilling = {PlusHoleFillingElement{PlusHoleFillingType::Gaussian, 0, 1.0, 0.5, 9, 1}};
+  bad.pixel.fillHoles = true;
+  bad.pixel.holeFilling = {PlusHoleFillingElement{PlusHoleFillingType::Gaussian, 0, 1.0, 0.5, 9, 1}};
   EXPECT_THROW(makePixelReconstructor(g, bad), InputError);
 }
 

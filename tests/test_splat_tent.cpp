@@ -77,9 +77,9 @@ Grid cubeGrid(std::int64_t n, double spacing) {
 ReconSettings baseSettings() {
   ReconSettings s;
   s.threads = 1;
-  s.kernelLateralMm = 1.0;
-  s.kernelAxialMm = 0.75;
-  s.kernelElevationMm = 1.5;
+  s.tent.kernelLateralMm = 1.0;
+  s.tent.kernelAxialMm = 0.75;
+  s.tent.kernelElevationMm = 1.5;
   return s;
 }
 
@@ -155,9 +155,9 @@ class TentKernel : public ::testing::TestWithParam<int> {};
 TEST_P(TentKernel, WeightsAreTheTentProductInTheSlicesAxes) {
   const Grid g = cubeGrid(24, 0.5);
   ReconSettings s = baseSettings();
-  s.kernelLateralMm = 1.7;
-  s.kernelAxialMm = 0.9;
-  s.kernelElevationMm = 1.2;
+  s.tent.kernelLateralMm = 1.7;
+  s.tent.kernelAxialMm = 0.9;
+  s.tent.kernelElevationMm = 1.2;
   s.pixelRejectionThreshold = 1.0;
   const glm::dmat3 r = GetParam() == 0 ? glm::dmat3(1.0) : rot(Vec3(1, -2, 0.5), 0.9);
   const double sx = 0.7, sy = 0.45;
@@ -246,9 +246,9 @@ TEST(TentKernel, EqualsThePerPixelForwardMapping) {
   for (const Case& c : cases) {
     SCOPED_TRACE(c.name);
     ReconSettings s = baseSettings();
-    s.kernelLateralMm = 1.3;
-    s.kernelAxialMm = 0.7;
-    s.kernelElevationMm = 1.1;
+    s.tent.kernelLateralMm = 1.3;
+    s.tent.kernelAxialMm = 0.7;
+    s.tent.kernelElevationMm = 1.1;
     c.set(s);
     std::uint64_t expectedPixels = 0;
     for (int y = 0; y < 8; ++y)
@@ -300,9 +300,9 @@ TEST_P(TentShapes, EqualsThePerPixelForwardMapping) {
   m[1] = Vec4((r[1] + c.shear * r[0]) * c.sy, 0.0);
   m[3] = Vec4(Vec3(0.1, 0.2, -0.15) - Vec3(m[0]) * (0.5 * (c.w - 1)) - Vec3(m[1]) * (0.5 * (c.h - 1)), 1.0);
   ReconSettings s = baseSettings();
-  s.kernelLateralMm = c.hl;
-  s.kernelAxialMm = c.ha;
-  s.kernelElevationMm = c.he;
+  s.tent.kernelLateralMm = c.hl;
+  s.tent.kernelAxialMm = c.ha;
+  s.tent.kernelElevationMm = c.he;
   s.pixelRejectionThreshold = c.threshold;
   auto selected = [&](int x, int y) { return c.threshold < 0 || vals[static_cast<std::size_t>(y * c.w + x)] >= c.threshold; };
   auto rec = makeTentReconstructor(g, s);
@@ -376,9 +376,9 @@ TEST_P(TentScatter, EqualsADoublePrecisionScatter) {
   m[3] = Vec4(centre - Vec3(m[0]) * (0.5 * (w - 1)) - Vec3(m[1]) * (0.5 * (h - 1)), 1.0);
 
   ReconSettings s = baseSettings();
-  s.kernelLateralMm = c.hl;
-  s.kernelAxialMm = c.ha;
-  s.kernelElevationMm = c.he;
+  s.tent.kernelLateralMm = c.hl;
+  s.tent.kernelAxialMm = c.ha;
+  s.tent.kernelElevationMm = c.he;
   s.clipOrigin = {1, 0};
   s.clipSize = {28, 13};
   s.pixelRejectionThreshold = 30;
@@ -464,9 +464,9 @@ TEST(TentKernel, RotatingPoseAndPatternTogetherGivesTheSameValues) {
   const std::int64_t n = 33, c = 16;  // voxel 16 sits on the rotation centre
   const Grid g = cubeGrid(n, 1.0);
   ReconSettings s = baseSettings();
-  s.kernelLateralMm = 1.6;
-  s.kernelAxialMm = 0.8;
-  s.kernelElevationMm = 1.5;
+  s.tent.kernelLateralMm = 1.6;
+  s.tent.kernelAxialMm = 0.8;
+  s.tent.kernelElevationMm = 1.5;
   const int w = 20, h = 16;
   const Frame f = makeFrame(w, h, [](int x, int y) { return 100.0 + 60.0 * std::sin(0.35 * x) * std::cos(0.25 * y); });
   const glm::dmat3 r0 = rot(Vec3(1, 0.4, -0.3), 0.6);
@@ -521,7 +521,7 @@ TEST(TentFillIn, SliceCountFollowsTheElevationHalfWidth) {
   const Frame f = constantFrame(4, 4, 100);
   auto count = [&](double he, double stepMm) {
     ReconSettings s = baseSettings();
-    s.kernelElevationMm = he;
+    s.tent.kernelElevationMm = he;
     auto rec = makeTentReconstructor(g, s);
     rec->insert(f, imagePose(Vec3(0.0), glm::dmat3(1.0), 1.0, 1.0), 0.0);
     return rec->insert(f, imagePose(Vec3(0, 0, stepMm), glm::dmat3(1.0), 1.0, 1.0), 0.1).fillInSlices;
@@ -539,7 +539,7 @@ void expectNoHolesWithFillIn(const Grid& g, const std::vector<Mat4>& poses, cons
                              const std::function<bool(const Vec3&)>& inside) {
   for (const bool fill : {true, false}) {
     ReconSettings s = baseSettings();
-    s.fillIn = fill;
+    s.tent.fillIn = fill;
     auto rec = makeTentReconstructor(g, s);
     for (std::size_t i = 0; i < poses.size(); ++i) {
       const InsertResult r = rec->insert(f, poses[i], 0.1 * static_cast<double>(i));
@@ -621,7 +621,7 @@ TEST(TentFillIn, NotAcrossAJumpOrALargeRotation) {
   // Translation by 20 mm, more than fill_in_max_gap_mm = 12.
   for (const double maxGap : {12.0, 25.0}) {
     ReconSettings s = baseSettings();
-    s.fillInMaxGapMm = maxGap;
+    s.tent.fillInMaxGapMm = maxGap;
     auto rec = makeTentReconstructor(g, s);
     const Vec3 o(-9.5, -9.5, -9.5);
     rec->insert(f, imagePose(o, glm::dmat3(1.0), 1.0, 1.0), 0.0);
@@ -637,8 +637,8 @@ TEST(TentFillIn, NotAcrossAJumpOrALargeRotation) {
   // Rotation by 30 degrees about the top edge, more than fill_in_max_angle_deg = 20.
   for (const double maxAngle : {20.0, 40.0}) {
     ReconSettings s = baseSettings();
-    s.fillInMaxAngleDeg = maxAngle;
-    s.fillInMaxGapMm = 100.0;
+    s.tent.fillInMaxAngleDeg = maxAngle;
+    s.tent.fillInMaxGapMm = 100.0;
     auto rec = makeTentReconstructor(g, s);
     const Vec3 o(-9.5, -20.0, -5.0);
     rec->insert(f, imagePose(o, glm::dmat3(1.0), 1.0, 1.0), 0.0);
@@ -697,8 +697,8 @@ TEST(TentReplacement, MotionVectorsLetTheReverseSweepDominate) {
   const Sweep sw;
   ReconSettings acc = baseSettings();
   ReconSettings mv = baseSettings();
-  mv.replacement = pp5::gp::Replacement::MotionVector;
-  mv.motionVectorNewWeight = 0.8;
+  mv.tent.replacement = pp5::gp::Replacement::MotionVector;
+  mv.tent.motionVectorNewWeight = 0.8;
   const double a = 50.0, b = 200.0;
   auto ra = forwardThenBack(sw, acc, a, b, true);
   auto rm = forwardThenBack(sw, mv, a, b, true);
@@ -717,7 +717,7 @@ TEST(TentReplacement, SameDirectionRescanAccumulatesEvenWithMotionVectors) {
   const Sweep sw;
   ReconSettings acc = baseSettings();
   ReconSettings mv = baseSettings();
-  mv.replacement = pp5::gp::Replacement::MotionVector;
+  mv.tent.replacement = pp5::gp::Replacement::MotionVector;
   auto ra = forwardThenBack(sw, acc, 50.0, 200.0, false);
   auto rm = forwardThenBack(sw, mv, 50.0, 200.0, false);
   EXPECT_EQ(ra->output().bytes, rm->output().bytes);
@@ -728,8 +728,8 @@ TEST(TentReplacement, SameDirectionRescanAccumulatesEvenWithMotionVectors) {
 TEST(TentReplacement, DecayFadesOldDataWhenNewDataArrives) {
   const Sweep sw;
   ReconSettings s = baseSettings();
-  s.replacement = pp5::gp::Replacement::Decay;
-  s.decayTauS = 2.0;
+  s.tent.replacement = pp5::gp::Replacement::Decay;
+  s.tent.decayTauS = 2.0;
   const double a = 50.0, b = 200.0;
   const Frame fa = constantFrame(sw.w, sw.h, a), fb = constantFrame(sw.w, sw.h, b);
   const Frame far = constantFrame(4, 4, 10.0);
@@ -762,8 +762,8 @@ TEST(TentReplacement, DecayFadesOldDataWhenNewDataArrives) {
 TEST(TentReplacement, DecayedSweepRescanIsDominatedByTheNewSweep) {
   const Sweep sw;
   ReconSettings s = baseSettings();
-  s.replacement = pp5::gp::Replacement::Decay;
-  s.decayTauS = 0.5;
+  s.tent.replacement = pp5::gp::Replacement::Decay;
+  s.tent.decayTauS = 0.5;
   auto rec = makeTentReconstructor(sw.grid, s);
   const Frame fa = constantFrame(sw.w, sw.h, 50), fb = constantFrame(sw.w, sw.h, 200);
   // Each sweep takes 1.1 s; the rescan starts 3 tau after the first ends.
@@ -834,12 +834,12 @@ TEST(TentDeterminism, IncrementalEqualsBatchForAnyThreadCountAndDirtyCoversEvery
   for (const char* mode : {"accumulate", "motion_vector", "decay"}) {
     SCOPED_TRACE(mode);
     ReconSettings s = baseSettings();
-    s.replacement = pp5::enumFromName<pp5::gp::Replacement>(mode);
+    s.tent.replacement = pp5::enumFromName<pp5::gp::Replacement>(mode);
     // Dark pixels left out, except for accumulate (whose voxels then take
     // the shortcut for windows with every pixel selected).
     s.pixelRejectionThreshold = std::string(mode) == "accumulate" ? -1.0 : 20.0;
-    s.decayTauS = 1.0;
-    s.motionVectorBrick = 4;
+    s.tent.decayTauS = 1.0;
+    s.tent.motionVectorBrick = 4;
 
     // Batch, one thread, no reading in between.
     auto batch = makeTentReconstructor(g, s);
@@ -895,9 +895,9 @@ TEST(TentDeterminism, IncrementalEqualsBatchForAnyThreadCountAndDirtyCoversEvery
 TEST(TentDeterminism, DirtyRegionCoversEveryChangeForRandomPoses) {
   const Grid g = cubeGrid(64, 0.25);
   ReconSettings s = baseSettings();
-  s.kernelLateralMm = 0.9;
-  s.kernelAxialMm = 0.6;
-  s.kernelElevationMm = 1.2;
+  s.tent.kernelLateralMm = 0.9;
+  s.tent.kernelAxialMm = 0.6;
+  s.tent.kernelElevationMm = 1.2;
   auto rec = makeTentReconstructor(g, s);
   std::mt19937 rng(21);
   std::uniform_real_distribution<double> uni(-1.0, 1.0);
@@ -983,17 +983,17 @@ TEST(TentInput, RefusesBadFramesAndPosesWithoutChangingAnything) {
   EXPECT_EQ(rec->output().bytes, fresh->output().bytes);
 
   ReconSettings bad = baseSettings();
-  bad.replacement = static_cast<Replacement>(7);  // not a policy: settings built in code are checked
+  bad.tent.replacement = static_cast<Replacement>(7);  // not a policy: settings built in code are checked
   EXPECT_THROW(makeTentReconstructor(g, bad), InputError);
 }
 
 TEST(TentInput, BytesPerVoxel) {
   ReconSettings s;
   EXPECT_EQ(tentBytesPerVoxel(s), 12u);
-  s.replacement = pp5::gp::Replacement::Decay;
+  s.tent.replacement = pp5::gp::Replacement::Decay;
   EXPECT_EQ(tentBytesPerVoxel(s), 16u);
-  s.replacement = pp5::gp::Replacement::MotionVector;
-  s.motionVectorBrick = 8;
+  s.tent.replacement = pp5::gp::Replacement::MotionVector;
+  s.tent.motionVectorBrick = 8;
   EXPECT_EQ(tentBytesPerVoxel(s), 21u);
 }
 
@@ -1043,9 +1043,9 @@ TEST(TentSimulated, DollSweepAgreesWithNearestVoxelAndFollowsTheTruth) {
 
   ReconSettings s = baseSettings();
   s.threads = 2;
-  s.replacement = pp5::gp::Replacement::MotionVector;
-  s.kernelLateralMm = 2.0;  // this small probe's pixels are about 2 x 2.7 mm
-  s.kernelAxialMm = 2.0;
+  s.tent.replacement = pp5::gp::Replacement::MotionVector;
+  s.tent.kernelLateralMm = 2.0;  // this small probe's pixels are about 2 x 2.7 mm
+  s.tent.kernelAxialMm = 2.0;
   auto rec = makeTentReconstructor(g, s);
   int fillIns = 0;
   for (std::size_t i = 0; i < n; ++i) fillIns += rec->insert(frames[i], poses[i], frames[i].timestamp).fillInSlices;

@@ -73,7 +73,7 @@ SpeckleRun measureSpeckle(const PosedSequence& seq, const ReconSettings& rs, int
 
 void deriveKernelFromFrames(const PosedSequence& seq, ReconSettings& rs, const ConfigSchema& schema,
                             const std::function<bool(std::uint64_t)>& use, glm::dvec2 insertedPixelScale) {
-  if (!rs.kernelFromFrames) return;
+  if (!rs.tent.kernelFromFrames) return;
   checkReconSettings(rs);  // what the reconstruction would refuse, before the measurement
   // The frames the reconstruction is given: `use`'s, or every skip_interval-th.
   const auto skip = static_cast<std::uint64_t>(std::max(1, rs.skipInterval));
@@ -95,9 +95,9 @@ void deriveKernelFromFrames(const PosedSequence& seq, ReconSettings& rs, const C
     double* field;
     double derived;
   };
-  const Width widths[] = {{"recon.kernel_lateral_mm", &rs.kernelLateralMm, k->lateralMm},
-                          {"recon.kernel_axial_mm", &rs.kernelAxialMm, k->axialMm},
-                          {"recon.kernel_elevation_mm", &rs.kernelElevationMm, k->elevationMm}};
+  const Width widths[] = {{"recon.kernel_lateral_mm", &rs.tent.kernelLateralMm, k->lateralMm},
+                          {"recon.kernel_axial_mm", &rs.tent.kernelAxialMm, k->axialMm},
+                          {"recon.kernel_elevation_mm", &rs.tent.kernelElevationMm, k->elevationMm}};
   std::printf("kernel from the frames: speckle half widths %.3f mm lateral, %.3f mm axial (%llu pairs, pixel "
               "%.4f x %.4f mm), frames %.3f mm apart (median)\n",
               *m.cell.lateralPx * m.pixelMm.x, *m.cell.axialPx * m.pixelMm.y,

@@ -31,7 +31,7 @@ struct SpeckleRun {
 SpeckleRun measureSpeckle(const PosedSequence& seq, const ReconSettings& rs, int maxPairs, int maxLag,
                           const std::function<bool(std::uint64_t)>& use = {});
 
-// Where rs.kernelFromFrames is on: measures the frames that `use` selects
+// Where rs.tent.kernelFromFrames is on: measures the frames that `use` selects
 // (by default every rs.skipInterval-th, as runReconstruction inserts them;
 // as measureSpeckle, 32 pairs, lags to 64 px) and sets each tent half-width
 // that `schema` says no file or override assigned to kernelFromCell's;

@@ -66,8 +66,8 @@ gp::ReconSettings reconSettings(const CommonOpts& o, const PosedSequence& seq, S
 // The tent kernel the reconstruction used (set, or derived from the frames).
 void addKernel(nlohmann::ordered_json& j, const gp::ReconSettings& rs) {
   if (!gp::kernelFor(rs.method).tentKernel) return;
-  j["kernel_mm"] = {rs.kernelLateralMm, rs.kernelAxialMm, rs.kernelElevationMm};
-  j["kernel_from_frames"] = rs.kernelFromFrames;
+  j["kernel_mm"] = {rs.tent.kernelLateralMm, rs.tent.kernelAxialMm, rs.tent.kernelElevationMm};
+  j["kernel_from_frames"] = rs.tent.kernelFromFrames;
 }
 
 void emitJson(const std::string& where, const nlohmann::ordered_json& j) {
@@ -83,7 +83,7 @@ void emitJson(const std::string& where, const nlohmann::ordered_json& j) {
 
 std::string describe(const gp::ReconSettings& rs) {
   std::string d = gp::kernelFor(rs.method).describe(rs);
-  if (rs.fillHoles) d += "+holes";
+  if (rs.pixel.fillHoles) d += "+holes";
   return d + " (" + std::string(enumName(rs.arithmetic)) + ")";
 }
 

@@ -68,7 +68,7 @@ void addReconstructCommand(CLI::App& app, int& exitCode) {
     auto recon = gp::makeReconstructor(grid, rs, useToml ? s.grid.memoryLimitBytes() : 0, what);
     spdlog::info("reconstruct: {} frames of {}x{} into {}x{}x{} voxels of {} mm ({} / {}, {} arithmetic)",
                  seq.reader->info().frameCount, seq.reader->info().width, seq.reader->info().height, grid.dims.x,
-                 grid.dims.y, grid.dims.z, grid.spacing.x, enumName(rs.method), enumName(rs.compounding), enumName(rs.arithmetic));
+                 grid.dims.y, grid.dims.z, grid.spacing.x, enumName(rs.method), enumName(rs.pixel.compounding), enumName(rs.arithmetic));
 
     const gp::ReconRunStats st = runReconstruction(seq, *recon);
     writeVolume(o->output, recon->output().as(o->type == "float32" ? ScalarType::F32 : ScalarType::U8));

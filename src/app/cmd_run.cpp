@@ -150,9 +150,9 @@ int runDistributed(const RunOptions& o) {
         gm.origin[a] = src.grid.origin[a];
         gm.spacing[a] = src.grid.spacing[a];
       }
-      gm.kernelMm[0] = s.recon.kernelLateralMm;
-      gm.kernelMm[1] = s.recon.kernelAxialMm;
-      gm.kernelMm[2] = s.recon.kernelElevationMm;
+      gm.kernelMm[0] = s.recon.tent.kernelLateralMm;
+      gm.kernelMm[1] = s.recon.tent.kernelAxialMm;
+      gm.kernelMm[2] = s.recon.tent.kernelElevationMm;
     }
     t.broadcast(gm, 0);
     Grid grid;
@@ -162,9 +162,9 @@ int runDistributed(const RunOptions& o) {
       grid.spacing[a] = gm.spacing[a];
     }
     // Every rank reconstructs, or reaches, with the host's kernel (derived there, or as read by all).
-    s.recon.kernelLateralMm = gm.kernelMm[0];
-    s.recon.kernelAxialMm = gm.kernelMm[1];
-    s.recon.kernelElevationMm = gm.kernelMm[2];
+    s.recon.tent.kernelLateralMm = gm.kernelMm[0];
+    s.recon.tent.kernelAxialMm = gm.kernelMm[1];
+    s.recon.tent.kernelElevationMm = gm.kernelMm[2];
     switch (layout.role(rank)) {
       case parallel::Role::Host: {
         host::RunJob j = makeJob(s, std::move(src), grid, dir, &gInterrupted);

@@ -46,7 +46,7 @@ void checkSettings(const Settings& s) {
   // in; a live source (or the simulator) cannot be looked ahead in.
   const bool recorded = s.run.source == SourceKind::Sequence ||
                         (s.run.source == SourceKind::Simulator && !s.run.simulateLive);
-  if (s.recon.kernelFromFrames && !recorded)
+  if (s.recon.tent.kernelFromFrames && !recorded)
     throw InputError(fmt::format(
         "recon.kernel_from_frames reads the frames before reconstructing them: `reconstruct`, `evaluate` and `run` "
         "with run.source = \"sequence\" (or the simulator's cached sweep) can; {} streams them as they come: "
@@ -62,7 +62,7 @@ void checkSettings(const Settings& s) {
 // may drop others). Only where the source is read: rank 0 under mpirun, which
 // sends it with the grid.
 void deriveRunKernel(Settings& s, const ConfigSchema& schema) {
-  if (!s.recon.kernelFromFrames) return;
+  if (!s.recon.tent.kernelFromFrames) return;
   std::string sequence = s.run.sequence, plusConfig = s.run.plusConfig;
   if (s.run.source == SourceKind::Simulator) {
     // The sweep the run streams, filled into the cache now rather than once the viewer's URL is out.

@@ -17,15 +17,15 @@ constexpr std::string_view kPixelOptions[] = {"recon.compounding", "recon.arithm
                                               "recon.fill_holes_incremental"};
 
 void checkPixel(const ReconSettings& s) {
-  if (s.kernelFromFrames)
+  if (s.tent.kernelFromFrames)
     throw InputError(fmt::format("recon.kernel_from_frames derives the tent kernel, but recon.method is '{}': use it "
                                  "with recon.method = \"tent\"", enumName(s.method)));
 }
 
 // Hole filling reads the voxels around a hole.
 Box3 pixelReach(const Grid&, const ReconSettings& s, const Box3& window) {
-  if (!s.fillHoles) return window;
-  const HoleFiller filler(s.holeFilling.empty() ? HoleFiller::defaultElements() : s.holeFilling,
+  if (!s.pixel.fillHoles) return window;
+  const HoleFiller filler(s.pixel.holeFilling.empty() ? HoleFiller::defaultElements() : s.pixel.holeFilling,
                           s.arithmetic == Arithmetic::Plus);
   return window.grown(filler.reach());
 }
@@ -36,7 +36,7 @@ double pixelGapLimitMm(const ReconSettings&, const Grid& g) {
 }
 
 std::string describePixel(const ReconSettings& s) {
-  return std::string(enumName(s.method)) + "/" + std::string(enumName(s.compounding));
+  return std::string(enumName(s.method)) + "/" + std::string(enumName(s.pixel.compounding));
 }
 
 }  // namespace

@@ -23,7 +23,7 @@ void checkTent(const ReconSettings& s) {
   // nearest and trilinear splatting; the tent kernel keeps no such weights
   // and fills between slices itself (recon.fill_in). Silently ignoring the
   // option would leave a user believing the holes were filled.
-  if (s.fillHoles || s.fillHolesIncremental || !s.holeFilling.empty())
+  if (s.pixel.fillHoles || s.pixel.fillHolesIncremental || !s.pixel.holeFilling.empty())
     throw InputError(
         "recon.fill_holes (and fill_holes_incremental, or a PLUS HoleFilling element) works with recon.method = "
         "nearest or trilinear, whose per-voxel weights it needs; the tent method fills between slices itself "
@@ -39,8 +39,8 @@ void checkTent(const ReconSettings& s) {
 // A motion-vector cell is replaced whole: a window takes whole cells.
 Box3 tentReach(const Grid&, const ReconSettings& s, const Box3& window) {
   Box3 w = window;
-  if (s.replacement == Replacement::MotionVector) {
-    const std::int64_t b = std::max(1, s.motionVectorBrick);
+  if (s.tent.replacement == Replacement::MotionVector) {
+    const std::int64_t b = std::max(1, s.tent.motionVectorBrick);
     w.lo = w.lo / Index3(b) * Index3(b);  // lo >= 0: division rounds down
     w.hi = (w.hi + Index3(b - 1)) / Index3(b) * Index3(b);
   }
@@ -49,10 +49,10 @@ Box3 tentReach(const Grid&, const ReconSettings& s, const Box3& window) {
 
 // Fill-in bridges gaps up to its limit; without it the kernel's elevation reach does.
 double tentGapLimitMm(const ReconSettings& s, const Grid&) {
-  return s.fillIn ? s.fillInMaxGapMm : 2.0 * s.kernelElevationMm;
+  return s.tent.fillIn ? s.tent.fillInMaxGapMm : 2.0 * s.tent.kernelElevationMm;
 }
 
-std::string describeTent(const ReconSettings& s) { return s.fillIn ? "tent+fill-in" : "tent"; }
+std::string describeTent(const ReconSettings& s) { return s.tent.fillIn ? "tent+fill-in" : "tent"; }
 
 }  // namespace
 

@@ -18,7 +18,7 @@ void registerOptions(ConfigSchema& schema, ReconSettings& s) {
   enumOption(schema, "recon.method", &s.method, Method::Tent,
                 "`tent`: the 1990 paper's forward mapping with an asymmetric tent kernel, fill-in and "
                 "replacement; `nearest` / `trilinear`: PLUS's pixel nearest neighbour and trilinear splatting.");
-  enumOption(schema, "recon.compounding", &s.compounding, Compounding::Mean,
+  enumOption(schema, "recon.compounding", &s.pixel.compounding, Compounding::Mean,
                 "How `nearest` and `trilinear` combine several hits on a voxel (PLUS's CompoundingMode).");
   enumOption(schema, "recon.arithmetic", &s.arithmetic, Arithmetic::Float,
                 "`float`: exact weighted means in float accumulators; `plus`: PLUS's 14-bit fixed point, "
@@ -33,15 +33,15 @@ void registerOptions(ConfigSchema& schema, ReconSettings& s) {
   // FWHM 1.8 mm, elevation FWHM 4 mm, pulse about 1 mm): averaging over one
   // cell removes speckle without blurring what the scanner resolves
   // (docs/quality.md measures the choice).
-  schema.option("recon.kernel_lateral_mm", &s.kernelLateralMm, 2.0, 0.01, 50.0,
+  schema.option("recon.kernel_lateral_mm", &s.tent.kernelLateralMm, 2.0, 0.01, 50.0,
                 "Tent kernel half-width along the slice's lateral axis (image x), mm. About the probe's lateral "
                 "resolution (FWHM); the default suits the `paper35` probe.");
-  schema.option("recon.kernel_axial_mm", &s.kernelAxialMm, 1.0, 0.01, 50.0,
+  schema.option("recon.kernel_axial_mm", &s.tent.kernelAxialMm, 1.0, 0.01, 50.0,
                 "Tent kernel half-width along the slice's axial axis (image y, depth), mm. About the pulse length.");
-  schema.option("recon.kernel_elevation_mm", &s.kernelElevationMm, 3.0, 0.01, 50.0,
+  schema.option("recon.kernel_elevation_mm", &s.tent.kernelElevationMm, 3.0, 0.01, 50.0,
                 "Tent kernel half-width across the slice (elevation), mm. About the elevation beam width (FWHM) "
                 "less a little; when consecutive slices are farther apart than this reaches, fill-in interpolates.");
-  schema.option("recon.kernel_from_frames", &s.kernelFromFrames, false,
+  schema.option("recon.kernel_from_frames", &s.tent.kernelFromFrames, false,
                 "Derive the tent kernel from the frames (`reconstruct`, `evaluate`, and `run` with run.source = "
                 "\"sequence\" or the simulator's cached sweep; a live source or run.simulate_live cannot be looked "
                 "ahead in, and `run` refuses it there): "
@@ -49,21 +49,21 @@ void registerOptions(ConfigSchema& schema, ReconSettings& s) {
                 "the pixel inserted, after run.subsample) and 1.5 times "
                 "the median spacing of the frames that are inserted. A kernel half-width set in the file or with --set "
                 "wins over the derived one. Printed before the reconstruction; `run` writes it to settings.toml.");
-  schema.option("recon.fill_in", &s.fillIn, true,
+  schema.option("recon.fill_in", &s.tent.fillIn, true,
                 "Interpolate intermediate slices between consecutive frames that are farther apart than the "
                 "kernel reaches (tent method).");
-  schema.option("recon.fill_in_max_gap_mm", &s.fillInMaxGapMm, 12.0, 0.0, 1000.0,
+  schema.option("recon.fill_in_max_gap_mm", &s.tent.fillInMaxGapMm, 12.0, 0.0, 1000.0,
                 "No fill-in across a larger displacement of any image corner (the probe jumped), mm.");
-  schema.option("recon.fill_in_max_angle_deg", &s.fillInMaxAngleDeg, 20.0, 0.0, 180.0,
+  schema.option("recon.fill_in_max_angle_deg", &s.tent.fillInMaxAngleDeg, 20.0, 0.0, 180.0,
                 "No fill-in across a larger rotation between consecutive frames, degrees.");
-  enumOption(schema, "recon.replacement", &s.replacement, Replacement::Accumulate,
+  enumOption(schema, "recon.replacement", &s.tent.replacement, Replacement::Accumulate,
                 "Replacement of aging data when a region is scanned again (tent method): plain accumulation, "
                 "the paper's motion vectors, or exponential decay.");
-  schema.option("recon.motion_vector_new_weight", &s.motionVectorNewWeight, 0.8, 0.5, 1.0,
+  schema.option("recon.motion_vector_new_weight", &s.tent.motionVectorNewWeight, 0.8, 0.5, 1.0,
                 "Motion vectors: share of the new sweep in a voxel re-scanned from the opposite direction.");
-  schema.option("recon.motion_vector_brick", &s.motionVectorBrick, 8, 1, 256,
+  schema.option("recon.motion_vector_brick", &s.tent.motionVectorBrick, 8, 1, 256,
                 "Motion vectors: voxels per side of the cell that remembers its last sweep direction.");
-  schema.option("recon.decay_tau_s", &s.decayTauS, 5.0, 0.01, 1e6,
+  schema.option("recon.decay_tau_s", &s.tent.decayTauS, 5.0, 0.01, 1e6,
                 "Decay: time constant tau of the fading of old contributions, seconds.");
   schema.option("recon.clip_origin", &s.clipOrigin, {0, 0}, 0, 100000, "Clip rectangle origin, pixels.");
   schema.option("recon.clip_size", &s.clipSize, {0, 0}, 0, 100000, "Clip rectangle size, pixels; 0 0 = whole frame.");
@@ -74,11 +74,11 @@ void registerOptions(ConfigSchema& schema, ReconSettings& s) {
   schema.option("recon.fan_radius_stop_px", &s.fanRadiusStopPx, 500.0, 0.0, 100000.0, "Fan outer radius, pixels.");
   schema.option("recon.pixel_rejection_threshold", &s.pixelRejectionThreshold, -1.0, -1.0, 65535.0,
                 "Pixels darker than this are not inserted; -1 = off.");
-  schema.option("recon.fill_holes", &s.fillHoles, false,
+  schema.option("recon.fill_holes", &s.pixel.fillHoles, false,
                 "Fill holes (voxels no pixel reached) with a STICK kernel of length 9; recon.method nearest or "
                 "trilinear only (the tent method refuses it and fills between slices with recon.fill_in). PLUS "
                 "configs may name other kernels.");
-  schema.option("recon.fill_holes_incremental", &s.fillHolesIncremental, false,
+  schema.option("recon.fill_holes_incremental", &s.pixel.fillHolesIncremental, false,
                 "Keep holes filled inside each frame's dirty region as frames arrive, instead of one final pass "
                 "(needs recon.fill_holes = true).");
 }
@@ -91,9 +91,9 @@ ReconSettings fromPlus(const PlusVolumeReconstruction& v) {
   ReconSettings s;
   s.method = v.interpolation == PlusInterpolation::Linear ? Method::Trilinear : Method::Nearest;
   switch (v.compounding) {
-    case PlusCompounding::Mean: s.compounding = Compounding::Mean; break;
-    case PlusCompounding::Latest: s.compounding = Compounding::Latest; break;
-    case PlusCompounding::Maximum: s.compounding = Compounding::Maximum; break;
+    case PlusCompounding::Mean: s.pixel.compounding = Compounding::Mean; break;
+    case PlusCompounding::Latest: s.pixel.compounding = Compounding::Latest; break;
+    case PlusCompounding::Maximum: s.pixel.compounding = Compounding::Maximum; break;
     case PlusCompounding::ImportanceMask:
       throw InputError("CompoundingMode IMPORTANCE_MASK is not supported by pp5echo");
   }
@@ -107,8 +107,8 @@ ReconSettings fromPlus(const PlusVolumeReconstruction& v) {
   if (v.fanRadiusStartPixel) s.fanRadiusStartPx = *v.fanRadiusStartPixel;
   if (v.fanRadiusStopPixel) s.fanRadiusStopPx = *v.fanRadiusStopPixel;
   if (v.pixelRejectionThreshold) s.pixelRejectionThreshold = *v.pixelRejectionThreshold;
-  s.fillHoles = v.fillHoles;
-  s.holeFilling = v.holeFilling;
+  s.pixel.fillHoles = v.fillHoles;
+  s.pixel.holeFilling = v.holeFilling;
   return s;
 }
 
@@ -132,7 +132,7 @@ Box3 reconstructionReach(const Grid& g, const ReconSettings& s, const Box3& wind
 
 void checkReconSettings(const ReconSettings& s) {
   kernelFor(s.method).check(s);
-  if (s.fillHolesIncremental && !s.fillHoles)
+  if (s.pixel.fillHolesIncremental && !s.pixel.fillHoles)
     throw InputError("recon.fill_holes_incremental keeps the holes filled as frames arrive; it needs "
                      "recon.fill_holes = true");
 }
@@ -141,8 +141,8 @@ std::unique_ptr<Reconstructor> makeReconstructor(const Grid& g, const ReconSetti
                                                  std::uint64_t memoryLimitBytes, const std::string& what) {
   // Settings built in code are held to the names a file could give.
   const Kernel& k = kernelFor(checkedEnum(s.method));
-  checkedEnum(s.compounding);
-  checkedEnum(s.replacement);
+  checkedEnum(s.pixel.compounding);
+  checkedEnum(s.tent.replacement);
   checkedEnum(s.arithmetic);
   checkReconSettings(s);
   checkGridFits(g, k.bytesPerVoxel(s), what, memoryLimitBytes);

@@ -41,14 +41,9 @@ enum class Replacement { Accumulate, MotionVector, Decay };
 enum class Arithmetic { Float, Plus };
 
 // [recon] settings. Defaults are the paper's method for the simulated probe.
-struct ReconSettings {
-  Method method = Method::Tent;
-  Compounding compounding = Compounding::Mean;  // nearest/trilinear
-  Arithmetic arithmetic = Arithmetic::Float;
-  int threads = 0;                      // 0 = every core; the result does not depend on it
-  int skipInterval = 1;                 // insert every n-th frame
-
-  // Tent kernel half-widths along the slice's own axes, mm.
+// The tent method's own settings (recon.method = "tent").
+struct TentSettings {
+  // Half-widths along the slice's own axes, mm.
   double kernelLateralMm = 2.0;
   double kernelAxialMm = 1.0;
   double kernelElevationMm = 3.0;
@@ -56,16 +51,34 @@ struct ReconSettings {
   // commands only; analysis/speckle_run.hpp).
   bool kernelFromFrames = false;
 
-  // Inter-slice fill-in (tent method).
+  // Inter-slice fill-in.
   bool fillIn = true;
   double fillInMaxGapMm = 12.0;         // no fill-in across a larger jump
   double fillInMaxAngleDeg = 20.0;      // ... or a larger rotation
 
-  // Replacement of aging data (tent method).
+  // Replacement of aging data.
   Replacement replacement = Replacement::Accumulate;
   double motionVectorNewWeight = 0.8;      // share of the new sweep in the replaced value
   int motionVectorBrick = 8;               // voxels per side of a motion-vector cell
   double decayTauS = 5.0;                  // time constant of the decay, seconds
+};
+
+// The settings of PLUS's methods (recon.method = "nearest" or "trilinear").
+struct PixelSettings {
+  Compounding compounding = Compounding::Mean;
+  // Hole filling.
+  bool fillHoles = false;
+  bool fillHolesIncremental = false;       // keep holes filled inside each dirty region
+  std::vector<PlusHoleFillingElement> holeFilling;
+};
+
+// [recon]: what every method shares, and each method's own settings (the TOML
+// keys stay flat: recon.kernel_lateral_mm, recon.compounding, ...).
+struct ReconSettings {
+  Method method = Method::Tent;
+  Arithmetic arithmetic = Arithmetic::Float;
+  int threads = 0;                      // 0 = every core; the result does not depend on it
+  int skipInterval = 1;                 // insert every n-th frame
 
   // PLUS-style pixel selection (all methods).
   glm::ivec2 clipOrigin{0, 0};
@@ -76,11 +89,8 @@ struct ReconSettings {
   double fanRadiusStopPx = 500.0;
   double pixelRejectionThreshold = -1.0;   // < 0 = off
 
-  // Hole filling (nearest / trilinear).
-  bool fillHoles = false;
-  bool fillHolesIncremental = false;       // keep holes filled inside each dirty region
-  std::vector<PlusHoleFillingElement> holeFilling;
-
+  TentSettings tent;
+  PixelSettings pixel;
 };
 
 void registerOptions(ConfigSchema& schema, ReconSettings& s);

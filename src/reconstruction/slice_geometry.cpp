@@ -176,7 +176,7 @@ WorldBox kernelBox(const PixelRect& r, const ReconSettings& s, const Vec3& u, co
     b.lo = glm::min(b.lo, w);
     b.hi = glm::max(b.hi, w);
   }
-  const Vec3 k = s.kernelLateralMm * glm::abs(u) + s.kernelAxialMm * glm::abs(v) + s.kernelElevationMm * glm::abs(n);
+  const Vec3 k = s.tent.kernelLateralMm * glm::abs(u) + s.tent.kernelAxialMm * glm::abs(v) + s.tent.kernelElevationMm * glm::abs(n);
   b.lo -= k;
   b.hi += k;
   return b;
@@ -241,7 +241,7 @@ WorldBox fillInReach(const Mat4& previous, const Mat4& current, int width, int h
   // reconstructor treats as a jump (the small margin keeps the decision on the
   // safe side of its rounding).
   constexpr double kDegPerRad = 180.0 / 3.14159265358979323846;
-  if (!recon.fillIn || theta * kDegPerRad > recon.fillInMaxAngleDeg + 1e-6) return padded(box);
+  if (!recon.tent.fillIn || theta * kDegPerRad > recon.tent.fillInMaxAngleDeg + 1e-6) return padded(box);
 
   const int steps = std::clamp(static_cast<int>(std::ceil(theta * kDegPerRad)), 1, 180);
   for (int j = 1; j < steps; ++j) {
@@ -258,7 +258,7 @@ WorldBox fillInReach(const Mat4& previous, const Mat4& current, int width, int h
   const Vec3 w = haveAxis ? im / iml : Vec3(0.0);  // in a's (u, v, n) axes
   auto distFromAxis = [&](const Vec3& p) { return haveAxis ? glm::length(p - glm::dot(p, w) * w) : glm::length(p); };
   double rho = 0.0, dMax = 0.0;
-  const double hl = recon.kernelLateralMm, ha = recon.kernelAxialMm, he = recon.kernelElevationMm;
+  const double hl = recon.tent.kernelLateralMm, ha = recon.tent.kernelAxialMm, he = recon.tent.kernelElevationMm;
   for (const auto& [c, y] : corners(r)) {
     const Vec3 pa(c * a.sx + y * a.eyu, y * a.syv, 0.0), pb(c * b.sx + y * b.eyu, y * b.syv, 0.0);
     dMax = std::max(dMax, distFromAxis(pa - pb));

@@ -53,8 +53,8 @@ WorldBox frameReach(const Mat4& imageToReference, int width, int height, const R
 // reaches: the union of the reaches of both frames and of interpolated slices
 // at most 1 degree of rotation apart, grown by the sagitta of the rotation
 // between neighbours over the frame's largest radius. Just the two frames'
-// union when recon.fillIn is off or the rotation exceeds
-// recon.fillInMaxAngleDeg (a jump: nothing is filled in).
+// union when recon.tent.fillIn is off or the rotation exceeds
+// recon.tent.fillInMaxAngleDeg (a jump: nothing is filled in).
 WorldBox fillInReach(const Mat4& previous, const Mat4& current, int width, int height, const ReconSettings& recon);
 
 }  // namespace pp5::gp

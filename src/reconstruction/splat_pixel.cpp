@@ -77,7 +77,7 @@ public:
     // Settings built in code are held to the names a file could give.
     method_ = checkedEnum(s.method);
     PP5_CHECK(method_ != Method::Tent);
-    comp_ = checkedEnum(s.compounding);
+    comp_ = checkedEnum(s.pixel.compounding);
     plus_ = checkedEnum(s.arithmetic) == Arithmetic::Plus;
     PP5_CHECK(g.dims.x > 0 && g.dims.y > 0 && g.dims.z > 0);
     const std::size_t n = static_cast<std::size_t>(g.voxelCount());
@@ -90,9 +90,9 @@ public:
     empty_ = DirtyRegion(g);
     bdims_ = empty_.brickDims();
     brickKnown_.assign(static_cast<std::size_t>(bdims_.x * bdims_.y * bdims_.z), 0);
-    if (s.fillHoles) {
-      filler_.emplace(s.holeFilling.empty() ? HoleFiller::defaultElements() : s.holeFilling, plus_);
-      incrementalFill_ = s.fillHolesIncremental;
+    if (s.pixel.fillHoles) {
+      filler_.emplace(s.pixel.holeFilling.empty() ? HoleFiller::defaultElements() : s.pixel.holeFilling, plus_);
+      incrementalFill_ = s.pixel.fillHolesIncremental;
       filled_.assign(n, 0);
     }
     rejectBelow_ = s.pixelRejectionThreshold < 0.0
@@ -476,7 +476,7 @@ Volume PixelReconstructor::weights() const {
 
 std::uint64_t pixelBytesPerVoxel(const ReconSettings& s) {
   // state + F32 output + one "written" flag (+ one "filled" flag)
-  return (s.arithmetic == Arithmetic::Plus ? sizeof(PlusCell) : sizeof(FloatCell)) + 4 + 1 + (s.fillHoles ? 1 : 0);
+  return (s.arithmetic == Arithmetic::Plus ? sizeof(PlusCell) : sizeof(FloatCell)) + 4 + 1 + (s.pixel.fillHoles ? 1 : 0);
 }
 
 std::unique_ptr<Reconstructor> makePixelReconstructor(const Grid& g, const ReconSettings& s) {

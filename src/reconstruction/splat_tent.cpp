@@ -79,14 +79,14 @@ namespace tent {
 
 
 TentReconstructor::TentReconstructor(const Grid& g, const ReconSettings& s)
-    : Reconstructor(g, s), mode_(checkedEnum(s.replacement)) {
-  if (!(s.kernelLateralMm > 0.0) || !(s.kernelAxialMm > 0.0) || !(s.kernelElevationMm > 0.0))
+    : Reconstructor(g, s), mode_(checkedEnum(s.tent.replacement)) {
+  if (!(s.tent.kernelLateralMm > 0.0) || !(s.tent.kernelAxialMm > 0.0) || !(s.tent.kernelElevationMm > 0.0))
     throw InputError(fmt::format("recon: the tent kernel's half-widths must be positive (got {} {} {} mm)",
-                                 s.kernelLateralMm, s.kernelAxialMm, s.kernelElevationMm));
+                                 s.tent.kernelLateralMm, s.tent.kernelAxialMm, s.tent.kernelElevationMm));
   PP5_CHECK(g.voxelCount() > 0);
-  hl_ = s.kernelLateralMm;
-  ha_ = s.kernelAxialMm;
-  he_ = s.kernelElevationMm;
+  hl_ = s.tent.kernelLateralMm;
+  ha_ = s.tent.kernelAxialMm;
+  he_ = s.tent.kernelElevationMm;
   threads_ = resolveThreads(s.threads);
   const auto n = static_cast<std::size_t>(g.voxelCount());
   // Volume::allocate, with huge pages asked for before the zero fill.
@@ -98,18 +98,18 @@ TentReconstructor::TentReconstructor(const Grid& g, const ReconSettings& s)
   output_.bytes.assign(4 * n, 0);
   acc_ = VoxelArray<float>(2 * n);
   if (mode_ == Replacement::Decay) {
-    if (!(s.decayTauS > 0.0)) throw InputError("recon.decay_tau_s must be positive");
+    if (!(s.tent.decayTauS > 0.0)) throw InputError("recon.decay_tau_s must be positive");
     tLast_.assign(n, 0.0f);
   }
   if (mode_ == Replacement::MotionVector) {
-    if (s.motionVectorBrick < 1) throw InputError("recon.motion_vector_brick must be at least 1");
-    if (!(s.motionVectorNewWeight > 0.0 && s.motionVectorNewWeight <= 1.0))
+    if (s.tent.motionVectorBrick < 1) throw InputError("recon.motion_vector_brick must be at least 1");
+    if (!(s.tent.motionVectorNewWeight > 0.0 && s.tent.motionVectorNewWeight <= 1.0))
       throw InputError("recon.motion_vector_new_weight must be in (0, 1]");
-    wNew_ = static_cast<float>(s.motionVectorNewWeight);
-    wOld_ = static_cast<float>(1.0 - s.motionVectorNewWeight);
+    wNew_ = static_cast<float>(s.tent.motionVectorNewWeight);
+    wOld_ = static_cast<float>(1.0 - s.tent.motionVectorNewWeight);
     baseV_.assign(n, 0.0f);
     baseW_.assign(n, 0.0f);
-    const std::int64_t b = s.motionVectorBrick;
+    const std::int64_t b = s.tent.motionVectorBrick;
     cellDims_ = (g.dims + Index3(b - 1)) / Index3(b);
     const auto cells = static_cast<std::size_t>(cellDims_.x * cellDims_.y * cellDims_.z);
     cellDir_.assign(cells, glm::vec3(0.0f));
@@ -430,7 +430,7 @@ bool TentReconstructor::stepMotion(const SlicePose& pose, double timeS, double& 
       for (const double r : {cy0, cy1})
         maxCornerMm = std::max(maxCornerMm, glm::length(pose.pixel(c, r) - prevPose_.pixel(c, r)));
     const double angleDeg = rotationAngle(prevPose_, pose) * (180.0 / 3.14159265358979323846);
-    jump = maxCornerMm > settings_.fillInMaxGapMm || angleDeg > settings_.fillInMaxAngleDeg;
+    jump = maxCornerMm > settings_.tent.fillInMaxGapMm || angleDeg > settings_.tent.fillInMaxAngleDeg;
   }
   if (jump) {
     dir_ = Vec3(0.0);
@@ -477,7 +477,7 @@ InsertResult TentReconstructor::insert(const Frame& f, const Mat4& imageToRefere
 
   // Without the previous frame's pixels (it went to advance() and
   // restorePrevious() did not follow) there is nothing to fill in from.
-  if (settings_.fillIn && !jump && prevPixels_ && cur_.selected > 0 && prev_.selected > 0 &&
+  if (settings_.tent.fillIn && !jump && prevPixels_ && cur_.selected > 0 && prev_.selected > 0 &&
       prev_.width == cur_.width && prev_.height == cur_.height) {
     const int n = fillInCount(maxCornerMm, he_);
     // Pixels kept in both frames lie in the intersection of their boxes.
@@ -576,12 +576,12 @@ using tent::TentReconstructor;
 
 std::uint64_t tentBytesPerVoxel(const ReconSettings& s) {
   std::uint64_t b = 12;  // output, sum(w*v), sum(w): F32 each
-  switch (s.replacement) {
+  switch (s.tent.replacement) {
     case Replacement::Accumulate: break;
     case Replacement::Decay: b += 4; break;  // time of the last update
     case Replacement::MotionVector: {
       // base value and weight, plus a 16-byte cell per motionVectorBrick^3 voxels
-      const std::uint64_t c = static_cast<std::uint64_t>(std::max(1, s.motionVectorBrick));
+      const std::uint64_t c = static_cast<std::uint64_t>(std::max(1, s.tent.motionVectorBrick));
       b += 8 + (16 + c * c * c - 1) / (c * c * c);
       break;
     }

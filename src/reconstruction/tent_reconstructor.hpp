@@ -198,7 +198,7 @@ inline bool TentReconstructor::applyVoxel(float* acc, float* out, std::size_t i,
       if (!(tl == cacheT)) {
         cacheT = tl;
         cacheF = static_cast<float>(
-            std::exp(-(static_cast<double>(tf) - static_cast<double>(tl)) / settings_.decayTauS));
+            std::exp(-(static_cast<double>(tf) - static_cast<double>(tl)) / settings_.tent.decayTauS));
       }
       sw *= cacheF;
       swv *= cacheF;

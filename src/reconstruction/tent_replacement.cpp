@@ -37,7 +37,7 @@ void TentReconstructor::rebaseCells(const Vec3& dir) {
     std::fill(cellStamp_.begin(), cellStamp_.end(), 0u);
     sliceCounter_ = 1;
   }
-  const std::int64_t B = settings_.motionVectorBrick;
+  const std::int64_t B = settings_.tent.motionVectorBrick;
   touched_.clear();
   for (const Row& row : rows_) {
     const std::int64_t cj = row.j / B, ck = row.k / B;

@@ -79,6 +79,25 @@ struct EncodeRgba8 {
   }
 };
 
+// Calls fn.template operator()<F, M>() with the format and mode as template
+// arguments: the kernels are specialised per format and mode, and dispatched
+// once per call.
+template <class Fn>
+void forFormatAndMode(SampleFormat format, CompositeMode mode, Fn&& fn) {
+  auto withMode = [&]<SampleFormat F>() {
+    switch (mode) {
+      case CompositeMode::Over: fn.template operator()<F, CompositeMode::Over>(); break;
+      case CompositeMode::Additive: fn.template operator()<F, CompositeMode::Additive>(); break;
+      case CompositeMode::Mip: fn.template operator()<F, CompositeMode::Mip>(); break;
+    }
+  };
+  switch (format) {
+    case SampleFormat::Rgba8: withMode.template operator()<SampleFormat::Rgba8>(); break;
+    case SampleFormat::Half: withMode.template operator()<SampleFormat::Half>(); break;
+    case SampleFormat::Float: withMode.template operator()<SampleFormat::Float>(); break;
+  }
+}
+
 }  // namespace
 
 struct RayCacheAccess {
@@ -427,20 +446,7 @@ CompositeStats RayCache::compositeDirty() {
 
 CompositeStats RayCache::composite() {
   CompositeStats st;
-  // Dispatch once per call: the kernels are specialised per format and mode.
-#define PP5_CACHE_MODE(F)                                                                 \
-  switch (live_) {                                                                        \
-    case CompositeMode::Over: st = compositeDirty<F, CompositeMode::Over>(); break;       \
-    case CompositeMode::Additive: st = compositeDirty<F, CompositeMode::Additive>(); break; \
-    case CompositeMode::Mip: st = compositeDirty<F, CompositeMode::Mip>(); break;         \
-  }                                                                                       \
-  break;
-  switch (format_) {
-    case SampleFormat::Rgba8: PP5_CACHE_MODE(SampleFormat::Rgba8)
-    case SampleFormat::Half: PP5_CACHE_MODE(SampleFormat::Half)
-    case SampleFormat::Float: PP5_CACHE_MODE(SampleFormat::Float)
-  }
-#undef PP5_CACHE_MODE
+  forFormatAndMode(format_, live_, [&]<SampleFormat F, CompositeMode M>() { st = compositeDirty<F, M>(); });
   if (stride_ > 1 && !st.changed.empty()) st.changed = fillBlocks(image_, st.changed);
   return st;
 }
@@ -532,19 +538,7 @@ TileImage RayCache::compositeFull(CompositeMode mode) const {
   out.width = tile_.width;
   out.height = tile_.height;
   out.rgba.assign(4 * rays_.size(), 0.0f);
-#define PP5_CACHE_MODE(F)                                                             \
-  switch (mode) {                                                                     \
-    case CompositeMode::Over: compositeAll<F, CompositeMode::Over>(out); break;       \
-    case CompositeMode::Additive: compositeAll<F, CompositeMode::Additive>(out); break; \
-    case CompositeMode::Mip: compositeAll<F, CompositeMode::Mip>(out); break;         \
-  }                                                                                   \
-  break;
-  switch (format_) {
-    case SampleFormat::Rgba8: PP5_CACHE_MODE(SampleFormat::Rgba8)
-    case SampleFormat::Half: PP5_CACHE_MODE(SampleFormat::Half)
-    case SampleFormat::Float: PP5_CACHE_MODE(SampleFormat::Float)
-  }
-#undef PP5_CACHE_MODE
+  forFormatAndMode(format_, mode, [&]<SampleFormat F, CompositeMode M>() { compositeAll<F, M>(out); });
   if (stride_ > 1 && !rays_.empty()) fillBlocks(out, TileRect{0, 0, tile_.width, tile_.height});
   return out;
 }
