@@ -11,6 +11,10 @@
 #                 (scripts/test.sh runs this at the lowest priority while CTest runs)
 #   --run-only    run the tests and fuzz targets of a build made before
 # Build folder: $PP5_FUZZ_BUILD_DIR, default build-fuzz/ (shared with scripts/fuzz.sh).
+# The command line's refusals run the release build's test_cli ($PP5_TEST_BUILD_DIR,
+# default build/) against the sanitized pp5echo: what is checked is pp5echo, and
+# the test driver's own sanitized build was the stage's longest step. Without a
+# release build, the sanitized test_cli is built here.
 # Exit status 77 when clang++ is not installed.
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
@@ -28,6 +32,9 @@ fuzz_targets=(fuzz_decoder fuzz_metaio fuzz_nrrd fuzz_journal fuzz_plus_xml fuzz
 
 cxx=$(bash "$root/scripts/clang.sh") || exit 77
 dir=${PP5_FUZZ_BUILD_DIR:-$root/build-fuzz}
+cli_tests=${PP5_TEST_BUILD_DIR:-$root/build}/tests/test_cli
+extra=()
+[ -x "$cli_tests" ] || { cli_tests=$dir/tests/test_cli; extra=(test_cli); }
 jobs=$(nproc 2>/dev/null || echo 2)
 start=$(date +%s)
 
@@ -38,7 +45,7 @@ if [ "$phase" != run ]; then
     -DPP5_BUILD_TESTS=ON -DPP5_BUILD_BENCH=OFF -DMPIEXEC_PREFLAGS="--allow-run-as-root;--oversubscribe" >"$dir/configure.log" 2>&1 ||
     { cat "$dir/configure.log" >&2; exit 1; }
   echo "sanitize.sh: building the sanitized pp5echo, tests and fuzz targets with $jobs jobs (several minutes the first time)" >&2
-  cmake --build "$dir" -j "$jobs" --target pp5echo test_io test_plus_config test_calibration test_cli test_igtl \
+  cmake --build "$dir" -j "$jobs" --target pp5echo test_io test_plus_config test_calibration test_igtl "${extra[@]}" \
     "${fuzz_targets[@]}" >&2
   echo "sanitize.sh: built in $(( $(date +%s) - start )) s" >&2
   if [ "$phase" = build ]; then exit 0; fi
@@ -47,7 +54,8 @@ fi
 export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 OMPI_MCA_rmaps_base_oversubscribe=1
 export UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1"
 fail=0
-run() {  # run NAME ASAN_OPTIONS COMMAND...
+# run NAME ASAN_OPTIONS COMMAND...: one sanitized run, its log in $dir/NAME.log.
+run() {
   local name=$1 asan=$2
   shift 2
   echo "sanitize.sh: $name" >&2
@@ -56,26 +64,33 @@ run() {  # run NAME ASAN_OPTIONS COMMAND...
   else
     tail -n 40 "$dir/$name.log" >&2
     echo "FAIL: $name (log: $dir/$name.log)" >&2
-    fail=1
+    return 1
   fi
 }
+# The runs of one group side by side, one per core (each is one process and
+# mostly one thread); any failure fails the stage once all have ended.
+pids=()
+spawn() { run "$@" & pids+=($!); if [ "${#pids[@]}" -ge "$jobs" ]; then wait_group; fi; }
+wait_group() { local p; for p in "${pids[@]}"; do wait "$p" || fail=1; done; pids=(); }
 t=$dir/tests
 # Parsers and bad input: sequences, volumes, PLUS configs, calibration, OpenIGTLink.
-run bad_input_io detect_leaks=1 "$t/test_io"
-run plus_config detect_leaks=1 "$t/test_plus_config"
-run calibration detect_leaks=1 "$t/test_calibration"
-run igtl detect_leaks=1 "$t/test_igtl"
+spawn bad_input_io detect_leaks=1 "$t/test_io"
+spawn plus_config detect_leaks=1 "$t/test_plus_config"
+spawn calibration detect_leaks=1 "$t/test_calibration"
+spawn igtl detect_leaks=1 "$t/test_igtl"
 # The command line's refusals, through the sanitized pp5echo. Leaks are not
 # checked in the child processes: Open MPI's runtime keeps memory to exit.
-run bad_input_cli detect_leaks=0 "$t/test_cli" \
+PP5_TEST_BINARY="$dir/src/app/pp5echo" spawn bad_input_cli detect_leaks=0 "$cli_tests" \
   --gtest_filter='*Refuse*:*Bad*:*Special*:*NotUtf8*:*Malformed*:*Invalid*:*Missing*'
-# The faults: a killed, a stopped and a corrupt-fed rank, Ctrl-C, a wrong layout.
+wait_group
+# The faults: a killed, a stopped and a corrupt-fed rank, Ctrl-C, a wrong layout;
+# alone, as its timeouts assume.
 # SIGTERM to mpirun leaves the host odls_base_sigkill_timeout seconds (1 by
 # default) to write its outputs before mpirun's SIGKILL; this build writes them
 # about four times slower than a Release build (1.21 and 1.35 s where the
 # Release build took 0.31 and 0.37 s, 2026-11-28), so the case gives it 5 s.
 # CTest's mpi_clean_ends keeps mpirun's default.
-PP5_MPIRUN_GRACE_S=5 run faults detect_leaks=0 bash tests/mpi/clean_ends.sh "$dir/src/app/pp5echo" "$dir/clean_ends" "$root/../shared/data/plus"
+PP5_MPIRUN_GRACE_S=5 run faults detect_leaks=0 bash tests/mpi/clean_ends.sh "$dir/src/app/pp5echo" "$dir/clean_ends" "$root/../shared/data/plus" || fail=1
 # Every fuzz target, for a bounded time.
 if ! PP5_FUZZ_BUILD_DIR="$dir" bash scripts/fuzz.sh "$secs"; then fail=1; fi
 

@@ -4,6 +4,7 @@
 
 #include <array>
 #include <cstdio>
+#include <cstdlib>
 #include <string>
 #include <sys/wait.h>
 
@@ -14,8 +15,16 @@ struct CliResult {
   std::string out;  // stdout and stderr together
 };
 
+// The pp5echo the command-line tests run: $PP5_TEST_BINARY when it is set (the
+// sanitizer stage runs the release build's command-line tests against its
+// sanitized pp5echo), else the one built beside the tests.
+inline std::string binary() {
+  const char* env = std::getenv("PP5_TEST_BINARY");
+  return env && *env ? std::string(env) : std::string(PP5_BINARY);
+}
+
 inline CliResult runCli(const std::string& args) {
-  const std::string cmd = std::string(PP5_BINARY) + " " + args + " 2>&1";
+  const std::string cmd = binary() + " " + args + " 2>&1";
   FILE* p = popen(cmd.c_str(), "r");
   EXPECT_NE(p, nullptr);
   std::string out;

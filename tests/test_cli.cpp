@@ -285,7 +285,7 @@ std::string shell(const std::string& script) {
 // not Open MPI's shared-memory files).
 const char* const kRunModes[] = {"serial", "mpi"};
 std::string runIn(const std::string& mode, const std::string& args, const std::string& limit = "") {
-  const std::string exec = "exec " + std::string(PP5_BINARY) + " run " + args;
+  const std::string exec = "exec " + pp5::test::binary() + " run " + args;
   if (mode == "serial") return limit + "\n" + exec + " --serial";
   return "export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 OMPI_MCA_rmaps_base_oversubscribe=1\n"
          "mpirun -n 4 --mca btl self,tcp bash -c 'if [ \"$OMPI_COMM_WORLD_RANK\" = 0 ]; then " +

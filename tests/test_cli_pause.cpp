@@ -17,6 +17,7 @@
 #include <string>
 #include <thread>
 
+#include "cli_test_util.hpp"
 #include "ws_client.hpp"
 
 namespace {
@@ -54,8 +55,8 @@ TEST(CliPause, CtrlCEndsAPausedRun) {
                              " --view 127.0.0.1:0 --set run.pace_fps=0.5 --set run.orbit_frames=0 --set run.script=[]"
                              " --set run.sweep_cache=" + (d / "cache").string();
     const std::string launch =
-        mode == "serial" ? std::string(PP5_BINARY) + " run " + args + " --serial"
-                         : "bash " + std::string(PP5_SOURCE_DIR) + "/scripts/mpirun.sh 4 " + PP5_BINARY + " run " + args;
+        mode == "serial" ? pp5::test::binary() + " run " + args + " --serial"
+                         : "bash " + std::string(PP5_SOURCE_DIR) + "/scripts/mpirun.sh 4 " + pp5::test::binary() + " run " + args;
     // In the background; its pid and, once it ends, its exit status in files.
     const std::string cmd = "( " + launch + " > " + log.string() + " 2>&1 & echo $! > " + pidFile.string() +
                             "; wait $!; echo $? > " + statusFile.string() + " ) &";

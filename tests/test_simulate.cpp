@@ -13,6 +13,7 @@
 #include <numeric>
 #include <sstream>
 
+#include "cli_test_util.hpp"
 #include "core/error.hpp"
 #include "formats/image_io.hpp"
 #include "formats/plus_config.hpp"
@@ -93,14 +94,9 @@ SimSettings settingsFor(const std::string& phantom) {
 }
 
 std::string runBinary(const std::string& args, int* status) {
-  const std::string cmd = std::string(PP5_BINARY) + " " + args + " 2>&1";
-  FILE* p = popen(cmd.c_str(), "r");
-  std::string out;
-  char buf[4096];
-  while (p && fgets(buf, sizeof buf, p)) out += buf;
-  const int rc = p ? pclose(p) : -1;
-  *status = WIFEXITED(rc) ? WEXITSTATUS(rc) : -1;
-  return out;
+  const pp5::test::CliResult r = pp5::test::runCli(args);
+  *status = r.status;
+  return r.out;
 }
 
 fs::path freshDir(const std::string& name) {
