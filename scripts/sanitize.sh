@@ -8,7 +8,7 @@
 # Usage: scripts/sanitize.sh [FUZZ_SECONDS] [--build-only | --run-only]
 #   FUZZ_SECONDS  how long each fuzz target runs (default 10)
 #   --build-only  configure and build the sanitized programs and fuzz targets, and stop
-#                 (scripts/test.sh runs this at the lowest priority while CTest runs)
+#                 (to build ahead of a later --run-only)
 #   --run-only    run the tests and fuzz targets of a build made before
 # Build folder: $PP5_FUZZ_BUILD_DIR, default build-fuzz/ (shared with scripts/fuzz.sh).
 # The command line's refusals run the release build's test_cli ($PP5_TEST_BUILD_DIR,
