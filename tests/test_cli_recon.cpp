@@ -52,7 +52,7 @@ protected:
   static fs::path dir() { return *dir_; }
   static std::string seq() { return (*dir_ / "doll_sweep.igs.mha").string(); }
   static std::string xml() { return (*dir_ / "doll_config.xml").string(); }
-  static std::string toml() { return std::string(PP5_SOURCE_DIR) + "/configs/doll.toml"; }
+  static std::string toml() { return (fs::path(PP5_SOURCE_DIR) / "configs" / "doll.toml").string(); }
   static fs::path* dir_;
 };
 fs::path* ReconCli::dir_ = nullptr;

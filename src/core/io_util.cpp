@@ -166,13 +166,7 @@ namespace {
 // Hidden and in the same folder, so the final rename is atomic (same file
 // system); mkstemp replaces the six X.
 constexpr std::string_view kTempSuffix = ".tmp-XXXXXX";
-std::string temporaryStem(const std::filesystem::path& finalPath) {
-  // Appended rather than `"." + string`: GCC 12 then warns of a false
-  // -Wstringop-overflow inside libstdc++ when the headers come precompiled.
-  std::string stem = ".";
-  stem += finalPath.filename().string();
-  return stem;
-}
+std::string temporaryStem(const std::filesystem::path& finalPath) { return "." + finalPath.filename().string(); }
 }  // namespace
 
 bool AtomicFile::isTemporaryOf(const std::string& finalPath, const std::string& fileName) {
