@@ -87,7 +87,7 @@ wait_group
 # alone, as its timeouts assume.
 # SIGTERM to mpirun leaves the host odls_base_sigkill_timeout seconds (1 by
 # default) to write its outputs before mpirun's SIGKILL; this build writes them
-# about four times slower than a Release build (1.21 and 1.35 s where the
+# about four times slower than a Release build (1.45 s, 2026-12-02, where the
 # Release build took 0.31 and 0.37 s, 2026-11-28), so the case gives it 5 s.
 # CTest's mpi_clean_ends keeps mpirun's default.
 PP5_MPIRUN_GRACE_S=5 run faults detect_leaks=0 bash tests/mpi/clean_ends.sh "$dir/src/app/pp5echo" "$dir/clean_ends" "$root/../shared/data/plus" || fail=1
