@@ -196,26 +196,24 @@ SliceKernel TentReconstructor::sliceKernel(const SlicePose& pose, const SliceIma
   return K;
 }
 
-template <bool Sheared, Along A, Replacement R>
-void TentReconstructor::contributeRows(const SliceKernel& Kref, const SliceFrame& sf, std::size_t first,
+template <class Sums, Along A, Replacement R>
+void TentReconstructor::contributeRows(const Sums& sumsRef, const SliceFrame& sf, std::size_t first,
                                        std::size_t end, float tf) {
-  // Local copies: the compiler cannot tell that the stores below leave them alone.
-  const SliceKernel K = Kref;
+  Sums sums = sumsRef;  // this thread's own
   float* const acc = acc_.data();
   float* const out = outF32();
   float* const contrib = contrib_.data();
   const std::int64_t nx = grid_.dims.x, nxy = grid_.dims.x * grid_.dims.y;
   const Vec3 s = sf.step[0], sj = sf.step[1], sk = sf.step[2];
+  const double invHe = 1.0 / he_;
   float cacheT = std::numeric_limits<float>::quiet_NaN(), cacheF = 1.0f;
-  std::vector<F4> tv(static_cast<std::size_t>(K.chunks));
-  Axial ax;
-  ax.tv = tv.data();
-  for (std::size_t r = first; r < end; ++r) {
+  for (std::size_t q = first; q < end; ++q) {
+    const std::size_t r = order_[q];
     // Rows a slice crosses are often short and a grid row apart: fetch the
     // voxels of a row a few rows ahead while this one computes.
     constexpr std::size_t kAhead = 6;
-    if (r + kAhead < end) {
-      const Row& ahead = rows_[r + kAhead];
+    if (q + kAhead < end) {
+      const Row& ahead = rows_[order_[q + kAhead]];
       const std::int64_t l0 = ahead.j * nx + ahead.k * nxy;
       const auto firstV = static_cast<std::size_t>(l0 + ahead.i0);
       const auto lastV = static_cast<std::size_t>(l0 + ahead.i1);
@@ -229,18 +227,18 @@ void TentReconstructor::contributeRows(const SliceKernel& Kref, const SliceFrame
     const Vec3 b = sf.base + static_cast<double>(row.j) * sj + static_cast<double>(row.k) * sk;
     const std::int64_t lin0 = row.j * nx + row.k * nxy;
     float rowSw = 0.0f, rowSwv = 0.0f;
-    if constexpr (A != Along::Any) axialWindow(K, b.y, ax);  // s.y == 0: V is b.y all along the row
-    if constexpr (A == Along::ConstUV) inPlaneSums<Sheared>(K, ax, b.x, rowSw, rowSwv);
+    if constexpr (A != Along::Any) sums.axial(b.y);  // s.y == 0: V is b.y all along the row
+    if constexpr (A == Along::ConstUV) sums.inPlane(b.x, rowSw, rowSwv);
     for (std::int64_t i = row.i0; i <= row.i1; ++i) {
       const auto di = static_cast<double>(i);
       const double N = b.z + di * s.z;
-      const double tn = 1.0 - std::abs(N) * K.invHe;
+      const double tn = 1.0 - std::abs(N) * invHe;
       float cw = 0.0f, cwv = 0.0f;
       if (tn > 0.0) {
         float sw = rowSw, swv = rowSwv;
         if constexpr (A != Along::ConstUV) {
-          if constexpr (A == Along::Any) axialWindow(K, b.y + di * s.y, ax);
-          inPlaneSums<Sheared>(K, ax, b.x + di * s.x, sw, swv);
+          if constexpr (A == Along::Any) sums.axial(b.y + di * s.y);
+          sums.inPlane(b.x + di * s.x, sw, swv);
         }
         const auto tnf = static_cast<float>(tn);
         cw = sw * tnf;
@@ -261,6 +259,21 @@ void TentReconstructor::contributeRows(const SliceKernel& Kref, const SliceFrame
   }
 }
 
+// The order the rows are visited in: rows_ (z outer, y inner), or y outer and
+// z inner where a step in z moves a voxel's foot point less than half as far
+// across the slice as a step in y (a slice facing z): consecutive rows then
+// read nearly the same profiles, from cache. Each voxel's arithmetic is its
+// own, so the order changes no bits.
+void TentReconstructor::visitOrder(const SliceFrame& sf) {
+  order_.resize(rows_.size());
+  for (std::size_t r = 0; r < rows_.size(); ++r) order_[r] = r;
+  auto across = [](const Vec3& step) { return std::hypot(step.x, step.y); };
+  if (across(sf.step[2]) < 0.5 * across(sf.step[1]))
+    std::sort(order_.begin(), order_.end(), [&](std::size_t a, std::size_t b) {
+      return rows_[a].j != rows_[b].j ? rows_[a].j < rows_[b].j : rows_[a].k < rows_[b].k;
+    });
+}
+
 void TentReconstructor::collectChanged(std::vector<RowRun>& runs) const {
   for (std::size_t r = 0; r < rows_.size(); ++r) {
     const ChangedRange& c = rowChanged_[r];
@@ -269,21 +282,32 @@ void TentReconstructor::collectChanged(std::vector<RowRun>& runs) const {
   }
 }
 
-template <bool Sheared, Along A>
-void TentReconstructor::contribute(const SliceKernel& K, const SliceFrame& sf, float tf) {
+template <class Sums, Along A>
+void TentReconstructor::contribute(const Sums& sums, const SliceFrame& sf, float tf) {
   switch (mode_) {
     case Replacement::Accumulate:
-      forRows([&](std::size_t a, std::size_t b) { contributeRows<Sheared, A, Replacement::Accumulate>(K, sf, a, b, tf); });
+      forRows([&](std::size_t a, std::size_t b) { contributeRows<Sums, A, Replacement::Accumulate>(sums, sf, a, b, tf); });
       break;
     case Replacement::Decay:
-      forRows([&](std::size_t a, std::size_t b) { contributeRows<Sheared, A, Replacement::Decay>(K, sf, a, b, tf); });
+      forRows([&](std::size_t a, std::size_t b) { contributeRows<Sums, A, Replacement::Decay>(sums, sf, a, b, tf); });
       break;
     case Replacement::MotionVector:
-      forRows([&](std::size_t a, std::size_t b) { contributeRows<Sheared, A, Replacement::MotionVector>(K, sf, a, b, tf); });
+      forRows([&](std::size_t a, std::size_t b) { contributeRows<Sums, A, Replacement::MotionVector>(sums, sf, a, b, tf); });
       break;
   }
 }
 
+// How V and U change along a grid row picks the loop (see Along).
+template <class Sums>
+void TentReconstructor::contributeAlong(const Sums& sums, const SliceFrame& sf, float tf) {
+  const Vec3 sa = sf.step[0];
+  if (sa.y != 0.0)
+    contribute<Sums, Along::Any>(sums, sf, tf);
+  else if (sa.x != 0.0)
+    contribute<Sums, Along::ConstV>(sums, sf, tf);
+  else
+    contribute<Sums, Along::ConstUV>(sums, sf, tf);
+}
 
 void TentReconstructor::splat(const SlicePose& pose, const SliceImage& img, double timeS, const Vec3& dir,
                               DirtyRegion& dirty, std::vector<RowRun>& changed) {
@@ -362,22 +386,19 @@ void TentReconstructor::splat(const SlicePose& pose, const SliceImage& img, doub
       total += static_cast<std::size_t>(i1 - i0 + 1);
     }
   if (rows_.empty()) return;
+  visitOrder(sf);
 
-  const SliceKernel K = sliceKernel(pose, img);
   const auto tf = static_cast<float>(timeS - t0_);
   if (mode_ == Replacement::MotionVector && contrib_.size() < 2 * total) contrib_.resize(2 * total);
   rowChanged_.resize(rows_.size());
   // An image whose y axis is perpendicular to its x axis (any rigid pose with
   // a pixel scale) has the same knots on every row.
   const bool sheared = std::abs(pose.eyu) * (img.y1 + 1) > 1e-9;
+  const SliceKernel K = sliceKernel(pose, img);
   if (sheared)
-    contribute<true, Along::Any>(K, sf, tf);
-  else if (sa.y != 0.0)
-    contribute<false, Along::Any>(K, sf, tf);
-  else if (sa.x != 0.0)
-    contribute<false, Along::ConstV>(K, sf, tf);
+    contribute<KnotSums<true>, Along::Any>(KnotSums<true>(K), sf, tf);
   else
-    contribute<false, Along::ConstUV>(K, sf, tf);
+    contributeAlong(KnotSums<false>(K), sf, tf);
   if (mode_ == Replacement::MotionVector) {
     rebaseCells(dir);
     applyStored(tf);
@@ -483,37 +504,9 @@ InsertResult TentReconstructor::insert(const Frame& f, const Mat4& imageToRefere
     // Pixels kept in both frames lie in the intersection of their boxes.
     const int x0 = std::max(prev_.x0, cur_.x0), x1 = std::min(prev_.x1, cur_.x1);
     const int y0 = std::max(prev_.y0, cur_.y0), y1 = std::min(prev_.y1, cur_.y1);
-    auto kept = [](const SliceImage& im, std::size_t i) { return !im.masked() || im.mask[i] > 0.0f; };
-    mid_.width = cur_.width;
-    mid_.height = cur_.height;
-    const std::size_t npx = cur_.value.size();
     for (int s = 1; s <= n && x0 <= x1 && y0 <= y1; ++s) {
       const double t = static_cast<double>(s) / (n + 1);
-      const auto tf = static_cast<float>(t), sf = static_cast<float>(1.0 - t);
-      // Pixel values linearly; a pixel takes part when it does in both frames.
-      mid_.value.assign(npx, 0.0f);
-      mid_.mask.assign(npx, 0.0f);
-      mid_.selected = 0;
-      mid_.x0 = x1;
-      mid_.y0 = y1;
-      mid_.x1 = x0;
-      mid_.y1 = y0;
-      for (int r = y0; r <= y1; ++r)
-        for (int c = x0; c <= x1; ++c) {
-          const std::size_t i = static_cast<std::size_t>(r) * static_cast<std::size_t>(cur_.width) +
-                                static_cast<std::size_t>(c);
-          if (!kept(prev_, i) || !kept(cur_, i)) continue;
-          mid_.value[i] = sf * prev_.value[i] + tf * cur_.value[i];
-          mid_.mask[i] = 1.0f;
-          ++mid_.selected;
-          mid_.x0 = std::min(mid_.x0, c);
-          mid_.x1 = std::max(mid_.x1, c);
-          mid_.y0 = std::min(mid_.y0, r);
-          mid_.y1 = std::max(mid_.y1, r);
-        }
-      if (mid_.selected == 0) continue;
-      if (mid_.selected == static_cast<std::uint64_t>(mid_.x1 - mid_.x0 + 1) * static_cast<std::uint64_t>(mid_.y1 - mid_.y0 + 1))
-        mid_.mask.clear();
+      if (!blendSlices(prev_, cur_, {x0, y0, x1, y1}, t, mid_)) continue;
       splat(interpolatePose(prevPose_, pose, t), mid_, prevTime_ + (timeS - prevTime_) * t, dir_, res.dirty,
             res.changedRuns);
       ++res.fillInSlices;

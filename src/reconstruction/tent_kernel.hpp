@@ -77,6 +77,43 @@ inline void selectPixels(const Frame& f, const std::vector<PixelRun>& runs, doub
     out.mask.clear();
 }
 
+// A fill-in slice's pixels between two slices' (see fillInCount), t of the
+// way from `a` to `b`: values linearly, and a pixel takes part when it does
+// in both; only the pixels of `box` (x0 y0 x1 y1, inside both selections).
+// False when none takes part.
+inline bool blendSlices(const SliceImage& a, const SliceImage& b, const std::array<int, 4>& box, double t,
+                        SliceImage& out) {
+  auto kept = [](const SliceImage& im, std::size_t i) { return !im.masked() || im.mask[i] > 0.0f; };
+  const auto tb = static_cast<float>(t), ta = static_cast<float>(1.0 - t);
+  out.width = b.width;
+  out.height = b.height;
+  const std::size_t npx = b.value.size();
+  out.value.assign(npx, 0.0f);
+  out.mask.assign(npx, 0.0f);
+  out.selected = 0;
+  const auto [x0, y0, x1, y1] = box;
+  out.x0 = x1;
+  out.y0 = y1;
+  out.x1 = x0;
+  out.y1 = y0;
+  for (int r = y0; r <= y1; ++r)
+    for (int c = x0; c <= x1; ++c) {
+      const std::size_t i = static_cast<std::size_t>(r) * static_cast<std::size_t>(b.width) + static_cast<std::size_t>(c);
+      if (!kept(a, i) || !kept(b, i)) continue;
+      out.value[i] = ta * a.value[i] + tb * b.value[i];
+      out.mask[i] = 1.0f;
+      ++out.selected;
+      out.x0 = std::min(out.x0, c);
+      out.x1 = std::max(out.x1, c);
+      out.y0 = std::min(out.y0, r);
+      out.y1 = std::max(out.y1, r);
+    }
+  if (out.selected == 0) return false;
+  if (out.selected == static_cast<std::uint64_t>(out.x1 - out.x0 + 1) * static_cast<std::uint64_t>(out.y1 - out.y0 + 1))
+    out.mask.clear();
+  return true;
+}
+
 // ----------------------------------------------------------------- kernel --
 
 // std::clamp for doubles, as maxsd and minsd where there is SSE2 (std::clamp
@@ -364,6 +401,24 @@ inline void inPlaneSums(const SliceKernel& K, const Axial& ax, double U, float& 
   swv = a.lane0();
   sw = a.lane1();
 }
+
+// The in-plane sums from the profiles, as contributeRows reads them: axial(V)
+// sets the axial window, inPlane(U) sums it at lateral coordinate U. Each
+// thread works on its own copy (the window's weights are scratch).
+template <bool Sheared>
+class KnotSums {
+public:
+  explicit KnotSums(const SliceKernel& K) : K_(K), tv_(static_cast<std::size_t>(K.chunks)) { ax_.tv = tv_.data(); }
+  KnotSums(const KnotSums& o) : K_(o.K_), ax_(o.ax_), tv_(o.tv_) { ax_.tv = tv_.data(); }
+  KnotSums& operator=(const KnotSums&) = delete;
+  void axial(double V) { axialWindow(K_, V, ax_); }
+  void inPlane(double U, float& sw, float& swv) const { inPlaneSums<Sheared>(K_, ax_, U, sw, swv); }
+
+private:
+  SliceKernel K_;  // a copy: the compiler cannot tell that the voxel stores leave it alone
+  Axial ax_;
+  std::vector<F4> tv_;
+};
 
 // How the slice coordinates change along a row of voxels (grid x). ConstV: V
 // stays the same (the image's axial axis is perpendicular to grid x, as on

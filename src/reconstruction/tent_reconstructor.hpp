@@ -124,10 +124,13 @@ private:
              std::vector<RowRun>& changed);
   SliceKernel sliceKernel(const SlicePose& pose, const SliceImage& img);
   void buildProfiles(const SliceImage& img, const KnotLattice& lat, int padRows);
-  template <bool Sheared, Along A>
-  void contribute(const SliceKernel& K, const SliceFrame& sf, float tf);
-  template <bool Sheared, Along A, Replacement R>
-  void contributeRows(const SliceKernel& K, const SliceFrame& sf, std::size_t first, std::size_t end, float tf);
+  template <class Sums>
+  void contributeAlong(const Sums& sums, const SliceFrame& sf, float tf);
+  template <class Sums, Along A>
+  void contribute(const Sums& sums, const SliceFrame& sf, float tf);
+  template <class Sums, Along A, Replacement R>
+  void contributeRows(const Sums& sums, const SliceFrame& sf, std::size_t first, std::size_t end, float tf);
+  void visitOrder(const SliceFrame& sf);
   void rebaseCells(const Vec3& dir);
   void applyStored(float tf);
   template <typename F>
@@ -161,6 +164,7 @@ private:
 
   // Scratch, reused from slice to slice.
   std::vector<Row> rows_;
+  std::vector<std::size_t> order_;  // the order contributeRows visits rows_ in
   // Per row of rows_, the first and last x whose output bits the slice changed (first > last: none),
   // and the largest value they were given.
   std::vector<ChangedRange> rowChanged_;
