@@ -122,7 +122,7 @@ void DistributedPipeline::imageHas(std::int64_t from, std::int64_t f) {
 }
 
 void DistributedPipeline::emitImage() {
-  ++images_;
+  ++tally_.images;
   if (events_.image) events_.image(image());
 }
 
@@ -156,7 +156,7 @@ void DistributedPipeline::row(const Header& h, int rank, Role role, const StageT
     double busy = 0.0;
     for (int s = 0; s < kStageCount; ++s)
       if (s != kWait) busy += st.ms[s];
-    (role == Role::Gp ? gpBusyMs_ : ppBusyMs_) += busy;
+    (role == Role::Gp ? tally_.gpBusyMs : tally_.ppBusyMs) += busy;
   }
   if (!events_.stats) return;
   std::vector<double> v = {static_cast<double>(h.frame), static_cast<double>(h.epoch), static_cast<double>(rank),
@@ -312,11 +312,8 @@ ImageView DistributedPipeline::image() const {
 }
 
 PipelineCounters DistributedPipeline::counters() const {
-  PipelineCounters c;
+  PipelineCounters c = tally_;
   c.frames = sent_;
-  c.images = images_;
-  c.gpBusyMs = gpBusyMs_;
-  c.ppBusyMs = ppBusyMs_;
   c.gps = L_.gps;
   c.pps = L_.pps;
   latency_.recent(c);
@@ -324,7 +321,7 @@ PipelineCounters DistributedPipeline::counters() const {
 }
 
 void DistributedPipeline::streamEnded() {
-  streamImages_ = images_;
+  streamImages_ = tally_.images;
   if (ref_ && !j_.parallel.lockstep())
     verify(fb_, nullptr, fmt::format("after the last frame ({})", sent_ - 1));
 }

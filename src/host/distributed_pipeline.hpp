@@ -76,7 +76,7 @@ private:
   std::int64_t shownFrame_ = -1;
   std::vector<float> nextFb_;
   std::uint64_t sent_ = 0;    // frames sent
-  std::uint64_t images_ = 0;  // image updates assembled
+  PipelineCounters tally_;  // image updates assembled and busy times (counters() adds frames sent, layout, latency)
   std::uint64_t streamImages_ = 0;  // of them, while frames were streaming
   std::uint64_t verified_ = 0;
   FrameLatency latency_;
@@ -95,7 +95,6 @@ private:
 
   std::unique_ptr<serial::SerialPipeline> ref_;
   bool volumeOutstanding_ = false;  // a snapshot asked for is on its way
-  double gpBusyMs_ = 0.0, ppBusyMs_ = 0.0;
   Clock::time_point lastKeepAlive_ = Clock::now();
   std::vector<Clock::time_point> lastHeard_;  // per rank: the last message from it (the heartbeat)
   Volume volume_;

@@ -57,12 +57,12 @@ std::chrono::milliseconds LocalPipeline::frameWait(bool steered) const {
 
 void LocalPipeline::insert(AcquiredFrame& a) {
   const serial::FrameStats st = pipe_->insert(a.frame, a.imageToReference, a.timeS);
-  const std::uint64_t k = frames_++;
+  const std::uint64_t k = tally_.frames++;
   latency_.arrived(a.arrival);
   // The latency from the frame's arrival, its wait in the queue included.
   latency_.imageHas(static_cast<std::int64_t>(k), static_cast<std::int64_t>(k), [](std::int64_t, double) {});
-  gpBusyMs_ += st.reconMs + st.shadeMs + st.sampleMs;
-  ppBusyMs_ += st.compositeMs;
+  tally_.gpBusyMs += st.reconMs + st.shadeMs + st.sampleMs;
+  tally_.ppBusyMs += st.compositeMs;
   frameStats_.push_back(st);
   if (events_.stats)
     events_.stats({static_cast<double>(st.index), static_cast<double>(epoch_), st.reconMs, st.shadeMs, st.sampleMs,
@@ -85,13 +85,13 @@ std::uint32_t LocalPipeline::control(std::uint32_t changes, const ViewState& nex
 void LocalPipeline::sync() {
   if (!pending_) return;
   pending_ = false;
-  ++images_;
+  ++tally_.images;
   if (events_.image) events_.image(image());
 }
 
 ImageView LocalPipeline::image() const {
   const pp::TileImage& im = pipe_->image();
-  return {&im.rgba, im.width, im.height, epoch_, static_cast<std::int64_t>(frames_) - 1, true};
+  return {&im.rgba, im.width, im.height, epoch_, static_cast<std::int64_t>(tally_.frames) - 1, true};
 }
 
 std::vector<float> LocalPipeline::composite(pp::CompositeMode mode) {
@@ -104,11 +104,7 @@ bool LocalPipeline::requestVolume() {
 }
 
 PipelineCounters LocalPipeline::counters() const {
-  PipelineCounters c;
-  c.frames = frames_;
-  c.images = images_;
-  c.gpBusyMs = gpBusyMs_;
-  c.ppBusyMs = ppBusyMs_;
+  PipelineCounters c = tally_;
   latency_.recent(c);
   return c;
 }
@@ -122,7 +118,7 @@ void LocalPipeline::streamEnded() {
 
 std::string LocalPipeline::end(const RunEnd& e) {
   using FS = serial::FrameStats;
-  std::printf("run: %llu frames through the serial pipeline in %.1f s\n", static_cast<unsigned long long>(frames_),
+  std::printf("run: %llu frames through the serial pipeline in %.1f s\n", static_cast<unsigned long long>(tally_.frames),
               e.totalS);
   std::printf("  per frame (median): %.1f ms = reconstruct %.1f + shade %.1f + sample %.1f + composite %.1f\n",
               medianOf(frameStats_, [](const FS& s) { return s.totalMs(); }),

@@ -41,10 +41,9 @@ private:
   std::unique_ptr<serial::SerialPipeline> pipe_;
   std::unique_ptr<serial::WorkCensus> census_;
   std::uint32_t epoch_ = 0;
-  std::uint64_t frames_ = 0, images_ = 0;
+  PipelineCounters tally_;  // frames, images and busy times (counters() adds the latency)
   bool pending_ = false;  // an image not yet handed to the loop
   FrameLatency latency_;
-  double gpBusyMs_ = 0, ppBusyMs_ = 0;
   std::vector<serial::FrameStats> frameStats_;
   std::vector<serial::ViewStats> orbitStats_;  // the full re-renders of the run's own views
 

@@ -397,10 +397,6 @@ private:
 
 }  // namespace
 
-void runGpRank(comm::Transport& t, const GpRankConfig& c) {
-  GpRank gp(t, c);
-  t.barrier();  // ready: the host starts acquiring once every rank is
-  gp.run();
-}
+void runGpRank(comm::Transport& t, const GpRankConfig& c) { parallel::runRank<GpRank>(t, c); }
 
 }  // namespace pp5::ranks

@@ -429,10 +429,6 @@ private:
 
 }  // namespace
 
-void runPpRank(comm::Transport& t, const PpRankConfig& c) {
-  PpRank pp(t, c);
-  t.barrier();  // ready: the host starts acquiring once every rank is
-  pp.run();
-}
+void runPpRank(comm::Transport& t, const PpRankConfig& c) { parallel::runRank<PpRank>(t, c); }
 
 }  // namespace pp5::ranks

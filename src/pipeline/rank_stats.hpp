@@ -102,4 +102,13 @@ inline comm::ReportMsg makeReport(const comm::Transport& t, Role role, const com
   return r;
 }
 
+// A rank's life: built from its configuration, ready once every rank is
+// (the host starts acquiring then), then its loop until the end of the run.
+template <class Rank, class Config>
+void runRank(comm::Transport& t, const Config& c) {
+  Rank rank(t, c);
+  t.barrier();
+  rank.run();
+}
+
 }  // namespace pp5::parallel

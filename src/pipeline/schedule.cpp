@@ -41,20 +41,16 @@ RankLayout RankLayout::choose(int worldSize, int gps, int pps) {
   if (gps == 0 && pps == 0) {
     l.pps = std::max(1, worldSize / 4);
     l.gps = worldSize - 1 - l.pps;  // >= 1 for worldSize >= 3
-  } else if (pps == 0) {
-    if (gps > worldSize - 2)
-      throw InputError(fmt::format("parallel.gps = {} needs at least {} ranks (with the host and one pixel "
+  } else if (gps == 0 || pps == 0) {
+    // One kind given: the other takes the ranks left.
+    const bool gpsGiven = pps == 0;
+    const int n = gpsGiven ? gps : pps;
+    if (n > worldSize - 2)
+      throw InputError(fmt::format("parallel.{} = {} needs at least {} ranks (with the host and one {} "
                                    "processor), but the job has {}",
-                                   gps, gps + 2, worldSize));
-    l.gps = gps;
-    l.pps = worldSize - 1 - gps;
-  } else if (gps == 0) {
-    if (pps > worldSize - 2)
-      throw InputError(fmt::format("parallel.pps = {} needs at least {} ranks (with the host and one graphics "
-                                   "processor), but the job has {}",
-                                   pps, pps + 2, worldSize));
-    l.pps = pps;
-    l.gps = worldSize - 1 - pps;
+                                   gpsGiven ? "gps" : "pps", n, n + 2, gpsGiven ? "pixel" : "graphics", worldSize));
+    (gpsGiven ? l.gps : l.pps) = n;
+    (gpsGiven ? l.pps : l.gps) = worldSize - 1 - n;
   } else {
     if (static_cast<long long>(gps) + pps + 1 != worldSize)
       throw InputError(fmt::format("parallel.gps = {} and parallel.pps = {} need {} ranks, but the job has {}", gps,

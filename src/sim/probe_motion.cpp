@@ -4,6 +4,7 @@
 #include <cmath>
 #include <numbers>
 #include <optional>
+#include <utility>
 #include <string>
 
 #include <fmt/format.h>
@@ -188,6 +189,39 @@ std::array<double, 3> adcNoise(std::uint64_t key, std::int64_t sample, double si
   return n;
 }
 
+// The video frames of a sweep `duration` s long at the sweep's frame rate,
+// each read by frameAt(k, t): its reported and true poses (and the arm's
+// counts), or nothing where the capture switch is off (the next pass then
+// starts afresh). A frame is kept when the probe has moved
+// sweep.capture_interval_mm since the last kept one (or every frame).
+template <class FrameAt>
+Sweep captureFrames(const SimSettings& s, double duration, const Mat4& refToTracker, const std::vector<Vec3>& corners,
+                    FrameAt&& frameAt) {
+  Sweep sweep;
+  sweep.referenceToTracker = refToTracker;
+  sweep.duration = duration;
+  const double fps = s.sweep.frameRateHz;
+  sweep.videoFrames = static_cast<std::uint64_t>(std::floor(sweep.duration * fps)) + 1;
+  std::optional<Mat4> last;
+  for (std::uint64_t k = 0; k < sweep.videoFrames; ++k) {
+    const double t = static_cast<double>(k) / fps;
+    std::optional<CapturedFrame> f = frameAt(k, t);
+    if (!f) {
+      last.reset();
+      continue;
+    }
+    const bool capture = s.sweep.capture == Capture::EveryFrame || !last ||
+                         largestDisplacement(*last, f->probeToTracker, corners) >= s.sweep.captureIntervalMm;
+    if (!capture) continue;
+    f->videoFrame = k;
+    f->timestamp = t;
+    sweep.frames.push_back(*f);
+    last = f->probeToTracker;
+    if (s.sweep.maxFrames > 0 && static_cast<int>(sweep.frames.size()) >= s.sweep.maxFrames) break;
+  }
+  return sweep;
+}
+
 Sweep captureArmSweep(const SimSettings& s, const ArmTrajectory& traj, double probeZ, const Mat4& refToTracker,
                       const std::vector<Vec3>& corners) {
   const ArmAdc adc = armAdc(s.arm);
@@ -196,20 +230,10 @@ Sweep captureArmSweep(const SimSettings& s, const ArmTrajectory& traj, double pr
   auto reading = [&](std::int64_t n) {
     return adc.read(traj.pose(static_cast<double>(n) / rate), adcNoise(noiseKey, n, s.arm.noiseCounts));
   };
-
-  Sweep sweep;
-  sweep.referenceToTracker = refToTracker;
-  sweep.duration = traj.duration();
-  const double fps = s.sweep.frameRateHz;
-  sweep.videoFrames = static_cast<std::uint64_t>(std::floor(sweep.duration * fps)) + 1;
-  std::optional<Mat4> last;
-  for (std::uint64_t k = 0; k < sweep.videoFrames; ++k) {
-    const double t = static_cast<double>(k) / fps;
+  return captureFrames(s, traj.duration(), refToTracker, corners, [&](std::uint64_t, double t) {
+    std::optional<CapturedFrame> f;
     const ArmTrajectory::Segment& seg = traj.segmentAt(t);
-    if (!seg.capture) {
-      last.reset();  // the switch was off: the next pass starts afresh
-      continue;
-    }
+    if (!seg.capture) return f;
     // The two A/D readings around t, interpolated to the frame's time.
     const double x = t * rate;
     const auto n0 = static_cast<std::int64_t>(std::floor(x));
@@ -217,25 +241,15 @@ Sweep captureArmSweep(const SimSettings& s, const ArmTrajectory& traj, double pr
     const auto c0 = reading(n0), c1 = reading(n0 + 1);
     std::array<double, 3> counts{};
     for (std::size_t i = 0; i < 3; ++i) counts[i] = c0[i] + frac * (c1[i] - c0[i]);
-    const ArmPose reported = adc.calibrate(counts);
-    const Mat4 reportedM = armProbeToTracker(reported, probeZ);
-    const bool capture = s.sweep.capture == Capture::EveryFrame || !last ||
-                         largestDisplacement(*last, reportedM, corners) >= s.sweep.captureIntervalMm;
-    if (!capture) continue;
-    CapturedFrame f;
-    f.videoFrame = k;
-    f.timestamp = t;
-    f.pass = seg.pass;
-    f.trueProbeToTracker = armProbeToTracker(traj.pose(t), probeZ);
-    f.probeToTracker = reportedM;
-    f.hasArm = true;
-    f.armCounts = frac < 0.5 ? c0 : c1;
-    f.armReported = reported;
-    sweep.frames.push_back(f);
-    last = reportedM;
-    if (s.sweep.maxFrames > 0 && static_cast<int>(sweep.frames.size()) >= s.sweep.maxFrames) break;
-  }
-  return sweep;
+    f.emplace();
+    f->armReported = adc.calibrate(counts);
+    f->probeToTracker = armProbeToTracker(f->armReported, probeZ);
+    f->pass = seg.pass;
+    f->trueProbeToTracker = armProbeToTracker(traj.pose(t), probeZ);
+    f->hasArm = true;
+    f->armCounts = frac < 0.5 ? c0 : c1;
+    return f;
+  });
 }
 
 // A tracker's reading: the true pose with a small random rotation (random
@@ -258,29 +272,12 @@ Mat4 trackerReading(const Mat4& truth, const FreehandSettings& f, std::uint64_t 
 Sweep captureFreehandSweep(const SimSettings& s, const FreehandPath& path, const Mat4& refToTracker,
                            const std::vector<Vec3>& corners) {
   const std::uint64_t key = mixSeed(s.seed, 0x7EAC3Eu);
-  Sweep sweep;
-  sweep.referenceToTracker = refToTracker;
-  sweep.duration = path.duration();
-  const double fps = s.sweep.frameRateHz;
-  sweep.videoFrames = static_cast<std::uint64_t>(std::floor(sweep.duration * fps)) + 1;
-  std::optional<Mat4> last;
-  for (std::uint64_t k = 0; k < sweep.videoFrames; ++k) {
-    const double t = static_cast<double>(k) / fps;
-    const Mat4 truth = refToTracker * path.probeToReference(t);
-    const Mat4 reported = trackerReading(truth, s.freehand, key, k);
-    const bool capture = s.sweep.capture == Capture::EveryFrame || !last ||
-                         largestDisplacement(*last, reported, corners) >= s.sweep.captureIntervalMm;
-    if (!capture) continue;
-    CapturedFrame f;
-    f.videoFrame = k;
-    f.timestamp = t;
-    f.trueProbeToTracker = truth;
-    f.probeToTracker = reported;
-    sweep.frames.push_back(f);
-    last = reported;
-    if (s.sweep.maxFrames > 0 && static_cast<int>(sweep.frames.size()) >= s.sweep.maxFrames) break;
-  }
-  return sweep;
+  return captureFrames(s, path.duration(), refToTracker, corners, [&](std::uint64_t k, double t) {
+    std::optional<CapturedFrame> f(std::in_place);
+    f->trueProbeToTracker = refToTracker * path.probeToReference(t);
+    f->probeToTracker = trackerReading(f->trueProbeToTracker, s.freehand, key, k);
+    return f;
+  });
 }
 
 }  // namespace
