@@ -8,7 +8,7 @@
 # (the busiest rank's, from stats.csv).
 #
 # Usage: scripts/bench_recordings.sh [--ranks N] [--spacing MM] [--fps F] [--runs N]
-#                                    [--only NAME] [--out DIR] [--set KEY=VALUE]...
+#                                    [--only NAME] [--out DIR] [--bin PP5ECHO] [--set KEY=VALUE]...
 #   --ranks    MPI ranks (default 4: the host, 2 graphics and 1 pixel processor)
 #   --spacing  voxel size in mm (default 0.5, the grid PLUS's configs use)
 #   --fps      pace of the stream (default 30)
@@ -16,23 +16,24 @@
 #   --only     only the recordings whose name contains NAME
 #   --set      passed on to `pp5echo run` (repeatable), e.g. --set 'recon.method="trilinear"'
 #   --out      folder of the runs and the results (default out/bench_recordings)
+#   --bin      the pp5echo to run (default build/src/app/pp5echo, built by scripts/build.sh if missing)
 # Writes OUT/recordings.csv (a row per run) and OUT/recordings.md (the table it prints).
 # Needs a build (scripts/build.sh makes one when build/ has none).
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 cd "$root"
-ranks=4 spacing=0.5 fps=30 runs=1 only="" out=out/bench_recordings
+ranks=4 spacing=0.5 fps=30 runs=1 only="" out=out/bench_recordings bin=
 extra=()
 while [ $# -gt 0 ]; do
   case "$1" in
-    --ranks|--spacing|--fps|--runs|--only|--out|--set)
+    --ranks|--spacing|--fps|--runs|--only|--out|--bin|--set)
       [ $# -ge 2 ] || { echo "bench_recordings.sh: $1 needs a value" >&2; exit 2; }
       case "$1" in
         --ranks) ranks=$2 ;; --spacing) spacing=$2 ;; --fps) fps=$2 ;; --runs) runs=$2 ;;
-        --only) only=$2 ;; --out) out=$2 ;; --set) extra+=(--set "$2") ;;
+        --only) only=$2 ;; --out) out=$2 ;; --bin) bin=$2 ;; --set) extra+=(--set "$2") ;;
       esac
       shift 2 ;;
-    -h|--help) sed -n '2,22p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    -h|--help) sed -n '2,21p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     *) echo "bench_recordings.sh: unknown argument '$1' (see --help)" >&2; exit 2 ;;
   esac
 done
@@ -41,8 +42,12 @@ for v in "$spacing" "$fps"; do [[ "$v" =~ ^[0-9]*\.?[0-9]+$ ]] || { echo "bench_
 
 data=$root/../shared/data/plus
 [ -d "$data" ] || { echo "bench_recordings.sh: no recordings at $data" >&2; exit 1; }
-bin=$root/build/src/app/pp5echo
-[ -x "$bin" ] || bin=$root/$(bash scripts/build.sh | tail -n 1)/src/app/pp5echo
+if [ -n "$bin" ]; then
+  [ -x "$bin" ] || { echo "bench_recordings.sh: $bin is not an executable" >&2; exit 2; }
+else
+  bin=$root/build/src/app/pp5echo
+  [ -x "$bin" ] || bin=$root/$(bash scripts/build.sh | tail -n 1)/src/app/pp5echo
+fi
 
 # Each recording with the config PLUS's own tests use for it (../shared/data/plus/README.md).
 recordings=(
