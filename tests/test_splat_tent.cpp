@@ -275,8 +275,9 @@ TEST(TentKernel, EqualsThePerPixelForwardMapping) {
 }
 
 // Kernels and pixel grids of every shape the implementation treats apart:
-// sheared pixel axes, lateral windows of up to 4 and of more than 8 pixels,
-// and axial windows of more than 32 rows, all against the literal sum.
+// sheared pixel axes (by much, and by a calibration's fraction of a pixel),
+// lateral windows of up to 4 and of more than 8 pixels, and axial windows of
+// more than 32 rows, all against the literal sum.
 struct ShapeCase {
   const char* name;
   int w, h;
@@ -331,7 +332,11 @@ INSTANTIATE_TEST_SUITE_P(
                       ShapeCase{"many_taps", 30, 5, 0.15, 0.9, 0.0, 1.9, 1.0, 1.0, -1.0},
                       ShapeCase{"many_taps_rejecting", 30, 5, 0.15, 0.9, 0.0, 1.9, 1.0, 1.0, 60.0},
                       ShapeCase{"tall_window", 5, 60, 0.9, 0.1, 0.0, 1.0, 2.0, 1.0, -1.0},
-                      ShapeCase{"tall_sheared_window", 5, 60, 0.9, 0.1, 0.3, 1.0, 2.0, 1.0, 40.0}),
+                      ShapeCase{"tall_sheared_window", 5, 60, 0.9, 0.1, 0.3, 1.0, 2.0, 1.0, 40.0},
+                      // A calibration's shear (fCal 2.0's: -0.006 of a row's height): the
+                      // rows of most axial windows share their knot cell.
+                      ShapeCase{"calibration_shear", 40, 60, 0.1, 0.08, -0.006, 1.0, 0.8, 1.0, -1.0},
+                      ShapeCase{"calibration_shear_rejecting", 40, 60, 0.1, 0.08, 0.006, 1.0, 0.8, 1.0, 70.0}),
     [](const ::testing::TestParamInfo<ShapeCase>& i) { return std::string(i.param.name); });
 
 // Random images with pixels left out (a clip rectangle, rejection of random
