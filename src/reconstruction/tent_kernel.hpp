@@ -418,16 +418,36 @@ inline void inPlaneSums(const SliceKernel& K, const Axial& ax, double U, float& 
       sw = a.lane1();
       return;
     }
-    alignas(16) float tv[4];
-    for (int q = 0; q < K.chunks; ++q) {
-      ax.tv[q].store(tv);
-      for (int l = 0; l < 4; ++l, p += stride) {
-        const int r = ax.r0 + 4 * q + l;
-        float frac;
-        const F4 x = F4::load(p + 2 * knotCell(K.lat, U - r * K.eyu, frac));
-        a = a + F4::set1(tv[l]) * (x + F4::set1(frac) * (F4::high(x) - x));
+    // Otherwise the window is cut into bands of rows that share a cell,
+    // halving until a band's ends agree, and each band is summed the same way.
+    alignas(16) float tv[4 * 260];  // the window's axial weights (checkPose bounds it to 1025 rows)
+    for (int q = 0; q < K.chunks; ++q) ax.tv[q].store(tv + 4 * q);
+    auto cellAt = [&](int l, float& f) { return knotCell(K.lat, U - (ax.r0 + l) * K.eyu, f); };
+    auto band = [&](int l0, int l1, int k, float fa, float fb) {
+      const float* q = p + static_cast<std::size_t>(l0) * stride + 2 * k;
+      F4 ba = F4::zero(), bb = F4::zero();
+      for (int l = l0; l <= l1; ++l, q += stride) {
+        const F4 x = F4::load(q);
+        ba = ba + F4::set1(tv[l]) * x;
+        bb = bb + F4::set1(static_cast<float>(l - l0) * tv[l]) * x;
       }
-    }
+      const float phi = l1 > l0 ? (fb - fa) / static_cast<float>(l1 - l0) : 0.0f;
+      a = a + ba + F4::set1(fa) * (F4::high(ba) - ba) + F4::set1(phi) * (F4::high(bb) - bb);
+    };
+    auto split = [&](auto& self, int l0, int l1, int ka, float fa, int kb, float fb) -> void {
+      if (ka == kb) return band(l0, l1, ka, fa, fb);
+      if (l1 == l0 + 1) {
+        band(l0, l0, ka, fa, fa);
+        band(l1, l1, kb, fb, fb);
+        return;
+      }
+      const int mid = l0 + (l1 - l0) / 2;
+      float fm, fn;
+      const int km = cellAt(mid, fm), kn = cellAt(mid + 1, fn);
+      self(self, l0, mid, ka, fa, km, fm);
+      self(self, mid + 1, l1, kn, fn, kb, fb);
+    };
+    split(split, 0, lastRow, k0, f0, k1, f1);
   }
   swv = a.lane0();
   sw = a.lane1();
