@@ -104,23 +104,16 @@ BENCHMARK(BM_PixelInsert)
 // sizes it), one core, its config's settings: the tent at its default half-widths
 // (BM_TentInsert/recording:fcal2) and trilinear splatting
 // (BM_PixelInsert/recording:fcal2), the comparison of issue 39.
-void tentOnFcal(benchmark::State& state) {
+void onFcal(benchmark::State& state, gp::Method method) {
   gp::ReconSettings s = gp::fromPlus(*fcal().cfg.volumeReconstruction);
-  s.method = gp::Method::Tent;
-  s.arithmetic = gp::Arithmetic::Float;
-  s.threads = 1;
-  insertFrames(state, fcal(), s);
-}
-void trilinearOnFcal(benchmark::State& state) {
-  gp::ReconSettings s = gp::fromPlus(*fcal().cfg.volumeReconstruction);
-  s.method = gp::Method::Trilinear;
+  s.method = method;
   s.arithmetic = gp::Arithmetic::Float;
   s.threads = 1;
   insertFrames(state, fcal(), s);
 }
 const auto* const kTentFcal =
-    benchmark::RegisterBenchmark("BM_TentInsert/recording:fcal2", tentOnFcal)->Unit(benchmark::kMillisecond);
-const auto* const kTrilinearFcal =
-    benchmark::RegisterBenchmark("BM_PixelInsert/recording:fcal2", trilinearOnFcal)->Unit(benchmark::kMillisecond);
+    benchmark::RegisterBenchmark("BM_TentInsert/recording:fcal2", onFcal, gp::Method::Tent)->Unit(benchmark::kMillisecond);
+const auto* const kTrilinearFcal = benchmark::RegisterBenchmark("BM_PixelInsert/recording:fcal2", onFcal,
+                                                                gp::Method::Trilinear)->Unit(benchmark::kMillisecond);
 
 }  // namespace
