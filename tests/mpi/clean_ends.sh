@@ -104,11 +104,15 @@ done
 #    mpirun's own status for a signalled job is non-zero. Open MPI 4.1's mpirun
 #    sends its ranks SIGCONT, waits odls_base_sigkill_timeout seconds (GRACE_S),
 #    sends SIGTERM, waits as long again and sends SIGKILL: the host has GRACE_S
-#    seconds to write everything. mpirun's default, 1 s, unless PP5_MPIRUN_GRACE_S
-#    says otherwise (scripts/sanitize.sh: its build runs several times slower).
+#    seconds to write everything. What is checked is that it does write
+#    everything, not how fast: the case gives 5 s (PP5_MPIRUN_GRACE_S says
+#    otherwise). mpirun's default of 1 s is a speed figure and no bound on a
+#    run's ending: this small job's took 0.68 to 1.04 s on this machine
+#    (2026-12-02) and 0.31 to 0.37 s (2026-11-28), and a large run needs more
+#    (docs/cluster.md, "Stopping").
 #    The sweep is paced at 15 frames/s, 12 s in all, so that the SIGTERM
 #    reaches a host still streaming, which the first check asserts.
-grace=${PP5_MPIRUN_GRACE_S:-1}
+grace=${PP5_MPIRUN_GRACE_S:-5}
 log="$out/term-mpirun.log"
 mpirun -n 4 --mca odls_base_sigkill_timeout "$grace" "$bin" run "${long[@]}" \
   --set 'run.pace_fps=15' -o "$out/term-mpirun" > "$log" 2>&1 &
