@@ -412,7 +412,7 @@ SlicePose TentReconstructor::checkPose(const std::string& what, const Mat4& imag
   // A kernel that spans more than this many pixels (each knot of a profile
   // sums as many, each voxel as many rows) is taken for a pose with the wrong
   // scale.
-  constexpr double kMaxWindow = 1024.0;
+  constexpr auto kMaxWindow = static_cast<double>(kMaxWindowPixels);
   if (!(2.0 * hl_ / pose.sx <= kMaxWindow) || !(2.0 * ha_ / pose.syv <= kMaxWindow))
     throw InputError(fmt::format("{}: pixels of {:.3g} x {:.3g} mm are too small for the tent kernel "
                                  "({} x {} mm half-widths span more than {} pixels)",

@@ -116,6 +116,12 @@ inline bool blendSlices(const SliceImage& a, const SliceImage& b, const std::arr
 
 // ----------------------------------------------------------------- kernel --
 
+// The most pixels a kernel may span along either axis (checkPose refuses a
+// pose whose pixels are smaller), and the axial window's chunks of four rows
+// that allows (floor(2 ha / syv) + 1 rows).
+inline constexpr int kMaxWindowPixels = 1024;
+inline constexpr int kMaxWindowChunks = (kMaxWindowPixels + 1 + 3) / 4;
+
 // std::clamp for doubles, as maxsd and minsd where there is SSE2 (std::clamp
 // compiles to compares and branches, as it must keep the sign of a zero).
 inline double clampD(double x, double lo, double hi) {
@@ -389,38 +395,13 @@ inline void inPlaneSums(const SliceKernel& K, const Axial& ax, double U, float& 
     // Row r's pixels sit r*eyu further along u: each row has its own cell.
     // A calibration's shear moves the rows by a fraction of a pixel over
     // the window, so its first and last rows usually share one cell; then
-    // every row between does (the cell moves monotonically with r), and a
-    // row's fraction is affine in r, f0 + l*phi for the window's l-th row,
-    // so the window needs only the sums of tv*X and of l*tv*X at the cell's
-    // two knots. The same sum as row by row, up to rounding.
+    // every row between does (the cell moves monotonically with r). Otherwise
+    // the window is cut into bands of rows that share a cell, halving until a
+    // band's ends agree. In a band a row's fraction is affine in r, fa + l*phi
+    // for its l-th row, so the band needs only the sums of tv*X and of l*tv*X
+    // at the cell's two knots: the same sum as row by row, up to rounding.
     const int lastRow = 4 * K.chunks - 1;
-    float f0, f1;
-    const int k0 = knotCell(K.lat, U - ax.r0 * K.eyu, f0);
-    const int k1 = knotCell(K.lat, U - (ax.r0 + lastRow) * K.eyu, f1);
-    if (k0 == k1) {
-      alignas(16) static constexpr float kLanes[4] = {0.0f, 1.0f, 2.0f, 3.0f};
-      const F4 lanes = F4::load(kLanes);
-      p += 2 * k0;
-      F4 b = F4::zero();
-      int q = 0;
-      do {
-        const F4 t = ax.tv[q];
-        const F4 tl = t * (lanes + F4::set1(static_cast<float>(4 * q)));
-        const F4 x0 = F4::load(p), x1 = F4::load(p + stride), x2 = F4::load(p + 2 * stride),
-                 x3 = F4::load(p + 3 * stride);
-        a = a + F4::lane<0>(t) * x0 + F4::lane<1>(t) * x1 + F4::lane<2>(t) * x2 + F4::lane<3>(t) * x3;
-        b = b + F4::lane<0>(tl) * x0 + F4::lane<1>(tl) * x1 + F4::lane<2>(tl) * x2 + F4::lane<3>(tl) * x3;
-        p += 4 * stride;
-      } while (++q < K.chunks);
-      const float phi = (f1 - f0) / static_cast<float>(lastRow);
-      a = a + F4::set1(f0) * (F4::high(a) - a) + F4::set1(phi) * (F4::high(b) - b);
-      swv = a.lane0();
-      sw = a.lane1();
-      return;
-    }
-    // Otherwise the window is cut into bands of rows that share a cell,
-    // halving until a band's ends agree, and each band is summed the same way.
-    alignas(16) float tv[4 * 260];  // the window's axial weights (checkPose bounds it to 1025 rows)
+    alignas(16) float tv[4 * kMaxWindowChunks];  // the window's axial weights
     for (int q = 0; q < K.chunks; ++q) ax.tv[q].store(tv + 4 * q);
     auto cellAt = [&](int l, float& f) { return knotCell(K.lat, U - (ax.r0 + l) * K.eyu, f); };
     auto band = [&](int l0, int l1, int k, float fa, float fb) {
@@ -447,6 +428,8 @@ inline void inPlaneSums(const SliceKernel& K, const Axial& ax, double U, float& 
       self(self, l0, mid, ka, fa, km, fm);
       self(self, mid + 1, l1, kn, fn, kb, fb);
     };
+    float f0, f1;
+    const int k0 = cellAt(0, f0), k1 = cellAt(lastRow, f1);
     split(split, 0, lastRow, k0, f0, k1, f1);
   }
   swv = a.lane0();
