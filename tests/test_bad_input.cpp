@@ -79,6 +79,44 @@ TEST(BadInput, MissingFile) {
   EXPECT_CONTAINS(inputErrorOf([&] { SequenceReader::open(odd); }, odd), "unknown file type");
 }
 
+// A header's data file is read only beside the header or below its folder: a
+// header naming /etc/passwd or climbing out with ".." is refused before
+// anything is opened (a server reads headers that others send).
+TEST(BadInput, ADataFileOutsideTheHeadersFolderIsNotRead) {
+  TempDir dir;
+  std::vector<Frame> frames = readAllFrames(test::dataFile(kSmall));
+  frames.resize(3);
+  SequenceWriteOptions opt;
+  opt.compress = false;
+  std::filesystem::create_directories(dir / "sub");
+  writeAllFrames(dir / "sub/x.mhd", frames, opt);
+  const std::string header = test::readBytes(dir / "sub/x.mhd");
+  const std::string line = "ElementDataFile = x.raw";
+  ASSERT_NE(header.find(line), std::string::npos) << header;
+  auto withDataFile = [&](const std::string& name, const std::string& value) {
+    std::string h = header;
+    h.replace(h.find(line), line.size(), "ElementDataFile = " + value);
+    const std::string path = dir / name;
+    test::writeBytes(path, h);
+    return path;
+  };
+  for (const std::string& bad : {std::string("/etc/passwd"), std::string("../sub/x.raw"), std::string("sub/../../x.raw"),
+                                 (dir / "sub/x.raw")}) {
+    const std::string path = withDataFile("bad.mhd", bad);
+    EXPECT_CONTAINS(inputErrorOf([&] { SequenceReader::open(path); }, path), "lies outside the header's folder");
+  }
+  // Below the header's folder is fine, and reads the same frames.
+  const std::string ok = withDataFile("ok.mhd", "sub/x.raw");
+  const std::vector<Frame> back = readAllFrames(ok);
+  ASSERT_EQ(back.size(), frames.size());
+  EXPECT_EQ(back[2].pixels, frames[2].pixels);
+  // NRRD's data file, in a volume header, the same.
+  const std::string nhdr = dir / "v.nhdr";
+  test::writeBytes(nhdr, "NRRD0004\ntype: uint8\ndimension: 3\nsizes: 2 2 2\nspacings: 1 1 1\nencoding: raw\n"
+                         "data file: /etc/passwd\n\n");
+  EXPECT_CONTAINS(inputErrorOf([&] { readVolume(nhdr); }, nhdr), "lies outside the header's folder");
+}
+
 TEST(BadInput, TruncatedCompressedFile) {
   TempDir dir;
   const test::RawFile raw = test::splitFile(test::dataFile(kSmall));
@@ -219,6 +257,41 @@ TEST(BadInput, TruncatedVolume) {
   test::writeBytes(path, bytes.substr(0, bytes.size() - 1000));
   EXPECT_CONTAINS(inputErrorOf([&] { readVolume(path); }, path), "(file truncated, or DimSize wrong)");
   EXPECT_NO_THROW(readVolumeHeader(path));  // the header alone is fine
+  // `info`'s check says what readVolume would: the data is short.
+  EXPECT_CONTAINS(inputErrorOf([&] { checkVolumeFile(path); }, path), "(file truncated, or DimSize wrong)");
+}
+
+// What `pp5echo info` checks of a volume without reading its data: the
+// geometry readVolume and `evaluate` refuse, and a size the file does not hold.
+TEST(BadInput, AVolumesGeometryAndSizeAreChecked) {
+  TempDir dir;
+  const std::string good = test::readBytes(test::dataFile("vtkVolumeReconstructorTestNNLATEvolumeRef.mha"));
+  auto edited = [&](const std::string& name, const std::string& from, const std::string& to) {
+    std::string bytes = good;
+    bytes.replace(bytes.find(from), from.size(), to);
+    test::writeBytes(dir / name, bytes);
+    return dir / name;
+  };
+  EXPECT_NO_THROW(checkVolumeFile(edited("good.mha", "NDims", "NDims")));
+  const std::pair<std::string, std::string> bad[] = {
+      {"ElementSpacing = 0.5 0.5 0.5", "ElementSpacing = 0.5 nan 0.5"},
+      {"ElementSpacing = 0.5 0.5 0.5", "ElementSpacing = 0.5 0 0.5"},
+      {"ElementSpacing = 0.5 0.5 0.5", "ElementSpacing = 0.5 -0.5 0.5"},
+      {"DimSize = 80 93                       98", "DimSize = 80 0 98"},
+      {"DimSize = 80 93                       98", "DimSize = 2000 2000 2000"},  // 8 GB claimed
+  };
+  for (const auto& [from, to] : bad) {
+    const std::string path = edited("bad.mha", from, to);
+    const std::string msg = inputErrorOf([&] { checkVolumeFile(path); }, path);
+    bool refusedByRead = false;
+    try {
+      readVolume(path);
+    } catch (const InputError&) {
+      refusedByRead = true;
+    }
+    EXPECT_TRUE(refusedByRead) << to;  // the same file readVolume refuses
+    EXPECT_FALSE(msg.empty()) << to;
+  }
 }
 
 TEST(BadInput, BadNrrd) {

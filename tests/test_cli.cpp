@@ -94,6 +94,41 @@ TEST(Cli, BadConfigGivesOneLineWithFileKeyAndLine) {
   std::filesystem::remove_all(d);
 }
 
+// `config` says yes only to what `run` takes: each of these was printed as
+// valid and then refused by `run`. And what a run does not use is said.
+TEST(Cli, ConfigRefusesWhatRunWould) {
+  const std::string doll = dollConfig();
+  const std::pair<const char*, const char*> bad[] = {
+      {"--set render.cache.block_size=3", "render.cache.block_size = 3"},
+      {"--set parallel.tile_size=100", "parallel.tile_size = 100"},
+      {"--set 'run.script=[\"x\"]'", "run.script"},
+      {"--set 'board.arm_x_table=[\"1 2 3\"]'", "board.arm_x_table"},
+      {"--set 'output.dir=\"\"'", "output.dir is empty"},
+  };
+  for (const auto& [set, says] : bad) {
+    SCOPED_TRACE(set);
+    const auto c = run("config " + doll + " " + set);
+    EXPECT_EQ(c.status, 1) << c.out;
+    EXPECT_NE(c.out.find(says), std::string::npos) << c.out;
+    const auto r = run("run " + doll + " --serial -o /tmp/pp5cli-never " + set);
+    EXPECT_EQ(r.status, std::string(says) == "output.dir is empty" ? 0 : 1) << r.out;  // -o names the folder
+  }
+  std::filesystem::remove_all("/tmp/pp5cli-never");
+  auto r = run("run " + doll + " --serial -o /tmp/pp5cli-never --gps 2");
+  EXPECT_EQ(r.status, 1) << r.out;
+  EXPECT_NE(r.out.find("--gps: lays out the ranks of a run under mpirun"), std::string::npos) << r.out;
+  EXPECT_FALSE(std::filesystem::exists("/tmp/pp5cli-never"));
+  // Ignored in this mode: said, and the run goes on.
+  const auto d = tempDir("unused");
+  r = run("run " + doll + " --serial -o " + (d / "out").string() +
+          " --set parallel.tile_size=64 --set board.arm_probe_z_mm=3 --set run.orbit_frames=0 --set run.mpr=false"
+          " --set run.volume=false --set sim.sweep.max_frames=4");
+  EXPECT_EQ(r.status, 0) << r.out;
+  EXPECT_NE(r.out.find("parallel.tile_size lays out the ranks of a run under mpirun"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("board.arm_probe_z_mm belongs to run.source = \"board\""), std::string::npos) << r.out;
+  std::filesystem::remove_all(d);
+}
+
 // Settings no stage can honour are refused before anything runs, with the
 // key and what to do instead: hole filling with the tent method (it was
 // ignored without a word), PLUS's skip interval (the same), a drag stride that

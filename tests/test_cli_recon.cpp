@@ -213,6 +213,11 @@ TEST_F(ReconCli, InfoShowsAHeaderThatIsNotUtf8AndNamesIt) {
   EXPECT_NE(r.out.find(bad.string() + ": the header holds bytes that are not UTF-8"), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("BRIGHT\xef\xbf\xbd\xef\xbf\xbdNESS"), std::string::npos) << r.out;
   EXPECT_EQ(r.out.find("json.exception"), std::string::npos) << r.out;
+  // The warning goes to stderr: stdout is the JSON alone (`info f | jq` works).
+  const Result stdoutOnly = run("info " + bad.string() + " 2>/dev/null | cat");
+  ASSERT_FALSE(stdoutOnly.out.empty());
+  EXPECT_EQ(stdoutOnly.out.front(), '{') << stdoutOnly.out;
+  EXPECT_EQ(stdoutOnly.out.find("not UTF-8"), std::string::npos) << stdoutOnly.out;
 }
 
 // An error over nothing is refused, never reported as a perfect score

@@ -131,6 +131,24 @@ TEST_F(Fixture, SetOverridesAcceptBareWordsAndCheckRanges) {
   EXPECT_THROW(schema.set("novalue"), pp5::InputError);
 }
 
+// A value in another encoding than UTF-8 is refused, not re-encoded: a folder
+// named in Latin-1 ("caf\xe9") was written as "caf".
+TEST_F(Fixture, SetRefusesBytesThatAreNotUtf8) {
+  for (const std::string bad : {"a.b.name=caf\xe9", "a.b.name=\"caf\xe9\"", "a.b.name=\xc0\xaf", "a.b.name=\xed\xa0\x80",
+                                "a.b.name=x\xe2\x82"}) {
+    try {
+      schema.set(bad);
+      ADD_FAILURE() << "accepted " << bad;
+    } catch (const pp5::InputError& e) {
+      EXPECT_NE(std::string(e.what()).find("not UTF-8"), std::string::npos) << e.what();
+    }
+  }
+  schema.set("a.b.name=caf\xc3\xa9");  // é in UTF-8
+  EXPECT_EQ(d.name, "caf\xc3\xa9");
+  schema.set("a.b.name=\xf0\x9f\x94\x8a");  // U+1F50A
+  EXPECT_EQ(d.name, "\xf0\x9f\x94\x8a");
+}
+
 TEST_F(Fixture, TomlRoundTripsTheCurrentValues) {
   schema.set("a.gain=0.125");
   schema.set("a.b.name=with \"quotes\"");

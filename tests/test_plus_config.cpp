@@ -443,6 +443,18 @@ TEST_F(PlusConfigErrors, BadEnumValues) {
                         "NEAREST_NEIGHBOR, DISTANCE_WEIGHT_INVERSE"));
 }
 
+// A second element would be ignored without a word (a device set with two
+// volume reconstructors): refused, naming both lines.
+TEST_F(PlusConfigErrors, ASecondVolumeReconstructionIsRefused) {
+  const std::string text = "<PlusConfiguration version=\"2.1\">\n  <CoordinateDefinitions>\n" + kImageToProbe +
+                           "  </CoordinateDefinitions>\n  <VolumeReconstruction OutputSpacing=\"1 1 1\" />\n"
+                           "  <DataCollection><Device Id=\"R\"><VolumeReconstruction OutputSpacing=\"0.5 0.5 0.5\" />"
+                           "</Device></DataCollection>\n</PlusConfiguration>\n";
+  const std::string path = write("two.xml", text);
+  EXPECT_THAT(inputErrorOf([&] { readPlusConfig(path); }),
+              HasSubstr("a second VolumeReconstruction element (the first is on line 5)"));
+}
+
 TEST_F(PlusConfigErrors, BadNumbersAndMissingRequiredAttributes) {
   auto err = [&](const std::string& recon, const std::string& children = "") {
     return inputErrorOf([&] { readPlusConfig(config("n.xml", recon, kImageToProbe, children)); });
@@ -456,7 +468,15 @@ TEST_F(PlusConfigErrors, BadNumbersAndMissingRequiredAttributes) {
   EXPECT_THAT(err("OutputSpacing=\"1 1 1\" OutputExtent=\"0 10 5 4 0 1\""), HasSubstr("axis y ends (4) before it starts (5)"));
   EXPECT_THAT(err("OutputSpacing=\"1 1 1\" ClipRectangleSize=\"-1 5\""), HasSubstr("must not be negative"));
   EXPECT_THAT(err("OutputSpacing=\"1 1 1\" SkipInterval=\"0\""), HasSubstr("SkipInterval '0' must be at least 1"));
-  EXPECT_THAT(err("OutputSpacing=\"1 1 1\" NumberOfThreads=\"-2\""), HasSubstr("NumberOfThreads '-2' must not be negative"));
+  EXPECT_THAT(err("OutputSpacing=\"1 1 1\" NumberOfThreads=\"-2\""), HasSubstr("NumberOfThreads '-2' must be in 0 .. 1024"));
+  EXPECT_THAT(err("OutputSpacing=\"1 1 1\" FanAnglesDeg=\"-200 45\""),
+              HasSubstr("FanAnglesDeg '-200 45' must lie in -180 .. 180 degrees"));
+  EXPECT_THAT(err("OutputSpacing=\"1 1 1\" FanRadiusStartPixel=\"400\" FanRadiusStopPixel=\"300\""),
+              HasSubstr("FanRadiusStartPixel '400' lies beyond the fan's stop radius '300'"));
+  EXPECT_THAT(err("OutputSpacing=\"1 1 1\" FanRadiusStartPixel=\"600\""),
+              HasSubstr("FanRadiusStartPixel '600' lies beyond the fan's stop radius '500'"));
+  EXPECT_THAT(err("OutputSpacing=\"1 1 1\" NumberOfThreads=\"100000\""),
+              HasSubstr("NumberOfThreads '100000' must be in 0 .. 1024"));
   EXPECT_THAT(err("OutputSpacing=\"1 1 1\" ImageCoordinateFrame=\"\""), HasSubstr("ImageCoordinateFrame is empty"));
   EXPECT_THAT(err("OutputSpacing=\"1 1 1\" CompoundingMode=\"IMPORTANCE_MASK\""),
               HasSubstr("ImportanceMaskFilename is missing"));
@@ -569,8 +589,8 @@ TEST_F(PlusConfigWrite, RoundTripsEveryField) {
   r.clipRectangleSize = glm::ivec2(420, 580);
   r.fanAnglesDeg = glm::dvec2(-44.9, 45.1);
   r.fanOriginPixel = glm::dvec2(380.5, -20);
-  r.fanRadiusStartPixel = 120.25;
-  r.fanRadiusStopPixel = 360.0 / 7.0;
+  r.fanRadiusStartPixel = 360.0 / 7.0;
+  r.fanRadiusStopPixel = 120.25;
   r.enableFanAnglesAutoDetect = true;
   r.fanAnglesAutoDetectBrightnessThreshold = 12.75;
   r.fanAnglesAutoDetectFilterRadiusPixel = 4;

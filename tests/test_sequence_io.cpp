@@ -495,22 +495,61 @@ TEST(RecordingJournal, CutAtEveryByteKeepsEveryCompleteFrame) {
   EXPECT_THROW(openJournal(dir / "short.mha.journal"), InputError);
 }
 
-TEST(RecordingJournal, ADamagedRecordEndsTheFramesKept) {
+// A damaged record in the middle costs that record alone: each record in
+// turn, flipped at its magic, checksum, length, pixels or last byte, or cut
+// short (its second half gone), and every other frame is read back, the
+// damage named; `restore` writes them all and keeps the journal.
+TEST(RecordingJournal, ADamagedRecordCostsThatRecordAlone) {
+  const auto frames = makeFrames(PixelType::U8, 6, 4, 5);
   TempDir dir;
-  const auto frames = makeFrames(PixelType::U8, 6, 4, 3);
   journal(dir / "scan.mha", frames);
-  std::string bytes = test::readBytes(dir / "scan.mha.journal");
-  // Flip one pixel byte of the second frame: the last byte of its record.
-  TempDir two;
-  journal(two / "scan.mha", {frames[0], frames[1]});
-  const std::size_t endOfSecond = test::readBytes(two / "scan.mha.journal").size();
-  bytes[endOfSecond - 1] ^= 0x01;
-  test::writeBytes(dir / "bad.mha.journal", bytes);
-  JournalContents c;
-  openJournal(dir / "bad.mha.journal", &c);
-  EXPECT_EQ(c.frames, 1u);
-  EXPECT_NE(c.cut.find("frame 1"), std::string::npos) << c.cut;
-  EXPECT_NE(c.cut.find("checksum"), std::string::npos) << c.cut;
+  const std::string whole = test::readBytes(dir / "scan.mha.journal");
+  std::vector<std::size_t> ends;  // ends[k]: where the first k records end
+  for (std::size_t k = 0; k <= frames.size(); ++k) {
+    TempDir d;
+    journal(d / "scan.mha", std::vector<Frame>(frames.begin(), frames.begin() + static_cast<long>(k)));
+    ends.push_back(test::readBytes(d / "scan.mha.journal").size());
+  }
+  for (std::size_t k = 0; k < frames.size(); ++k) {
+    const std::size_t start = ends[k], len = ends[k + 1] - ends[k];
+    std::vector<std::pair<std::string, std::string>> damaged;
+    for (const std::size_t at : {std::size_t{0}, std::size_t{5}, std::size_t{9}, len / 2, len - 1}) {
+      std::string b = whole;
+      b[start + at] = static_cast<char>(b[start + at] ^ 0x10);
+      damaged.emplace_back("byte " + std::to_string(at) + " flipped", b);
+    }
+    damaged.emplace_back("cut short", whole.substr(0, start + len / 2) + whole.substr(start + len));
+    for (const auto& [how, bytes] : damaged) {
+      SCOPED_TRACE("record " + std::to_string(k) + ", " + how);
+      std::vector<Frame> expected = frames;
+      expected.erase(expected.begin() + static_cast<long>(k));
+      TempDir d;
+      test::writeBytes(d / "scan.mha.journal", bytes);
+      JournalContents c;
+      auto r = openJournal(d / "scan.mha.journal", &c);
+      Frame f;
+      std::vector<Frame> back;
+      while (r->next(f)) back.push_back(f);
+      r.reset();
+      if (k + 1 == frames.size()) {
+        // The last record: nothing whole follows, so it is where the journal ends.
+        EXPECT_TRUE(c.damaged.empty());
+        EXPECT_NE(c.cut.find("frame " + std::to_string(k)), std::string::npos) << c.cut;
+      } else {
+        ASSERT_EQ(c.damaged.size(), 1u);
+        EXPECT_NE(c.damaged[0].find("frame " + std::to_string(k)), std::string::npos) << c.damaged[0];
+        EXPECT_TRUE(c.cut.empty()) << c.cut;
+      }
+      expectSameFrames(expected, back);  // each with the index it was recorded with
+      // restore: every whole frame in the sequence (numbered as they come);
+      // the journal stays when frames after the damage were saved from it.
+      const RestoreResult res = restoreJournal(d / "scan.mha.journal");
+      EXPECT_EQ(res.outPath, d / "scan.mha");
+      for (std::size_t i = 0; i < expected.size(); ++i) expected[i].index = i;
+      expectSameFrames(expected, readAllFrames(d / "scan.mha"));
+      EXPECT_EQ(std::filesystem::exists(d / "scan.mha.journal"), k + 1 < frames.size());
+    }
+  }
 }
 
 // `pp5echo restore`'s work: the journal's frames become the sequence the
@@ -556,15 +595,18 @@ TEST(RecordingJournal, RestoreWritesTheSequenceTheRecordingWouldHave) {
   EXPECT_EQ(restoreJournal(dir / "old.mha.journal").outPath, dir / "old.mha");
   expectSameFrames(frames, readAllFrames(dir / "old.mha"));
   EXPECT_FALSE(std::filesystem::exists(dir / "old.mha.journal"));
-  // A first record that is damaged (not cut short) may hide whole frames
-  // after it: refused, and the journal kept.
+  // A first record that is damaged costs itself only: the frames after it are
+  // restored, and the journal is kept as it is.
   journal(dir / "torn.mha", frames);
   std::string torn = test::readBytes(dir / "torn.mha.journal");
   TempDir headerOnly;
   journal(headerOnly / "torn.mha", {});
   torn[test::readBytes(headerOnly / "torn.mha.journal").size() + 20] ^= 0x01;  // inside frame 0's body
   test::writeBytes(dir / "torn.mha.journal", torn);
-  EXPECT_THROW(restoreJournal(dir / "torn.mha.journal"), InputError);
+  EXPECT_EQ(restoreJournal(dir / "torn.mha.journal").contents.damaged.size(), 1u);
+  std::vector<Frame> afterFirst(frames.begin() + 1, frames.end());
+  for (std::size_t i = 0; i < afterFirst.size(); ++i) afterFirst[i].index = i;
+  expectSameFrames(afterFirst, readAllFrames(dir / "torn.mha"));
   EXPECT_EQ(test::readBytes(dir / "torn.mha.journal"), torn);
   // Cut off before its first frame: nothing was recorded; the journal is
   // removed (restoring it elsewhere is refused).

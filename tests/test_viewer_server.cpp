@@ -46,14 +46,18 @@ ServerOptions options() {
   return o;
 }
 
-// One HTTP GET: status and body.
-std::pair<int, std::string> get(int port, const std::string& target) {
+// One HTTP GET to 127.0.0.1: status and body. `host` is the Host header's
+// name (a page served from a name that rebinds to 127.0.0.1 sends its own),
+// `origin` the Origin header, none when empty.
+std::pair<int, std::string> get(int port, const std::string& target, const std::string& host = "127.0.0.1",
+                                const std::string& origin = "") {
   net::io_context ioc;
   tcp::resolver resolver(ioc);
   beast::tcp_stream stream(ioc);
   stream.connect(resolver.resolve("127.0.0.1", std::to_string(port)));
   http::request<http::empty_body> req(http::verb::get, target, 11);
-  req.set(http::field::host, "127.0.0.1:" + std::to_string(port));
+  req.set(http::field::host, host + ":" + std::to_string(port));
+  if (!origin.empty()) req.set(http::field::origin, origin);
   http::write(stream, req);
   beast::flat_buffer buffer;
   http::response<http::string_body> res;
@@ -111,6 +115,63 @@ TEST(ViewerServer, WebSocketChecksTheOrigin) {
   ASSERT_TRUE(waitFor([&] { return s.clients() == 1; }));
   s.publish(0, "frame");
   EXPECT_EQ(page.read(), "frame");
+}
+
+// DNS rebinding: a page from evil.example whose name then resolves to
+// 127.0.0.1 reaches the server with Host (and Origin) evil.example. Without a
+// token it gets neither the page's data nor a WebSocket; this machine's own
+// names do, with any port (an ssh tunnel's).
+TEST(ViewerServer, ARebindingPageIsRefused) {
+  Server s(options());
+  const int port = s.port();
+  const std::string evil = "http://evil.example:" + std::to_string(port);
+  EXPECT_EQ(get(port, "/", "evil.example").first, 403);
+  EXPECT_EQ(get(port, "/", "evil.example", evil).first, 403);
+  EXPECT_NE(get(port, "/", "evil.example").second.find("wrong host"), std::string::npos);
+  EXPECT_EQ(get(port, "/", "127.0.0.1.evil.example").first, 403);
+  EXPECT_EQ(get(port, "/", "").first, 403);
+  Client rebound;
+  EXPECT_THROW(rebound.connect(port, evil, "/ws", "evil.example"), boost::system::system_error);
+  EXPECT_THROW(rebound.connect(port, "", "/ws", "evil.example"), boost::system::system_error);
+  for (const std::string& own : {"127.0.0.1", "localhost", "LocalHost", "[::1]"})
+    EXPECT_EQ(get(port, "/", own).first, 200) << own;
+  // A foreign Origin on a page's own Host (a cross-origin fetch) is refused too.
+  EXPECT_EQ(get(port, "/", "127.0.0.1", "http://evil.example").first, 403);
+  Client page;
+  page.connect(port, "http://localhost:" + std::to_string(port), "/ws", "localhost");
+  ASSERT_TRUE(waitFor([&] { return s.clients() == 1; }));
+  EXPECT_EQ(s.clients(), 1u);
+  // With a token (a server reached by another name) the token is the check.
+  ServerOptions o = options();
+  o.token = "k3y";
+  Server t(o);
+  EXPECT_EQ(get(t.port(), "/?token=k3y", "scanner.lab").first, 200);
+  EXPECT_EQ(get(t.port(), "/", "scanner.lab").first, 403);
+}
+
+// Each client has its own budget of control messages: one that floods it
+// gets errors, and another's controls still go through.
+TEST(ViewerServer, OneClientCannotSilenceAnother) {
+  ServerOptions o = options();
+  o.maxMessagesPerSecond = 20;
+  Server s(o);
+  std::atomic<int> accepted{0}, others{0};
+  s.onMessage([&](const std::string& m) -> std::string {
+    ++(m == "{\"other\": 1}" ? others : accepted);
+    return "";
+  });
+  Client flood, other;
+  flood.connect(s.port(), "");
+  other.connect(s.port(), "");
+  flood.ws.text(true);
+  other.ws.text(true);
+  for (int i = 0; i < 60; ++i) flood.ws.write(net::buffer(std::string("{}")));
+  // The flood's first 20 pass (at most one second's budget, with the time the
+  // 60 take), the rest are answered with the error.
+  EXPECT_NE(flood.read().find("too many control messages"), std::string::npos);
+  EXPECT_LE(accepted.load(), 40);
+  other.ws.write(net::buffer(std::string("{\"other\": 1}")));
+  ASSERT_TRUE(waitFor([&] { return others.load() == 1; }));
 }
 
 TEST(ViewerServer, ControlMessagesAreCheckedAndBadOnesAnswered) {

@@ -14,6 +14,7 @@
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
+#include "core/threads.hpp"
 #include "app/commands.hpp"
 #include "analysis/probe_calibration.hpp"
 #include "analysis/recording.hpp"
@@ -335,7 +336,7 @@ void addSimulateCalibrationCommand(CLI::App& app, int& exitCode) {
       ->check(CLI::Range(0.0, 100.0));
   cmd->add_option("--tracker-noise-deg", o->s.trackerNoiseDeg, "Tracker noise, sd of each rotation (degrees)")
       ->check(CLI::Range(0.0, 45.0));
-  cmd->add_option("--threads", o->threads, "Threads (0 = every core)")->check(CLI::Range(0, 1024));
+  cmd->add_option("--threads", o->threads, "Threads (0 = every core)")->check(CLI::Range(0, kMaxThreads));
   cmd->callback([o, &exitCode] {
     const PlusConfig cfg = readPlusConfig(o->plusConfig);
     if (!cfg.calibrationError.empty()) throw InputError(cfg.calibrationError);
@@ -380,7 +381,7 @@ void addCalibrateCommand(CLI::App& app, int& exitCode) {
                   "Hold out every Nth block of frames from the fit to score it (0 = fit every frame)")
       ->check(CLI::Range(0, 1000));
   cmd->add_option("--holdout-block", o->holdoutBlock, "Frames per hold-out block")->check(CLI::Range(1, 100000));
-  cmd->add_option("--threads", o->threads, "Threads for the segmentation (0 = every core)")->check(CLI::Range(0, 1024));
+  cmd->add_option("--threads", o->threads, "Threads for the segmentation (0 = every core)")->check(CLI::Range(0, kMaxThreads));
   cmd->callback([o, &exitCode] { exitCode = runCalibrate(*o); });
 }
 

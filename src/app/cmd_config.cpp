@@ -3,6 +3,7 @@
 #include <memory>
 
 #include "app/commands.hpp"
+#include "app/run_setup.hpp"
 #include "app/settings.hpp"
 
 namespace pp5::app {
@@ -19,10 +20,13 @@ void addConfigCommand(CLI::App& app, int& exitCode) {
   cmd->add_option("CONFIG", opts->file, "TOML configuration to check and print");
   cmd->add_option("--set", opts->overrides, "Override an option: key=value (repeatable)");
   cmd->callback([opts, &exitCode] {
+    logToStderr();
     Settings s;
     ConfigSchema schema;
     registerAll(schema, s);
     loadSettings(schema, opts->file, opts->overrides);
+    // What `run` would refuse before it starts, `config` refuses too.
+    if (!opts->markdown) checkSettings(s);
     std::cout << (opts->markdown ? schema.markdown() : schema.toToml());
     exitCode = 0;
   });

@@ -9,6 +9,7 @@
 #include <nlohmann/json.hpp>
 #include <spdlog/spdlog.h>
 
+#include "core/threads.hpp"
 #include "reconstruction/kernels.hpp"
 #include "app/commands.hpp"
 #include "reconstruction/recon_run.hpp"
@@ -35,7 +36,7 @@ void addCommon(CLI::App* cmd, CommonOpts& o) {
       ->required();
   cmd->add_option("-c,--config", o.config, "TOML settings ([recon], [grid])");
   cmd->add_option("--set", o.overrides, "Override a TOML option: key=value (repeatable)");
-  cmd->add_option("--threads", o.threads, "Threads (0 = every core)")->check(CLI::Range(0, 1024));
+  cmd->add_option("--threads", o.threads, "Threads (0 = every core)")->check(CLI::Range(0, kMaxThreads));
   cmd->add_option("--json", o.json, "Also write the results as JSON to this file ('-' = standard output)");
 }
 

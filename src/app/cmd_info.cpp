@@ -32,7 +32,7 @@ const char* volumeFormatName(const std::string& path) {
 Json vec3(const Vec3& v) { return Json::array({v.x, v.y, v.z}); }
 
 Json describeVolume(const std::string& path) {
-  const VolumeHeader h = readVolumeHeader(path);
+  const VolumeHeader h = checkVolumeFile(path);
   Json j;
   j["file"] = path;
   j["kind"] = "volume";
@@ -93,6 +93,7 @@ Json describeSequence(const std::string& path) {
     openJournal(path, &c);
     j["journal"] = Json{{"sequence", c.sequencePath}, {"complete_frames", c.frames}, {"kept_bytes", c.keptBytes},
                         {"file_bytes", c.fileBytes}, {"cut", c.cut.empty() ? Json(nullptr) : Json(c.cut)},
+                        {"damaged", c.damaged}, {"damaged_bytes", c.damagedBytes},
                         {"restore", "pp5echo restore " + path}};
   }
   return j;
@@ -108,6 +109,7 @@ void addInfoCommand(CLI::App& app, int& exitCode) {
   cmd->add_option("FILE", *file, "Sequence or volume (.mha, .mhd, .nrrd), or a cut-off recording's .journal")
       ->required();
   cmd->callback([file, &exitCode] {
+    logToStderr();
     const bool sequence = probeImageFile(*file) == ImageFileKind::Sequence;
     const Json j = sequence ? describeSequence(*file) : describeVolume(*file);
     std::string text;

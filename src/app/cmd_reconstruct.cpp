@@ -5,6 +5,7 @@
 
 #include <spdlog/spdlog.h>
 
+#include "core/threads.hpp"
 #include "app/commands.hpp"
 #include "reconstruction/recon_run.hpp"
 #include "app/settings.hpp"
@@ -39,7 +40,7 @@ void addReconstructCommand(CLI::App& app, int& exitCode) {
                   "included: `-c` with it reconstructs the same volume (needs TOML settings: -c or --set)");
   cmd->add_option("--type", o->type, "Voxel type of the output volume")->check(CLI::IsMember({"uint8", "float32"}));
   cmd->add_option("--threads", o->threads, "Threads (0 = every core); overrides recon.threads")
-      ->check(CLI::Range(0, 1024));
+      ->check(CLI::Range(0, kMaxThreads));
   cmd->callback([o, &exitCode] {
     PosedSequence seq = openPosedSequence(o->sequence, o->plusConfig);
     gp::ReconSettings rs;

@@ -44,6 +44,13 @@ void addRestoreCommand(CLI::App& app, int& exitCode) {
     if (!c.cut.empty())
       std::printf("  left out the last %llu bytes, cut off or damaged (%s)\n",
                   static_cast<unsigned long long>(c.fileBytes - c.keptBytes), c.cut.c_str());
+    if (!c.damaged.empty()) {
+      std::printf("  left out %zu damaged record%s (%llu bytes); every whole frame after %s is kept:\n", c.damaged.size(),
+                  c.damaged.size() == 1 ? "" : "s", static_cast<unsigned long long>(c.damagedBytes),
+                  c.damaged.size() == 1 ? "it" : "them");
+      for (const std::string& d : c.damaged) std::printf("    %s\n", d.c_str());
+      std::printf("  the journal is kept: remove it yourself once the restored sequence is checked\n");
+    }
     if (r.leftoverTemporaries)
       std::printf("  removed %llu temporary file%s the cut-off writer left beside it\n",
                   static_cast<unsigned long long>(r.leftoverTemporaries), r.leftoverTemporaries == 1 ? "" : "s");

@@ -70,7 +70,8 @@ int runSerial(const RunOptions& o) {
   ConfigSchema schema;
   registerAll(schema, s);
   loadSettings(schema, o.file, o.overrides);
-  checkSettings(s);
+  checkSettings(s, !o.outDir.empty());
+  warnUnusedSettings(s, schema, true);
   const std::string dir = o.outDir.empty() ? s.output.dir : o.outDir;
   const bool writeSettings = checkSettingsFileTarget(o.overrides, o.file, dir);
   deriveRunKernel(s, schema);
@@ -116,15 +117,13 @@ int runDistributed(const RunOptions& o) {
     if (o.gps >= 0) overrides.push_back(fmt::format("parallel.gps={}", o.gps));
     if (o.pps >= 0) overrides.push_back(fmt::format("parallel.pps={}", o.pps));
     loadSettings(schema, o.file, overrides);
-    checkSettings(s);
+    checkSettings(s, !o.outDir.empty());
+    if (rank == 0) warnUnusedSettings(s, schema, false);
     if (o.expectRanks > 0 && size != o.expectRanks)
       throw InputError(fmt::format("--expect-ranks {}: the job has {} ranks (was it started by another MPI's "
                                    "launcher?)",
                                    o.expectRanks, size));
     layout = parallel::RankLayout::choose(size, s.parallel.gps, s.parallel.pps);
-    if (s.parallel.tileSize % 8 != 0)
-      throw InputError(fmt::format("parallel.tile_size = {}: use a multiple of 8", s.parallel.tileSize));
-    (void)parseScript(s);  // a bad run.script is refused here, before the output folder is touched
     writeSettings = checkSettingsFileTarget(overrides, o.file, o.outDir.empty() ? s.output.dir : o.outDir);
   } catch (const std::exception& e) {
     // Every rank reads the same configuration and fails the same way: one message.
@@ -206,6 +205,9 @@ int runCommand(const RunOptions& o) {
     if (o.verify) throw InputError("--verify compares the distributed pipeline with the serial one; run it under mpirun");
     if (o.expectRanks > 1)
       throw InputError(fmt::format("--expect-ranks {}: this process was not started by mpirun", o.expectRanks));
+    if (o.gps >= 0 || o.pps >= 0)
+      throw InputError(fmt::format("{}: lays out the ranks of a run under mpirun; this run is one process ({})",
+                                   o.gps >= 0 ? "--gps" : "--pps", o.serial ? "--serial" : "not started by mpirun"));
     return runSerial(o);
   }
   if (!o.census.empty()) throw InputError("--census counts the serial pipeline's work; add --serial");

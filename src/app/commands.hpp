@@ -21,6 +21,9 @@ void addBenchCommand(CLI::App& app, int& exitCode);
 void addCalibrateCommand(CLI::App& app, int& exitCode);
 void addSimulateCalibrationCommand(CLI::App& app, int& exitCode);
 void addBoardCommands(CLI::App& app, int& exitCode);
+// Sends the log to stderr from now on, for a command whose stdout is data
+// (`info`'s JSON, `config`'s TOML), so that a pipe gets the data alone.
+void logToStderr();
 // `pp5echo board-emulator ... -- COMMAND ARGS`: what follows the first `--`.
 std::vector<std::string>& trailingCommand();
 

@@ -1,14 +1,22 @@
 // pp5echo: incremental 3D ultrasound imaging on an emulated Pixel-Planes 5.
 #include <algorithm>
+#include <memory>
 #include <cstdio>
 #include <string>
 #include <vector>
 #include <exception>
 
+#include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
 
 #include "app/commands.hpp"
 #include "core/error.hpp"
+
+void pp5::app::logToStderr() {
+  auto log = std::make_shared<spdlog::logger>("pp5echo", std::make_shared<spdlog::sinks::stderr_color_sink_mt>());
+  log->set_level(spdlog::default_logger()->level());
+  spdlog::set_default_logger(std::move(log));
+}
 
 int main(int argc, char** argv) {
   CLI::App app{"pp5echo: incremental, interactive 3D ultrasound imaging (Pixel-Planes 5 on MPI)"};

@@ -7,9 +7,12 @@
 #include <filesystem>
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 #include <spdlog/spdlog.h>
 
+#include "app/sources.hpp"
 #include "reconstruction/recon_run.hpp"
+#include "rendering/shading.hpp"
 #include "analysis/speckle_run.hpp"
 #include "sim/sweep_cache.hpp"
 #include "core/error.hpp"
@@ -33,9 +36,19 @@ host::Preprocess preprocessOf(const Settings& s) {
 
 // Every rank reads the settings: what no stage could honour fails on all of
 // them alike, before any rank starts.
-void checkSettings(const Settings& s) {
+void checkSettings(const Settings& s, bool outputDirGiven) {
   host::checkViewSettings(s.view);
   gp::checkReconSettings(s.recon);
+  gp::checkShadeSettings(s.shading);
+  s.cache.validate();
+  if (s.parallel.tileSize % 8 != 0)
+    throw InputError(fmt::format("parallel.tile_size = {}: use a multiple of 8", s.parallel.tileSize));
+  (void)parseScript(s);
+  if (s.run.source == SourceKind::Board || !s.board.armXTable.empty() || !s.board.armYTable.empty() ||
+      !s.board.armThetaTable.empty())
+    (void)armCalibration(s);
+  if (s.output.dir.empty() && !outputDirGiven)
+    throw InputError("output.dir is empty: name the folder the run writes into (or give -o DIR)");
   // Not silently ignored: the pipeline takes every frame the acquisition gives it.
   if (s.recon.skipInterval > 1)
     throw InputError(fmt::format(
@@ -54,6 +67,30 @@ void checkSettings(const Settings& s) {
         "prints",
         s.run.source == SourceKind::Simulator ? std::string("run.simulate_live = true")
                                               : fmt::format("run.source = \"{}\"", enumName(s.run.source))));
+}
+
+void warnUnusedSettings(const Settings& s, const ConfigSchema& schema, bool oneProcess) {
+  // The settings only the distributed pipeline reads (parallel.threads and
+  // the compositing tick are the serial pipeline's too).
+  static const char* const kRanksOnly[] = {"parallel.gps",         "parallel.pps",        "parallel.gp_partition",
+                                           "parallel.slab_split",  "parallel.ghost_voxels", "parallel.tile_size",
+                                           "parallel.tile_owner",  "parallel.credits",    "parallel.batch_frames",
+                                           "parallel.timeout_s"};
+  std::vector<std::string> unused;
+  if (oneProcess)
+    for (const char* k : kRanksOnly)
+      if (schema.assigned(k)) unused.emplace_back(k);
+  if (!unused.empty())
+    spdlog::warn("run: {} lay{} out the ranks of a run under mpirun; this one-process run does not use {}",
+                 fmt::join(unused, ", "), unused.size() == 1 ? "s" : "", unused.size() == 1 ? "it" : "them");
+  unused.clear();
+  if (s.run.source != SourceKind::Board)
+    for (const std::string& k : schema.assignedKeys())
+      if (k.rfind("board.", 0) == 0) unused.push_back(k);
+  if (!unused.empty())
+    spdlog::warn("run: {} belong{} to run.source = \"board\"; this run's source is \"{}\" and does not use {}",
+                 fmt::join(unused, ", "), unused.size() == 1 ? "s" : "", enumName(s.run.source),
+                 unused.size() == 1 ? "it" : "them");
 }
 
 // recon.kernel_from_frames: the kernel from the recording (run.source =

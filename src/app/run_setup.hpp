@@ -14,8 +14,14 @@ namespace pp5::app {
 
 // run.crop_* and run.subsample (InputError for a crop with one side only).
 host::Preprocess preprocessOf(const Settings& s);
-// What no stage could honour fails on every rank alike, before any starts.
-void checkSettings(const Settings& s);
+// What no stage could honour fails on every rank alike, before any starts
+// (and `pp5echo config` refuses the same): the view, the reconstruction, the
+// shading, the ray cache, parallel.tile_size, run.script, the board's arm
+// tables, an empty output.dir (unless `-o` names the folder).
+void checkSettings(const Settings& s, bool outputDirGiven = false);
+// Says once (a warning) which assigned settings this run does not use: the
+// ranks' layout in a one-process run, the board's in a run of another source.
+void warnUnusedSettings(const Settings& s, const ConfigSchema& schema, bool oneProcess);
 // recon.kernel_from_frames: the kernel from the recording (run.source =
 // "sequence") or the simulator's cached sweep, over the frames the capture
 // takes; printed. Where the source is read only (rank 0 under mpirun).

@@ -3,6 +3,7 @@
 #include <filesystem>
 
 #include "core/error.hpp"
+#include "outputs/outputs.hpp"
 #include "sim/simulate.hpp"
 
 namespace pp5::app {
@@ -141,11 +142,7 @@ sim::SweepGrid sweepGridOf(const Settings& s) {
 
 Grid sweepGrid(const Settings& s, const sim::SweepSimulator& sim) { return sweepGridOf(s)(sim); }
 
-void makeOutputDir(const std::string& dir) {
-  std::error_code ec;
-  std::filesystem::create_directories(dir, ec);
-  if (ec || !std::filesystem::is_directory(dir)) throw InputError(dir + ": cannot create the output folder");
-}
+void makeOutputDir(const std::string& dir) { host::createOutputFolder(dir); }
 
 void loadSettings(ConfigSchema& schema, const std::string& file, const std::vector<std::string>& overrides) {
   schema.applyDefaults();

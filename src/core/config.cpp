@@ -2,8 +2,10 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <map>
 #include <sstream>
+#include <string_view>
 
 #include <fmt/format.h>
 #include <toml++/toml.h>
@@ -388,7 +390,35 @@ void ConfigSchema::loadFile(const std::string& path) const {
   Loader{entries_, path, assigned_}.walk(tbl, "");
 }
 
+namespace {
+// Whether `s` is well-formed UTF-8 (no overlong forms, surrogates or values
+// past U+10FFFF).
+bool isUtf8(std::string_view s) {
+  std::size_t i = 0;
+  while (i < s.size()) {
+    const auto c = static_cast<unsigned char>(s[i]);
+    const int n = c < 0x80 ? 0 : (c >> 5) == 0x6 ? 1 : (c >> 4) == 0xE ? 2 : (c >> 3) == 0x1E ? 3 : -1;
+    if (n < 0 || s.size() - i <= static_cast<std::size_t>(n)) return false;  // (n = 0: never)
+    std::uint32_t cp = n == 0 ? c : c & (0x3F >> n);
+    for (int k = 1; k <= n; ++k) {
+      const auto d = static_cast<unsigned char>(s[i + static_cast<std::size_t>(k)]);
+      if ((d >> 6) != 0x2) return false;
+      cp = (cp << 6) | (d & 0x3F);
+    }
+    static constexpr std::uint32_t kMin[4] = {0, 0x80, 0x800, 0x10000};
+    if (cp < kMin[n] || cp > 0x10FFFF || (cp >= 0xD800 && cp <= 0xDFFF)) return false;
+    i += static_cast<std::size_t>(n) + 1;
+  }
+  return true;
+}
+}  // namespace
+
 void ConfigSchema::set(const std::string& assignment) const {
+  // TOML is UTF-8: other bytes would be re-encoded or dropped (a folder name
+  // in Latin-1 became another folder).
+  if (!isUtf8(assignment))
+    throw InputError(fmt::format("--set '{}': holds bytes that are not UTF-8 (settings are UTF-8 text)",
+                                 assignment.substr(0, assignment.find('='))));
   const auto eq = assignment.find('=');
   if (eq == std::string::npos || eq == 0)
     throw InputError(fmt::format("--set '{}': expected key=value", assignment));

@@ -70,6 +70,7 @@ public:
   // Whether a file or an override assigned `key` since the last applyDefaults
   // (a value derived at run time must not replace one the user gave).
   bool assigned(const std::string& key) const { return assigned_.count(key) != 0; }
+  const std::set<std::string>& assignedKeys() const { return assigned_; }
   // Parses a TOML file over the current values. Unknown keys, wrong types and
   // out-of-range values throw InputError naming the file, the key and the line.
   void loadFile(const std::string& path) const;

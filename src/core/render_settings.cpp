@@ -1,4 +1,5 @@
 #include "core/render_settings.hpp"
+#include "core/threads.hpp"
 
 #include "core/enum_names.hpp"
 
@@ -39,7 +40,7 @@ void registerOptions(ConfigSchema& c, RenderSettings& s) {
             "composite grey values, not the transfer function's colours, shown through render.value_window.");
   c.option("render.value_window", &s.valueWindow, {0.0, 255.0}, 0.0, 1e6,
            "MIP and additive: the grey levels shown as black and as white ([0, 255]: the grey value itself).");
-  c.option("render.threads", &s.threads, 0, 0, 1024,
+  c.option("render.threads", &s.threads, 0, 0, kMaxThreads,
            "Threads for shading, sampling and compositing; 0 = every core. Under mpirun, parallel.threads replaces it.");
 }
 

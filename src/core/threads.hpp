@@ -4,6 +4,10 @@
 // for any count.
 namespace pp5 {
 
+// The most threads any setting or option may ask for (more is a typo: each
+// thread costs its scratch memory and its start).
+inline constexpr int kMaxThreads = 1024;
+
 int resolveThreads(int requested);
 
 }  // namespace pp5

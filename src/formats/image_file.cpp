@@ -81,6 +81,14 @@ void checkHeaderText(const std::string& path, std::string_view key, std::string_
                excerpt(value));
 }
 
+std::optional<std::string> detachedDataPath(const std::string& headerPath, std::string_view name) {
+  const std::filesystem::path p(std::string{name});
+  if (p.empty() || p.is_absolute() || p.has_root_name() || p.has_root_directory()) return std::nullopt;
+  for (const auto& part : p)
+    if (part == "..") return std::nullopt;
+  return (std::filesystem::path(headerPath).parent_path() / p).string();
+}
+
 // ---------------------------------------------------------------- DataReader
 
 DataReader::DataReader(const ImageHeader& h, std::uint64_t pieceBytes, std::uint64_t pieceCount, std::string pieceName)

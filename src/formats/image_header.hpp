@@ -5,6 +5,7 @@
 #include <cstdint>
 #include <optional>
 #include <string>
+#include <string_view>
 #include <utility>
 #include <vector>
 
@@ -78,6 +79,14 @@ void checkHeaderText(const std::string& path, std::string_view key, std::string_
 
 // Bytes of one element times channels times all dims, or nullopt on overflow.
 std::optional<std::uint64_t> dataBytes(const ImageHeader& h);
+
+// The path of a header's detached data file (MetaIO's ElementDataFile, NRRD's
+// data file) named `name`: a file in the header's folder or below it. None
+// when the name is absolute or climbs out with "..": a header must not make
+// pp5echo read files it does not name as its own (a server reads headers that
+// others send). In image_file.cpp.
+std::optional<std::string> detachedDataPath(const std::string& headerPath, std::string_view name);
+
 // "820x616x21" for messages.
 std::string dimsText(const std::vector<std::int64_t>& dims);
 

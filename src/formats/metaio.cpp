@@ -164,8 +164,9 @@ private:
     }
     if (value.empty() || value == "LIST" || value.find('%') != std::string_view::npos)
       fail("ElementDataFile {} is not supported (use LOCAL or a single file name)", excerpt(value));
-    const std::filesystem::path p(std::string{value});
-    h_.dataPath = p.is_absolute() ? p.string() : (std::filesystem::path(h_.path).parent_path() / p).string();
+    const auto path = detachedDataPath(h_.path, value);
+    if (!path) fail("ElementDataFile {} lies outside the header's folder (only a file beside the header or below it is read)", excerpt(value));
+    h_.dataPath = *path;
     h_.dataOffset = 0;
   }
 

@@ -206,8 +206,9 @@ private:
   void dataFile(std::string_view value) {
     if (value.empty() || startsWith(value, "LIST") || splitWords(value).size() > 1)
       fail("data file {} is not supported (a single file name only)", excerpt(value));
-    const std::filesystem::path p(std::string{value});
-    h_.dataPath = p.is_absolute() ? p.string() : (std::filesystem::path(h_.path).parent_path() / p).string();
+    const auto path = detachedDataPath(h_.path, value);
+    if (!path) fail("data file {} lies outside the header's folder (only a file beside the header or below it is read)", excerpt(value));
+    h_.dataPath = *path;
     h_.dataOffset = 0;
   }
 

@@ -1,5 +1,6 @@
 #include "formats/plus_config.hpp"
 #include "formats/plus_xml.hpp"
+#include "core/threads.hpp"
 
 #include <algorithm>
 #include <cctype>
@@ -164,7 +165,11 @@ PlusVolumeReconstruction readVolumeReconstruction(const XmlFile& f, pugi::xml_no
 
   // PLUS reads the deprecated spelling first, so the current one wins when both are given.
   for (const char* attr : {"FanAngles", "FanAnglesDeg"})
-    if (auto v = e.doubles<2>(attr)) r.fanAnglesDeg = glm::dvec2((*v)[0], (*v)[1]);
+    if (auto v = e.doubles<2>(attr)) {
+      if (std::abs((*v)[0]) > 180.0 || std::abs((*v)[1]) > 180.0)
+        e.fail("{} '{} {}' must lie in -180 .. 180 degrees", attr, (*v)[0], (*v)[1]);
+      r.fanAnglesDeg = glm::dvec2((*v)[0], (*v)[1]);
+    }
   for (const char* attr : {"FanOrigin", "FanOriginPixel"})
     if (auto v = e.doubles<2>(attr)) r.fanOriginPixel = glm::dvec2((*v)[0], (*v)[1]);
   if (auto v = e.real("FanRadiusStartPixel")) {
@@ -176,6 +181,10 @@ PlusVolumeReconstruction readVolumeReconstruction(const XmlFile& f, pugi::xml_no
       if (*v < 0.0) e.fail("{} '{}' must not be negative", attr, *v);
       r.fanRadiusStopPixel = *v;
     }
+  // (PLUS's defaults: start 0, stop 500.)
+  if (r.fanRadiusStartPixel.value_or(0.0) > r.fanRadiusStopPixel.value_or(500.0))
+    e.fail("FanRadiusStartPixel '{}' lies beyond the fan's stop radius '{}': no pixel would be kept",
+           r.fanRadiusStartPixel.value_or(0.0), r.fanRadiusStopPixel.value_or(500.0));
   if (auto v = e.real("FanAnglesAutoDetectBrightnessThreshold")) r.fanAnglesAutoDetectBrightnessThreshold = *v;
   if (auto v = e.integer("FanAnglesAutoDetectFilterRadiusPixel")) {
     if (*v < 1) e.fail("FanAnglesAutoDetectFilterRadiusPixel '{}' must be at least 1", *v);
@@ -228,7 +237,8 @@ PlusVolumeReconstruction readVolumeReconstruction(const XmlFile& f, pugi::xml_no
   else r.compounding = PlusCompounding::Mean;
 
   if (auto v = e.integer("NumberOfThreads")) {
-    if (*v < 0) e.fail("NumberOfThreads '{}' must not be negative (0 means automatic)", *v);
+    if (*v < 0 || *v > kMaxThreads)
+      e.fail("NumberOfThreads '{}' must be in 0 .. {} (0 means automatic)", *v, kMaxThreads);
     r.numberOfThreads = *v;
   }
   if (auto v = e.name("ImportanceMaskFilename")) r.importanceMaskFile = *v;
@@ -321,9 +331,14 @@ PlusConfig readPlusConfig(const std::string& path) {
 
   // The element sits at the top level in reconstruction-only configs and inside
   // DataCollection/Device (a VirtualVolumeReconstructor) in server configs.
-  const pugi::xml_node vr =
-      root.find_node([](const pugi::xml_node& n) { return std::strcmp(n.name(), "VolumeReconstruction") == 0; });
-  if (vr) cfg.volumeReconstruction = readVolumeReconstruction(f, vr);
+  // One of them: a second would be ignored without a word.
+  std::vector<pugi::xml_node> vrs;
+  for (const pugi::xpath_node& x : root.select_nodes("//VolumeReconstruction")) vrs.push_back(x.node());
+  if (vrs.size() > 1)
+    failAt(f, vrs[1], "a second VolumeReconstruction element (the first is on line {}); pp5echo reconstructs with one: "
+                      "keep the one to use",
+           f.lineOf(vrs[0]));
+  if (!vrs.empty()) cfg.volumeReconstruction = readVolumeReconstruction(f, vrs[0]);
 
   // The calibration's elements are read here but only a calibration needs
   // them: a problem in them is kept for `calibrate` to report, and does not

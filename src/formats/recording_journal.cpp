@@ -10,6 +10,7 @@
 #include <chrono>
 #include <cstring>
 #include <filesystem>
+#include <optional>
 
 #include "core/error.hpp"
 #include "formats/image_file.hpp"
@@ -300,48 +301,104 @@ private:
     c_.keptBytes = at < 0 ? 0 : static_cast<std::uint64_t>(at);
   }
 
+  // Every record that reads whole, in order. A damaged one (or several in a
+  // row) costs only itself: the scan resumes at the next record that reads
+  // whole (its magic, a length inside the file and a matching checksum). A
+  // record that nothing whole follows is where the journal was cut off.
   void scanRecords() {
     std::vector<std::uint8_t> body;
     std::uint64_t at = c_.keptBytes;
     for (std::uint64_t n = 0;; ++n) {
-      std::uint8_t prelude[kPreludeBytes];
-      const std::size_t got = std::fread(prelude, 1, kPreludeBytes, file_.get());
-      if (got == 0) return;  // the end of the last complete record
-      auto stop = [&](std::string why) { c_.cut = fmt::format("frame {}: {}", n, why); };
-      if (got < kPreludeBytes) {
-        c_.truncated = true;
-        return stop("the record is cut off in its first bytes");
-      }
-      if (std::memcmp(prelude, kMagic, 4) != 0) return stop("the record does not start as one (damaged)");
-      Unpacker u(prelude + 4, kPreludeBytes - 4);
-      const auto crc = static_cast<std::uint32_t>(u.u(4));
-      const std::uint64_t bytes = u.u(8);
-      if (bytes > kMaxBodyBytes) return stop(fmt::format("the record claims {} bytes (damaged)", bytes));
-      // Checked against the file before anything is allocated (a damaged
-      // length must not cost a gigabyte; found by fuzz_journal).
-      const std::uint64_t available = c_.fileBytes - std::min(c_.fileBytes, at + kPreludeBytes);
-      if (bytes > available) {
-        c_.truncated = true;
-        return stop(fmt::format("the record is cut off ({} of its {} bytes)", available, bytes));
-      }
-      body.resize(static_cast<std::size_t>(bytes));
-      if (std::fread(body.data(), 1, body.size(), file_.get()) != body.size())
-        return stop("the record could not be read (the file shrank while it was read?)");
-      if (crcOf(body.data(), body.size()) != crc) return stop("the record fails its checksum (damaged)");
-      Frame m;
       std::string why;
-      const auto pixels = unpackFrameMeta(body.data(), body.size(), m, why);
-      if (!pixels) return stop(why);
-      if (!meta_.empty() && (m.width != meta_.front().width || m.height != meta_.front().height ||
-                             m.pixelType != meta_.front().pixelType))
-        return stop(fmt::format("{}x{} differs from the first frame's {}x{}", m.width, m.height, meta_.front().width,
-                                meta_.front().height));
+      bool cutOff = false;
+      const auto end = readRecord(at, body, why, cutOff);
+      if (end == at) return;  // the end of the file, after a whole record
+      if (end) {
+        at = *end;
+        continue;
+      }
+      const auto resume = nextWholeRecord(at + 1);
+      if (!resume) {
+        c_.cut = fmt::format("frame {}: {}", n, why);
+        c_.truncated = cutOff;
+        return;
+      }
+      c_.damaged.push_back(fmt::format("frame {} (bytes {} to {}): {}", n, at, *resume, why));
+      c_.damagedBytes += *resume - at;
+      at = *resume;
+      // The frames after it are whole; `n` counts the lost one as one frame.
+    }
+  }
+
+  // The record at byte `at`, checked whole: its end (`at` itself at the end
+  // of the file), or none with `why` (and `cutOff` when the file ends inside
+  // it). A whole record is kept unless `keep` is false.
+  std::optional<std::uint64_t> readRecord(std::uint64_t at, std::vector<std::uint8_t>& body,
+                                          std::string& why, bool& cutOff, bool keep = true) {
+    if (std::fseek(file_.get(), static_cast<long>(at), SEEK_SET) != 0) {
+      why = "cannot seek in the file";
+      return std::nullopt;
+    }
+    std::uint8_t prelude[kPreludeBytes];
+    const std::size_t got = std::fread(prelude, 1, kPreludeBytes, file_.get());
+    if (got == 0) return at;
+    auto stop = [&](std::string text, bool cut = false) -> std::optional<std::uint64_t> {
+      why = std::move(text);
+      cutOff = cut;
+      return std::nullopt;
+    };
+    if (got < kPreludeBytes) return stop("the record is cut off in its first bytes", true);
+    if (std::memcmp(prelude, kMagic, 4) != 0) return stop("the record does not start as one (damaged)");
+    Unpacker u(prelude + 4, kPreludeBytes - 4);
+    const auto crc = static_cast<std::uint32_t>(u.u(4));
+    const std::uint64_t bytes = u.u(8);
+    if (bytes > kMaxBodyBytes) return stop(fmt::format("the record claims {} bytes (damaged)", bytes));
+    // Checked against the file before anything is allocated (a damaged
+    // length must not cost a gigabyte; found by fuzz_journal).
+    const std::uint64_t available = c_.fileBytes - std::min(c_.fileBytes, at + kPreludeBytes);
+    if (bytes > available) return stop(fmt::format("the record is cut off ({} of its {} bytes)", available, bytes), true);
+    body.resize(static_cast<std::size_t>(bytes));
+    if (std::fread(body.data(), 1, body.size(), file_.get()) != body.size())
+      return stop("the record could not be read (the file shrank while it was read?)");
+    if (crcOf(body.data(), body.size()) != crc) return stop("the record fails its checksum (damaged)");
+    Frame m;
+    const auto pixels = unpackFrameMeta(body.data(), body.size(), m, why);
+    if (!pixels) return std::nullopt;
+    if (!meta_.empty() && (m.width != meta_.front().width || m.height != meta_.front().height ||
+                           m.pixelType != meta_.front().pixelType))
+      return stop(fmt::format("{}x{} differs from the first frame's {}x{}", m.width, m.height, meta_.front().width,
+                              meta_.front().height));
+    const std::uint64_t end = at + kPreludeBytes + bytes;
+    if (keep) {
       meta_.push_back(std::move(m));
       pixelsAt_.push_back(at + kPreludeBytes + *pixels);
-      at += kPreludeBytes + bytes;
       c_.frames = meta_.size();
-      c_.keptBytes = at;
+      c_.keptBytes = end;
     }
+    return end;
+  }
+
+  // The first byte from `from` on where a whole record starts, or none.
+  std::optional<std::uint64_t> nextWholeRecord(std::uint64_t from) {
+    constexpr std::size_t kChunk = std::size_t{1} << 20;
+    std::vector<std::uint8_t> chunk(kChunk + 3), body;
+    for (std::uint64_t base = from; base + 4 <= c_.fileBytes; base += kChunk) {
+      const auto n = static_cast<std::size_t>(std::min<std::uint64_t>(kChunk + 3, c_.fileBytes - base));
+      if (std::fseek(file_.get(), static_cast<long>(base), SEEK_SET) != 0 ||
+          std::fread(chunk.data(), 1, n, file_.get()) != n)
+        return std::nullopt;
+      for (std::size_t i = 0; i + 4 <= n && i < kChunk; ++i) {
+        const void* hit = std::memchr(chunk.data() + i, kMagic[0], std::min(n - 3, kChunk) - i);
+        if (!hit) break;
+        i = static_cast<std::size_t>(static_cast<const std::uint8_t*>(hit) - chunk.data());
+        if (std::memcmp(chunk.data() + i, kMagic, 4) != 0) continue;
+        std::string why;
+        bool cutOff = false;
+        const std::uint64_t at = base + i;
+        if (const auto end = readRecord(at, body, why, cutOff, false); end && *end != at) return at;
+      }
+    }
+    return std::nullopt;
   }
 
   io::FilePtr file_;
@@ -471,6 +528,9 @@ RestoreResult restoreJournal(const std::string& journalPath, std::string outPath
   writer->close();
   reader.reset();
   if (!toItsSequence) return res;
+  // Damaged records were left out: the journal stays, for the user to look
+  // at (or to try again) before removing it.
+  if (!c.damaged.empty()) return res;
   // The sequence is whole again (its name on disk: AtomicFile synced the
   // folder): the journal and what the killed writer left half-written beside
   // it (its temporaries, never under a final name) go.

@@ -67,6 +67,10 @@ struct JournalContents {
   std::uint64_t fileBytes = 0;
   std::string cut;  // why reading stopped before the end of the file ("" = it did not)
   bool truncated = false;  // ... because the file ended inside a record (not damage)
+  // Damaged records with whole ones after them, each left out alone ("frame N
+  // (bytes A to B): why"), and their bytes.
+  std::vector<std::string> damaged;
+  std::uint64_t damagedBytes = 0;
 };
 
 // Opens a journal as a sequence of its complete frames (SequenceReader::open
@@ -75,8 +79,9 @@ std::unique_ptr<SequenceReader> openJournal(const std::string& path, JournalCont
 
 // Writes the journal's complete frames to `outPath` (default: the sequence it
 // belongs to, which must not exist) as a PLUS sequence with the options the
-// recording had, then removes the journal when `outPath` is that sequence,
-// along with the temporary files the cut-off writer left beside it. A journal
+// recording had, then removes the journal when `outPath` is that sequence and
+// no record was damaged (a damaged record costs itself only, and the journal
+// is kept), along with the temporary files the cut-off writer left beside it. A journal
 // cut off inside its first record is only removed (outPath comes back empty);
 // one whose first record is damaged is an InputError and is kept.
 // `progress(done, total)` is called as frames are written.

@@ -1,6 +1,8 @@
 #include "formats/volume_io.hpp"
 
 #include <algorithm>
+#include <limits>
+#include <memory>
 #include <bit>
 #include <cmath>
 #include <cstring>
@@ -117,20 +119,38 @@ void swapElements(std::vector<std::uint8_t>& bytes, std::size_t elementSize) {
 
 VolumeHeader readVolumeHeader(const std::string& path) { return volumeHeaderFrom(io::readImageHeader(path)); }
 
+namespace {
+// The volume's data, opened after its size is checked against the file, and
+// its geometry checked (positive, finite spacing; a finite origin; no empty
+// axis); with `memoryLimit` (0: the machine's) for the grid's bytes.
+std::unique_ptr<io::DataReader> openVolumeData(const io::ImageHeader& h, const VolumeHeader& vh,
+                                               std::uint64_t memoryLimit) {
+  const auto total = io::dataBytes(h);
+  if (!total) inputError(h.path, "the volume's size {} is too large", io::dimsText(h.dims));
+  auto data = std::make_unique<io::DataReader>(h, *total, 1, "volume");
+  checkGridFits(vh.grid, static_cast<std::uint64_t>(scalarBytes(vh.type) * vh.channels), h.path, memoryLimit);
+  return data;
+}
+}  // namespace
+
+VolumeHeader checkVolumeFile(const std::string& path) {
+  const io::ImageHeader h = io::readImageHeader(path);
+  const VolumeHeader vh = volumeHeaderFrom(h);
+  (void)openVolumeData(h, vh, std::numeric_limits<std::uint64_t>::max());
+  return vh;
+}
+
 Volume readVolume(const std::string& path) {
   const io::ImageHeader h = io::readImageHeader(path);
   const VolumeHeader vh = volumeHeaderFrom(h);
   if (vh.channels != 1) inputError(path, "{} channels per voxel: multi-channel volumes are not supported", vh.channels);
   const auto elementSize = static_cast<std::uint64_t>(scalarBytes(vh.type));
   // Sizes are checked against the data before anything large is allocated.
-  const auto total = io::dataBytes(h);
-  if (!total) inputError(path, "the volume's size {} is too large", io::dimsText(h.dims));
-  io::DataReader data(h, *total, 1, "volume");
-  checkGridFits(vh.grid, elementSize, path);
+  const std::unique_ptr<io::DataReader> data = openVolumeData(h, vh, 0);
   Volume v;
   v.allocate(vh.grid, vh.type);
-  data.read(v.bytes.data(), 0);
-  data.expectEnd();
+  data->read(v.bytes.data(), 0);
+  data->expectEnd();
   if (h.bigEndian && elementSize > 1) swapElements(v.bytes, elementSize);
   return v;
 }

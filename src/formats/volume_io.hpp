@@ -34,8 +34,12 @@ struct VolumeHeader {
   bool compressed = false;
 };
 
-// Header only (used by `pp5echo info` for volumes of any size).
+// Header only.
 VolumeHeader readVolumeHeader(const std::string& path);
+// The header, checked as readVolume checks a volume before it reads it (the
+// geometry, the data's size against the file), without reading the data or
+// asking for its memory: `pp5echo info` for volumes of any size.
+VolumeHeader checkVolumeFile(const std::string& path);
 Volume readVolume(const std::string& path);
 void writeVolume(const std::string& path, const Volume& v, bool compress = true);
 

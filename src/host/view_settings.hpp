@@ -30,9 +30,6 @@ struct ViewSettings {
   int dragPixelStride = 2;     // and a ray for every n-th pixel along x and y (the finest a drag uses)
   double dragRateHz = 15.0;    // a drag's stride coarsens until its views come this often (0: fixed)
   std::string webRoot;       // the page's folder; "" = the one built in
-  // Control messages accepted per second, more are answered with an error (not
-  // a TOML option: the fuzz target of tests/fuzz raises it).
-  int maxControlPerSecond = 240;
 };
 void registerOptions(ConfigSchema& schema, ViewSettings& s);
 // InputError for settings that cannot work together: view.serve without

@@ -124,7 +124,6 @@ struct LiveView::Impl {
   SliceLook sliceLook;
   bool coverageMap = true;
   bool slicesDirty = false;
-  std::deque<Clock::time_point> recent;  // control messages in the last second (rate bound)
 
   // Per epoch: the camera, the view message it answers, whether it is a drag's image.
   struct EpochView {

@@ -25,11 +25,17 @@ bool isRunOutput(const std::string& n) {
   return ext("final_", ".png") || ext("mpr_", ".png");
 }
 
-RunFolder::RunFolder(const std::string& dir) : dir_(dir) {
+void createOutputFolder(const std::string& dir) {
+  if (dir.empty()) throw InputError("the output folder is empty: set output.dir or give -o DIR");
   std::error_code ec;
   fs::create_directories(dir, ec);
   if (ec || !fs::is_directory(dir))
     inputError(dir, "cannot create the output folder{}", ec ? " (" + ec.message() + ")" : std::string());
+}
+
+RunFolder::RunFolder(const std::string& dir) : dir_(dir) {
+  createOutputFolder(dir);
+  std::error_code ec;
   // The marker goes first: written, it also shows that the folder takes files.
   markedBefore_ = fs::exists(fs::path(dir) / kIncompleteMarker, ec);  // an earlier run was cut off
   try {

@@ -24,6 +24,10 @@ private:
   std::string path_;
 };
 
+// Creates an output folder and its parents; InputError naming it when it
+// cannot be (and when the name is empty).
+void createOutputFolder(const std::string& dir);
+
 // The folder a run writes its outputs to, from the start of the run to its
 // end. Opening it creates it and marks it unfinished with kIncompleteMarker,
 // which also shows that it takes files (a read-only folder fails here, before

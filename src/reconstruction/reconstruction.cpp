@@ -1,4 +1,5 @@
 #include "reconstruction/reconstruction.hpp"
+#include "core/threads.hpp"
 #include "reconstruction/kernels.hpp"
 
 #include <algorithm>
@@ -24,7 +25,7 @@ void registerOptions(ConfigSchema& schema, ReconSettings& s) {
                 "`float`: exact weighted means in float accumulators; `plus`: PLUS's 14-bit fixed point, "
                 "truncating 8-bit running mean and 16-bit accumulator, to reproduce PLUS bit for bit (nearest and "
                 "trilinear only; the tent method refuses it).");
-  schema.option("recon.threads", &s.threads, 0, 0, 1024,
+  schema.option("recon.threads", &s.threads, 0, 0, kMaxThreads,
                 "Threads; 0 = every core. The result does not depend on it. Under mpirun, parallel.threads replaces it.");
   schema.option("recon.skip_interval", &s.skipInterval, 1, 1, 100000,
                 "Insert every n-th frame (PLUS's SkipInterval; `reconstruct` and `evaluate truth`: `run` refuses a "

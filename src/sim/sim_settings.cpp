@@ -1,4 +1,5 @@
 #include "sim/sim_settings.hpp"
+#include "core/threads.hpp"
 
 #include <limits>
 
@@ -113,7 +114,7 @@ void registerOptions(ConfigSchema& c, SimSettings& s) {
            "muscle with fascia, radius and ulna; `wires`: an N-wire calibration phantom with spheres of known size.");
   enumOption(c, "sim.truth_type", &s.truthType, TruthType::Float32,
            "Voxel type of the ground-truth echogenicity volume.");
-  c.option("sim.threads", &s.threads, 0, 0, 1024,
+  c.option("sim.threads", &s.threads, 0, 0, kMaxThreads,
            "Threads simulating frames in parallel; 0 = every core. The frames do not depend on it.");
   registerProbe(c, s.probe);
   registerBMode(c, s.bmode);

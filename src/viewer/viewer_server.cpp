@@ -67,6 +67,23 @@ bool isLoopback(const std::string& address) {
   return !ec && a.is_loopback();
 }
 
+bool isOwnHost(const std::string& hostHeader, const std::string& boundAddress) {
+  std::string name = hostHeader;
+  if (!name.empty() && name.front() == '[') {  // [v6]:port
+    const auto close = name.find(']');
+    if (close == std::string::npos) return false;
+    const std::string rest = name.substr(close + 1);
+    if (!rest.empty() && rest.front() != ':') return false;
+    name = name.substr(1, close - 1);
+  } else if (const auto colon = name.find(':'); colon != std::string::npos) {
+    name = name.substr(0, colon);
+  }
+  if (name.empty()) return false;
+  std::string lower;
+  for (const char c : name) lower += static_cast<char>(c >= 'A' && c <= 'Z' ? c - 'A' + 'a' : c);
+  return lower == "localhost" || lower == "127.0.0.1" || lower == "::1" || lower == boundAddress;
+}
+
 // The handlers hold a plain pointer to the Impl: it outlives the io thread
 // (~Server joins it first), and the io_context, declared after everything the
 // sessions touch, destroys the handlers (and with them the sessions) first.
@@ -120,6 +137,16 @@ struct Server::Impl {
     std::map<int, std::shared_ptr<const std::string>> latest_;  // newest unsent message per channel
     std::deque<std::string> replies_;
     std::shared_ptr<const std::string> current_;
+    std::deque<std::chrono::steady_clock::time_point> recent_;  // this client's messages in the last second
+
+    // Whether this client may send one more message now (its own budget).
+    bool withinRate() {
+      const auto now = std::chrono::steady_clock::now();
+      while (!recent_.empty() && now - recent_.front() > std::chrono::seconds(1)) recent_.pop_front();
+      if (recent_.size() >= static_cast<std::size_t>(server_.options.maxMessagesPerSecond)) return false;
+      recent_.push_back(now);
+      return true;
+    }
 
     void read() {
       ws_.async_read(in_, [self = shared_from_this()](beast::error_code ec, std::size_t) {
@@ -127,7 +154,9 @@ struct Server::Impl {
         const std::string text = beast::buffers_to_string(self->in_.data());
         self->in_.consume(self->in_.size());
         std::string error;
-        {
+        if (!self->withinRate()) {
+          error = fmt::format("too many control messages: at most {} a second", self->server_.options.maxMessagesPerSecond);
+        } else {
           const std::lock_guard lock(self->server_.handlerMutex);
           error = self->server_.handler ? self->server_.handler(text) : std::string("no control is accepted");
         }
@@ -208,13 +237,18 @@ struct Server::Impl {
       const std::string target(req_.target());
       if (!server_.options.token.empty() && queryValue(target, "token") != server_.options.token)
         return reply(http::status::forbidden, "a token is needed\n", "text/plain");
+      // Without a token, only a page that names this machine may talk to it:
+      // one served from a name that rebinds to 127.0.0.1 sends its own name.
+      const std::string host(req_[http::field::host]);
+      if (server_.options.token.empty() && !isOwnHost(host, server_.options.address))
+        return reply(http::status::forbidden, "wrong host: open the viewer as http://127.0.0.1 or http://localhost\n",
+                     "text/plain");
+      // A browser names the page behind a WebSocket or a cross-origin
+      // request; only this server's own pages may.
+      const std::string origin(req_[http::field::origin]);
+      if (!origin.empty() && origin != "http://" + host)
+        return reply(http::status::forbidden, "wrong origin\n", "text/plain");
       if (websocket::is_upgrade(req_)) {
-        // A browser always names the page that opens a WebSocket; only this
-        // server's own pages may.
-        const std::string origin(req_[http::field::origin]);
-        const std::string host(req_[http::field::host]);
-        if (!origin.empty() && origin != "http://" + host)
-          return reply(http::status::forbidden, "wrong origin\n", "text/plain");
         std::make_shared<WsSession>(server_, stream_.release_socket())->start(std::move(req_));
         return;
       }

@@ -52,7 +52,6 @@ pp5::host::LiveView& viewer() {
     const auto initial = pp5::parallel::makeControlState(render, pp5::gp::ShadeSettings{}, tf);
     pp5::host::ViewSettings vs;
     vs.listen = "127.0.0.1:0";
-    vs.maxControlPerSecond = 1 << 30;
     const auto dir = std::filesystem::temp_directory_path() / ("pp5fuzz-control-" + std::to_string(getpid()));
     std::filesystem::create_directories(dir);
     return std::make_unique<pp5::host::LiveView>(vs, g, render, pp5::gp::ReconSettings{}, tf, initial, dir.string());
