@@ -115,6 +115,12 @@ TEST(CalibrationPlus, OutputsCheckedBeforeAnyWork) {
     EXPECT_EQ(r.out.find("segmenting"), std::string::npos) << "worked before refusing: " << r.out;
     EXPECT_FALSE(std::filesystem::exists(good));
   }
+  // --holdout-every 1 holds every block out: it was run, and then said the
+  // pattern was found in 0 frames.
+  const auto h = test::runCli("calibrate " + seq + " --plus-config " + kFcal12 + " -o " + good + " --holdout-every 1");
+  EXPECT_NE(h.status, 0);
+  EXPECT_NE(h.out.find("--holdout-every 1 holds every block of frames out of the fit"), std::string::npos) << h.out;
+  EXPECT_EQ(h.out.find("segmenting"), std::string::npos) << "worked before refusing: " << h.out;
   const auto r = test::runCli("simulate-calibration --plus-config " + kFcal2 +
                               " -o /nonexistent-folder/s.igs.mha --truth " + good);
   EXPECT_NE(r.status, 0);

@@ -95,6 +95,23 @@ TEST_F(ReconCli, InvalidFramesAreSkippedAndCounted) {
   EXPECT_FALSE(fs::exists(out));
 }
 
+// A fixed grid that misses the phantom samples one value everywhere: the
+// truth volume is still written, with a warning naming the grid.
+TEST_F(ReconCli, SimulateSaysWhenTheGridMissesThePhantom) {
+  const fs::path far = dir() / "far";
+  const Result r = run("simulate " + toml() + " -o " + far.string() +
+                       " --set sim.sweep.max_frames=2 --set sim.probe.width_px=32 --set sim.probe.height_px=32"
+                       " --set output.preview_frames=0 --set grid.auto_extent=false --set 'grid.origin=[5000,5000,5000]'"
+                       " --set 'grid.dims=[8,8,8]'");
+  EXPECT_EQ(r.status, 0) << r.out;
+  EXPECT_NE(r.out.find("does not reach the phantom's structures"), std::string::npos) << r.out;
+  const Result near = run("simulate " + toml() + " -o " + (dir() / "near").string() +
+                          " --set sim.sweep.max_frames=2 --set sim.probe.width_px=32 --set sim.probe.height_px=32"
+                          " --set output.preview_frames=0 --set grid.spacing=[4,4,4]");
+  EXPECT_EQ(near.status, 0) << near.out;
+  EXPECT_EQ(near.out.find("does not reach the phantom"), std::string::npos) << near.out;
+}
+
 TEST_F(ReconCli, AnEmptySequenceIsAnError) {
   // The simulated file's header with no frames at all.
   std::ifstream in(seq(), std::ios::binary);
@@ -185,6 +202,11 @@ TEST_F(ReconCli, BadPosesAreRefusedNamingTheFrame) {
   EXPECT_EQ(r.status, 1) << r.out;
   EXPECT_NE(r.out.find("frame 3"), std::string::npos) << r.out;
   EXPECT_FALSE(fs::exists(dir() / "z.mha"));
+  // The same frame held out of a leave-out (it was scored, and the grid
+  // stretched to reach it).
+  r = run("evaluate leave-out " + zero.string() + " --plus-config " + xml() + " --keep-every 2");
+  EXPECT_EQ(r.status, 1) << r.out;
+  EXPECT_NE(r.out.find("frame 3"), std::string::npos) << r.out;
   for (const char* far : {"1e6", "1e300"}) {
     const fs::path f = withFrame3Pose(seq(), dir() / "far.igs.mha",
                                       std::string("0 0 1 ") + far + " -1 0 0 150 0 -1 0 180 0 0 0 1");

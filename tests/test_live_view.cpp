@@ -151,12 +151,7 @@ TEST(LiveControls, APassingChangeIsNoBaseForThePage) {
   EXPECT_NE(parallel::controlChanges(v.initial, v.live->wanted().state) & comm::ControlMsg::kMode, 0u);
 }
 
-TEST(LiveControls, TooManyMessagesAreRefused) {
-  Viewer v;
-  int refused = 0;
-  for (int i = 0; i < 400; ++i) refused += v.live->control(R"({"type": "pause"})").empty() ? 0 : 1;
-  EXPECT_GE(refused, 400 - 240);
-}
+// (Each client's budget of control messages is the server's: ViewerServer.OneClientCannotSilenceAnother.)
 
 TEST(LiveControls, ListenAddresses) {
   std::string a;

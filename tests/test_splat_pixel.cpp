@@ -118,6 +118,16 @@ TEST(PixelRuns, ClipRectangleIncludesItsEndAsPlusDoes) {
   s.clipOrigin = {15, 8};
   EXPECT_EQ(pixelRuns(20, 10, s).back(), (PixelRun{9, 15, 19}));
   EXPECT_EQ(pixelRuns(20, 10, ReconSettings{}).size(), 10u);
+  // A rectangle wholly outside the frames (made for the uncropped recording)
+  // is refused, not an empty volume without a word.
+  s.clipOrigin = {192, 16};
+  s.clipSize = {420, 580};
+  try {
+    (void)pixelRuns(20, 10, s);
+    ADD_FAILURE() << "no error for a clip rectangle outside the frames";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("lies outside the 20x10 frames"), std::string::npos) << e.what();
+  }
 }
 
 TEST(PixelRuns, FanOfTheTrusConfigs) {

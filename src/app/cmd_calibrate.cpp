@@ -150,6 +150,10 @@ void checkOutputFolder(const std::string& path) {
 }
 
 int runCalibrate(const Opts& o) {
+  // Block b is held out when b % N == N - 1: with N = 1, every block.
+  if (o.holdoutEvery == 1)
+    throw InputError("--holdout-every 1 holds every block of frames out of the fit, leaving none to fit: give 0 to fit "
+                     "every frame, or 2 and up to hold out every Nth block");
   const PlusConfig cfg = readPlusConfig(o.plusConfig);
   const calib::NWirePhantom phantom = calib::phantomOf(cfg);
   checkOutputFolder(o.output);
@@ -192,6 +196,11 @@ int runCalibrate(const Opts& o) {
                          static_cast<std::size_t>(o.holdoutEvery - 1);
     (out ? held : fit).push_back(f);
   }
+  if (static_cast<int>(fit.size()) < co.minFrames)
+    inputError(o.sequence,
+               "the pattern was found in {} frames, but --holdout-every {} with --holdout-block {} holds {} of them "
+               "out, leaving {} to fit, fewer than the {} a calibration needs",
+               rec.found.size(), o.holdoutEvery, o.holdoutBlock, held.size(), fit.size(), co.minFrames);
   const calib::CalibrationResult res = calib::calibrateProbe(phantom, fit, co);
 
   Json j;

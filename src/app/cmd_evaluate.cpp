@@ -13,6 +13,7 @@
 #include "reconstruction/kernels.hpp"
 #include "app/commands.hpp"
 #include "reconstruction/recon_run.hpp"
+#include "reconstruction/slice_geometry.hpp"
 #include "app/settings.hpp"
 #include "analysis/speckle_run.hpp"
 #include "core/error.hpp"
@@ -206,6 +207,11 @@ void addEvaluateCommand(CLI::App& app, int& exitCode) {
     const gp::LeaveOutReading reading =
         l->reading == "plus" ? gp::LeaveOutReading::PlusGreyLevels : gp::LeaveOutReading::Trilinear;
     PosedSequence seq = openPosedSequence(l->sequence, l->plusConfig);
+    // Every pose is checked as `reconstruct` checks the frames it inserts, the
+    // held-out ones too: a singular pose would be scored (and stretch the
+    // grid to reach it) where `reconstruct` refuses it.
+    for (std::size_t i = 0; i < seq.poses.size(); ++i)
+      if (seq.poses[i]) (void)gp::poseFromMatrix(*seq.poses[i], fmt::format("{}: frame {}", l->sequence, i));
     Settings s;
     Vec3 plusSpacing;
     const auto k = static_cast<std::uint64_t>(l->keepEvery);

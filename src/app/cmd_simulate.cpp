@@ -141,6 +141,20 @@ int runSimulate(const SimulateOptions& opts) {
   const Volume truth = sim::truthVolume(sim.phantom(), sim.bmode(), grid, truthType, s.sim.threads,
                                         s.grid.memoryLimitBytes());
   writeVolume(truthPath, truth, true);
+  {
+    // A grid that misses the phantom (grid.auto_extent = false, an origin far
+    // away) samples one value everywhere: said, not left to be found.
+    const std::size_t voxels = static_cast<std::size_t>(grid.voxelCount());
+    const double first = truth.value(0);
+    std::size_t i = 1;
+    while (i < voxels && truth.value(i) == first) ++i;
+    if (i == voxels)
+      log->warn("simulate: the truth volume is {} everywhere: the grid (origin {} {} {} mm, {}x{}x{} voxels of {} mm) "
+                "does not reach the phantom's structures; check grid.origin and grid.dims, or set grid.auto_extent = "
+                "true",
+                first, grid.origin.x, grid.origin.y, grid.origin.z, grid.dims.x, grid.dims.y, grid.dims.z,
+                grid.spacing.x);
+  }
   // The expected image, for a probe held as at the middle of the sweep.
   const Mat4 probePose = sim.trueImageToReference(n / 2) * affineInverse(sim.imageToProbe());
   bool wroteExpected = false;

@@ -4,6 +4,9 @@
 #include <cmath>
 #include <cstdint>
 
+#include <fmt/format.h>
+
+#include "core/error.hpp"
 #include "reconstruction/fixed_point.hpp"
 
 namespace pp5::gp {
@@ -18,6 +21,12 @@ std::vector<PixelRun> pixelRuns(int width, int height, const ReconSettings& s) {
     cy0 = std::max<std::int64_t>(cy0, s.clipOrigin.y);
     cx1 = std::min<std::int64_t>(cx1, std::int64_t{s.clipOrigin.x} + s.clipSize.x);
     cy1 = std::min<std::int64_t>(cy1, std::int64_t{s.clipOrigin.y} + s.clipSize.y);
+    // Not an empty volume without a word (a rectangle made for the uncropped
+    // recording, given with a cropped one).
+    if (cx0 > cx1 || cy0 > cy1)
+      throw InputError(fmt::format("the clip rectangle (origin {} {}, size {} {}) lies outside the {}x{} frames: no "
+                                   "pixel would be inserted (was it made for another crop of the recording?)",
+                                   s.clipOrigin.x, s.clipOrigin.y, s.clipSize.x, s.clipSize.y, width, height));
   }
 
   // PLUS's degree-to-radian factor, so the tangents match its bit for bit.
