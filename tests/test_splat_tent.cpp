@@ -977,6 +977,8 @@ TEST(TentInput, RefusesBadFramesAndPosesWithoutChangingAnything) {
   shortBuffer.pixels.resize(5);
   EXPECT_THROW(rec->insert(shortBuffer, pose, 0.0), InputError);
   EXPECT_THROW(rec->insert(good, pose, std::nan("")), InputError);
+  EXPECT_THROW(rec->insert(good, pose, -1e308), InputError);  // a damaged field, not a time
+  EXPECT_THROW(rec->advance(4, 4, pose, 2e10), InputError);
   // Pixels a micrometre wide: the kernel would span thousands of them.
   EXPECT_THROW(rec->insert(good, imagePose(Vec3(0.0), glm::dmat3(1.0), 1e-3, 1.0), 0.0), InputError);
   for (std::size_t i = 0; i < g.voxelCount(); ++i) ASSERT_FALSE(rec->covered(i));

@@ -407,7 +407,11 @@ void TentReconstructor::splat(const SlicePose& pose, const SliceImage& img, doub
 }
 
 SlicePose TentReconstructor::checkPose(const std::string& what, const Mat4& imageToReference, double timeS) const {
-  if (!std::isfinite(timeS)) throw InputError(what + ": the timestamp is not finite");
+  // A time in seconds, as PLUS writes them (from an epoch or the recording's
+  // start): beyond 1e10 s (three centuries) it is a damaged field, and its
+  // difference with the next frame's would not fit the decay's float times.
+  if (!std::isfinite(timeS) || std::abs(timeS) > 1e10)
+    throw InputError(fmt::format("{}: the timestamp {} s is not a time (finite, within 1e10 s)", what, timeS));
   const SlicePose pose = poseFromMatrix(imageToReference, what);
   // A kernel that spans more than this many pixels (each knot of a profile
   // sums as many, each voxel as many rows) is taken for a pose with the wrong
