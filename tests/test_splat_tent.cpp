@@ -764,6 +764,27 @@ TEST(TentReplacement, DecayFadesOldDataWhenNewDataArrives) {
   EXPECT_GT(checked, 1000u);
 }
 
+// A timestamp that repeats or goes back (a recording's clock stepped) never
+// raises an older voxel's weight: the decay counts only forward, so the
+// voxels end as plain accumulation would leave them.
+TEST(TentReplacement, DecayNeverCountsBackwards) {
+  const Sweep sw;
+  ReconSettings s = baseSettings();
+  s.tent.replacement = pp5::gp::Replacement::Decay;
+  s.tent.decayTauS = 2.0;
+  const Frame fa = constantFrame(sw.w, sw.h, 50.0), fb = constantFrame(sw.w, sw.h, 200.0);
+  auto plain = makeTentReconstructor(sw.grid, baseSettings());
+  plain->insert(fa, sw.at(0.25), 10.0);
+  plain->insert(fb, sw.at(0.25), 10.0);
+  for (const double tb : {10.0, 4.0}) {  // repeats, goes back
+    auto rec = makeTentReconstructor(sw.grid, s);
+    rec->insert(fa, sw.at(0.25), 10.0);
+    rec->insert(fb, sw.at(0.25), tb);
+    EXPECT_EQ(rec->output().bytes, plain->output().bytes) << tb;
+    EXPECT_EQ(rec->weights().bytes, plain->weights().bytes) << tb;
+  }
+}
+
 TEST(TentReplacement, DecayedSweepRescanIsDominatedByTheNewSweep) {
   const Sweep sw;
   ReconSettings s = baseSettings();

@@ -57,6 +57,7 @@
 #include <vector>
 
 #include <fmt/format.h>
+#include <spdlog/spdlog.h>
 #include <omp.h>
 #if defined(__linux__)
 #include <sys/mman.h>
@@ -439,6 +440,12 @@ void TentReconstructor::selectRuns(int width, int height) {
 }
 
 bool TentReconstructor::stepMotion(const SlicePose& pose, double timeS, double& maxCornerMm) {
+  if (mode_ == Replacement::Decay && hasPrev_ && !(timeS > prevTime_) && !saidTimeOrder_) {
+    saidTimeOrder_ = true;
+    spdlog::warn("recon: a frame's timestamp ({} s) does not come after the previous frame's ({} s); the decay "
+                 "replacement counts time only forward (said once)",
+                 timeS, prevTime_);
+  }
   if (!hasT0_) {
     t0_ = timeS;
     hasT0_ = true;

@@ -183,6 +183,7 @@ private:
   bool lastAdvanced_ = false;  // the last frame went to advance(): restorePrevious() may follow
   SlicePose prevPose_;
   double prevTime_ = 0.0;
+  bool saidTimeOrder_ = false;  // a timestamp that did not advance was said (once)
   bool hasT0_ = false;
   double t0_ = 0.0;
   Vec3 anchor_{0.0};
