@@ -2,6 +2,8 @@
 // incremental / deterministic guarantees. Frames are synthetic and small, so
 // every expected value is computed here from the definitions.
 #include <gtest/gtest.h>
+#include <spdlog/sinks/ostream_sink.h>
+#include <spdlog/spdlog.h>
 
 #include <algorithm>
 #include <cmath>
@@ -10,6 +12,7 @@
 #include <limits>
 #include <numbers>
 #include <random>
+#include <sstream>
 #include <vector>
 
 #include "core/error.hpp"
@@ -777,11 +780,27 @@ TEST(TentReplacement, DecayNeverCountsBackwards) {
   plain->insert(fa, sw.at(0.25), 10.0);
   plain->insert(fb, sw.at(0.25), 10.0);
   for (const double tb : {10.0, 4.0}) {  // repeats, goes back
+    // The log, to see that it is said (once).
+    std::ostringstream said;
+    const auto before = spdlog::default_logger();
+    spdlog::set_default_logger(
+        std::make_shared<spdlog::logger>("test", std::make_shared<spdlog::sinks::ostream_sink_mt>(said)));
     auto rec = makeTentReconstructor(sw.grid, s);
     rec->insert(fa, sw.at(0.25), 10.0);
     rec->insert(fb, sw.at(0.25), tb);
-    EXPECT_EQ(rec->output().bytes, plain->output().bytes) << tb;
-    EXPECT_EQ(rec->weights().bytes, plain->weights().bytes) << tb;
+    rec->insert(fb, sw.at(0.25), tb - 1.0);
+    spdlog::set_default_logger(before);
+    EXPECT_EQ(rec->weights().bytes.size(), plain->weights().bytes.size());
+    const std::string text = said.str();
+    const auto first = text.find("does not come after the previous frame's");
+    EXPECT_NE(first, std::string::npos) << text;
+    EXPECT_EQ(text.find("does not come after", first + 1), std::string::npos) << text;  // once
+    // Two frames only: the voxels as plain accumulation leaves them.
+    auto two = makeTentReconstructor(sw.grid, s);
+    two->insert(fa, sw.at(0.25), 10.0);
+    two->insert(fb, sw.at(0.25), tb);
+    EXPECT_EQ(two->output().bytes, plain->output().bytes) << tb;
+    EXPECT_EQ(two->weights().bytes, plain->weights().bytes) << tb;
   }
 }
 
