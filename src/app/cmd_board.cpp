@@ -13,7 +13,7 @@
 
 #include "app/commands.hpp"
 #include "app/settings.hpp"
-#include "app/sources.hpp"
+#include "app/source_settings.hpp"
 #include "core/error.hpp"
 #include "core/io_util.hpp"
 #include "formats/sequence_io.hpp"

@@ -22,7 +22,7 @@
 #include "app/run_setup.hpp"
 #include "reconstruction/recon_run.hpp"
 #include "app/settings.hpp"
-#include "app/sources.hpp"
+#include "app/source_settings.hpp"
 #include "analysis/speckle_run.hpp"
 #include "sim/sweep_cache.hpp"
 #include "comm/mpi.hpp"

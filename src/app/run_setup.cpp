@@ -10,7 +10,7 @@
 #include <fmt/ranges.h>
 #include <spdlog/spdlog.h>
 
-#include "app/sources.hpp"
+#include "app/source_settings.hpp"
 #include "reconstruction/recon_run.hpp"
 #include "rendering/shading.hpp"
 #include "analysis/speckle_run.hpp"

@@ -1,4 +1,4 @@
-#include "app/sources.hpp"
+#include "app/source_settings.hpp"
 
 #include <memory>
 #include <mutex>
