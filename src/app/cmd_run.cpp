@@ -55,6 +55,7 @@ struct RunOptions {
   std::string census;  // --census FILE (serial): where each frame's work lies, for bench --cost-model
   bool verify = false;
   std::string view;  // --view [ADDR:]PORT
+  std::string igtlServe;  // --igtl-serve [ADDR:]PORT
   bool serve = false;
   int expectRanks = 0;
   int gps = -1, pps = -1;
@@ -236,6 +237,9 @@ void addRunOptions(CLI::App* cmd, const std::shared_ptr<RunOptions>& o) {
   cmd->add_option("--view", o->view,
                   "Serve the live viewer at [ADDR:]PORT (address 127.0.0.1 unless given; sets view.listen); its URL is "
                   "printed first");
+  cmd->add_option("--igtl-serve", o->igtlServe,
+                  "Serve the run over OpenIGTLink at [ADDR:]PORT (address 127.0.0.1 unless given; sets "
+                  "run.igtl_serve): the live volume and the B-mode frames to 3D Slicer and other clients");
   cmd->add_flag("--serve", o->serve,
                 "Keep the final volume interactive in the viewer after the input ends, until Ctrl-C (view.serve)");
 }
@@ -269,6 +273,7 @@ int runWithSource(RunOptions o, const std::string& record) {
   if (!o.source.empty()) extra = sourceOverrides(o.source);
   if (!record.empty()) extra.push_back(fmt::format("run.record=\"{}\"", record));
   if (!o.view.empty()) extra.push_back(fmt::format("view.listen=\"{}\"", o.view));
+  if (!o.igtlServe.empty()) extra.push_back(fmt::format("run.igtl_serve=\"{}\"", o.igtlServe));
   if (o.serve) extra.push_back("view.serve=true");
   o.overrides.insert(o.overrides.begin(), extra.begin(), extra.end());
   return runCommand(o);

@@ -18,6 +18,7 @@
 #include "core/error.hpp"
 #include "core/io_util.hpp"
 #include "host/capture.hpp"
+#include "igtl/igtl_server.hpp"
 #include "pipeline/parallel_settings.hpp"
 
 namespace pp5::app {
@@ -38,6 +39,11 @@ host::Preprocess preprocessOf(const Settings& s) {
 // them alike, before any rank starts.
 void checkSettings(const Settings& s, bool outputDirGiven) {
   host::checkViewSettings(s.view);
+  if (!s.igtl.serve.empty()) {
+    std::string address;
+    int port = 0;
+    igtl::parseServeAddress(s.igtl.serve, "run.igtl_serve", address, port);
+  }
   gp::checkReconSettings(s.recon);
   gp::checkShadeSettings(s.shading);
   s.cache.validate();
@@ -175,6 +181,7 @@ host::RunJob makeJob(const Settings& s, host::Source src, const Grid& grid, cons
   j.memoryLimitBytes = s.grid.memoryLimitBytes();
   j.interrupt = interrupt;
   j.view = s.view;
+  j.igtl = s.igtl;
   j.alsoWrote = {"settings.toml"};
   return j;
 }

@@ -68,6 +68,11 @@ void registerAll(ConfigSchema& schema, Settings& s) {
   schema.option("run.igtl_reconnect_s", &s.run.igtlReconnectS, 10.0, 0.0, 86400.0,
                 "The OpenIGTLink server went away: try to reconnect for this long, then end the stream (keeping "
                 "what arrived); 0 ends it at once.");
+  schema.option("run.igtl_serve", &s.igtl.serve, "",
+                "Serve the run over OpenIGTLink on [ADDR:]PORT (127.0.0.1 unless an address is given; `run "
+                "--igtl-serve`): every client (3D Slicer, PlusServer's clients) gets the live volume as IMAGE "
+                "Volume_Reference at igtl.volume_hz and each B-mode frame as IMAGE Image_Reference, and answers to "
+                "GET_IMAGE, GET_STATUS and GET_CAPABIL. \"\" = none.");
   schema.option("run.record", &s.run.record, "",
                 "Write every acquired frame, as it arrives and before any drop, to this PLUS sequence file "
                 "(`pp5echo record` sets it to OUT/recording.mha). Each frame also goes to FILE.journal until the "
@@ -124,6 +129,7 @@ void registerAll(ConfigSchema& schema, Settings& s) {
 
   parallel::registerOptions(schema, s.parallel);
   host::registerOptions(schema, s.view);
+  host::registerOptions(schema, s.igtl);
 
   schema.section("output", "Where results are written.");
   schema.option("output.dir", &s.output.dir, "out/doll", "Output folder, unless the command line gives `-o`.");

@@ -13,6 +13,7 @@
 #include "reconstruction/reconstruction.hpp"
 #include "rendering/shading.hpp"
 #include "host/acquisition.hpp"
+#include "host/igtl_serve_settings.hpp"
 #include "outputs/live_view.hpp"
 #include "outputs/slices.hpp"
 #include "pipeline/parallel_settings.hpp"
@@ -103,6 +104,7 @@ struct Settings {
   parallel::ParallelSettings parallel;
   OutputSettings output;
   host::ViewSettings view;
+  host::IgtlServeSettings igtl;
 };
 
 void registerAll(ConfigSchema& schema, Settings& s);

@@ -11,6 +11,7 @@
 #include <string>
 #include <vector>
 
+#include "host/igtl_serve_settings.hpp"
 #include "host/acquisition.hpp"
 #include "host/pipeline.hpp"
 #include "host/sink.hpp"
@@ -59,6 +60,8 @@ struct RunJob {
   std::string census;
   // The live viewer ([view]; view.listen "" = none).
   ViewSettings view;
+  // The OpenIGTLink server (run.igtl_serve "" = none).
+  IgtlServeSettings igtl;
   // Files the run writes beside the sinks' (settings.toml), for the closing list.
   std::vector<std::string> alsoWrote;
   // Set from a signal handler: stop acquiring, finish what was acquired.

@@ -1,5 +1,6 @@
 #include "igtl/igtl_wire.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <limits>
@@ -143,6 +144,27 @@ void setImageGeometry(::igtl::ImageMessage& img, const Mat4& pixelToFrame) {
   m[3][3] = 1.0f;
   img.SetSpacing(spacing);
   img.SetMatrix(m);
+}
+
+std::string packCentredImage(const std::string& device, const Index3& dims, const std::uint8_t* voxels,
+                             const Mat4& pixelToFrame, double timeS) {
+  auto img = ::igtl::ImageMessage::New();
+  img->SetDeviceName(device.substr(0, kMaxDeviceName).c_str());
+  img->SetDimensions(static_cast<int>(dims.x), static_cast<int>(dims.y), static_cast<int>(dims.z));
+  img->SetSubVolume(static_cast<int>(dims.x), static_cast<int>(dims.y), static_cast<int>(dims.z), 0, 0, 0);
+  img->SetNumComponents(1);
+  img->SetScalarType(::igtl::ImageMessage::TYPE_UINT8);
+  img->SetEndian(::igtl::ImageMessage::ENDIAN_LITTLE);
+  const Vec4 centre = pixelToFrame * Vec4(0.5 * Vec3(dims - Index3(1)), 1.0);
+  Mat4 m = pixelToFrame;
+  m[3] = centre;
+  setImageGeometry(*img, m);
+  img->AllocateScalars();
+  std::memcpy(img->GetScalarPointer(), voxels, static_cast<std::size_t>(dims.x * dims.y * dims.z));
+  const WireTime t = encodeTime(std::max(0.0, timeS));
+  img->SetTimeStamp(t.sec, t.frac);
+  img->Pack();
+  return {static_cast<const char*>(img->GetPackPointer()), static_cast<std::size_t>(img->GetPackSize())};
 }
 
 }  // namespace pp5::igtl::wire

@@ -12,6 +12,7 @@
 #include <igtl_transform.h>
 
 #include "core/frame.hpp"
+#include "core/grid.hpp"
 #include "core/transform.hpp"
 
 namespace pp5::igtl::wire {
@@ -50,5 +51,13 @@ Mat4 imagePixelToFrame(::igtl::ImageMessage& img);
 // The inverse split for a sender: spacing = the column lengths of m's 3x3 part,
 // rotation = the columns divided by them. InputError for a zero column.
 void setImageGeometry(::igtl::ImageMessage& img, const Mat4& pixelToFrame);
+
+// A packed 3D IMAGE of `dims` uint8 voxels (x fastest) whose voxel (i, j, k)
+// lies at pixelToFrame * (i, j, k, 1): the matrix's translation is the
+// centre of the voxel block, as OpenIGTLink defines an IMAGE's origin (the
+// voxels' centre at (dims - 1) / 2), so that Slicer places it right. A 2D
+// image is dims.z = 1.
+std::string packCentredImage(const std::string& device, const Index3& dims, const std::uint8_t* voxels,
+                             const Mat4& pixelToFrame, double timeS);
 
 }  // namespace pp5::igtl::wire

@@ -10,11 +10,12 @@ std::unique_ptr<host::Sink> makeVolumeFilesSink(const host::RunJob& job);
 std::unique_ptr<host::Sink> makeOrbitSink(const host::RunJob& job);
 std::unique_ptr<host::Sink> makeStatsSink(const host::RunJob& job);
 std::unique_ptr<host::Sink> makeSummarySink(const host::RunJob& job);
+std::unique_ptr<host::Sink> makeIgtlSink(const host::RunJob& job);
 
 namespace {
 // In the order of the closing list of files.
 constexpr Factory kSinks[] = {makeBuildupSink, makeFinalImagesSink, makeVolumeFilesSink, makeOrbitSink,
-                              makeStatsSink,   makeSummarySink,     makeViewerSink};
+                              makeStatsSink,   makeSummarySink,     makeViewerSink,      makeIgtlSink};
 }  // namespace
 
 SinkList makeSinks(const host::RunJob& job) {
