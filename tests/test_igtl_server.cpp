@@ -1,14 +1,21 @@
 // The OpenIGTLink server (src/igtl/igtl_server.hpp) against a peer we did not
 // write: Debian's libopenigtlink 1.11 (igtl::ClientSocket and its message
 // classes), on 127.0.0.1.
+#include <arpa/inet.h>
 #include <gtest/gtest.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <chrono>
+#include <cstdlib>
 #include <cstring>
+#include <filesystem>
 #include <functional>
 #include <string>
 #include <thread>
+#include <vector>
 
 #include <igtlCapabilityMessage.h>
 #include <igtlClientSocket.h>
@@ -18,6 +25,7 @@
 #include <igtlStringMessage.h>
 
 #include "core/error.hpp"
+#include "formats/volume_io.hpp"
 #include "igtl/igtl_server.hpp"
 
 namespace {
@@ -183,6 +191,74 @@ TEST(IgtlServe, AnImagesOriginIsItsCentre) {
   igtlUint32 sec = 0, frac = 0;
   img->GetTimeStamp(&sec, &frac);
   EXPECT_EQ(sec, 12u);
+}
+
+// A free TCP port on 127.0.0.1 (bound, read, closed).
+int freePort() {
+  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
+  sockaddr_in a{};
+  a.sin_family = AF_INET;
+  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  ::bind(fd, reinterpret_cast<sockaddr*>(&a), sizeof a);
+  socklen_t len = sizeof a;
+  ::getsockname(fd, reinterpret_cast<sockaddr*>(&a), &len);
+  ::close(fd);
+  return ntohs(a.sin_port);
+}
+
+// A one-process run with run.igtl_serve: a client of Debian's library gets
+// the B-mode frames and the growing volume while the doll streams, and last
+// the final volume, voxel for voxel the volume.mha the run writes (as uint8).
+TEST(IgtlServe, ARunServesItsVolumeAndFramesToAClient) {
+  const std::string dir = (std::filesystem::temp_directory_path() / ("pp5_igtl_serve_" + std::to_string(::getpid()))).string();
+  std::filesystem::remove_all(dir);
+  const int port = freePort();
+  const std::string cmd = std::string(PP5_BINARY) + " run " + PP5_SOURCE_DIR + "/configs/doll.toml --serial -o " + dir +
+                          " --igtl-serve 127.0.0.1:" + std::to_string(port) +
+                          " --set sim.sweep.max_frames=40 --set run.orbit_frames=0 --set run.mpr=false > " + dir +
+                          ".log 2>&1";
+  std::thread runner([&] { EXPECT_EQ(std::system(cmd.c_str()), 0) << cmd; });
+  auto socket = igtl::ClientSocket::New();
+  bool connected = false;
+  for (int i = 0; i < 300 && !connected; ++i) {
+    connected = socket->ConnectToServer("127.0.0.1", port) == 0;
+    if (!connected) std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+  ASSERT_TRUE(connected);
+  socket->SetReceiveTimeout(20000);
+  int frames = 0, volumes = 0;
+  std::vector<std::uint8_t> last;
+  int lastDims[3] = {0, 0, 0};
+  while (true) {
+    auto h = igtl::MessageHeader::New();
+    h->InitPack();
+    if (socket->Receive(h->GetPackPointer(), h->GetPackSize()) != h->GetPackSize()) break;  // the run ended
+    h->Unpack();
+    auto img = igtl::ImageMessage::New();
+    img->SetMessageHeader(h);
+    img->AllocatePack();
+    ASSERT_EQ(socket->Receive(img->GetPackBodyPointer(), img->GetPackBodySize()), img->GetPackBodySize());
+    ASSERT_STREQ(h->GetDeviceType(), "IMAGE");
+    img->Unpack(1);
+    if (std::string(h->GetDeviceName()) == "Image_Reference") {
+      ++frames;
+    } else {
+      ASSERT_STREQ(h->GetDeviceName(), "Volume_Reference");
+      ++volumes;
+      img->GetDimensions(lastDims);
+      const auto* p = static_cast<const std::uint8_t*>(img->GetScalarPointer());
+      last.assign(p, p + static_cast<std::size_t>(lastDims[0]) * lastDims[1] * lastDims[2]);
+    }
+  }
+  runner.join();
+  EXPECT_GE(frames, 1);
+  EXPECT_GE(volumes, 2);  // the live one and the final one
+  const pp5::Volume v = pp5::readVolume(dir + "/volume.mha").as(pp5::ScalarType::U8);
+  ASSERT_EQ(lastDims[0], v.grid.dims.x);
+  ASSERT_EQ(lastDims[1], v.grid.dims.y);
+  ASSERT_EQ(lastDims[2], v.grid.dims.z);
+  EXPECT_TRUE(last == v.bytes) << "the last volume sent is not the run's final volume";
+  std::filesystem::remove_all(dir);
 }
 
 TEST(IgtlServe, ServeAddresses) {

@@ -11,6 +11,7 @@
 #include <algorithm>
 #include <atomic>
 #include <cerrno>
+#include <chrono>
 #include <cstdint>
 #include <cstring>
 #include <map>
@@ -215,8 +216,24 @@ struct Server::Impl {
     }
   }
 
+  // Whether any client still has something to get.
+  bool pending() {
+    for (Client& c : clients) {
+      fill(c);
+      if (!c.out.empty()) return true;
+    }
+    return false;
+  }
+
   void run() {
-    while (!quit) {
+    // On quit, what is pending (the final volume) still goes out, for up to 2 s.
+    std::chrono::steady_clock::time_point flushUntil{};
+    while (true) {
+      if (quit) {
+        if (flushUntil == std::chrono::steady_clock::time_point{})
+          flushUntil = std::chrono::steady_clock::now() + std::chrono::seconds(2);
+        if (!pending() || std::chrono::steady_clock::now() > flushUntil) break;
+      }
       std::vector<pollfd> fds = {{listenFd, POLLIN, 0}, {wake[0], POLLIN, 0}};
       for (Client& c : clients) {
         fill(c);
