@@ -13,6 +13,7 @@
 #include <nlohmann/json.hpp>
 
 #include "core/error.hpp"
+#include "core/io_util.hpp"
 #include "outputs/coverage.hpp"
 #include "outputs/live_view.hpp"
 #include "outputs/slices.hpp"
@@ -156,16 +157,16 @@ TEST(LiveControls, APassingChangeIsNoBaseForThePage) {
 TEST(LiveControls, ListenAddresses) {
   std::string a;
   int p = -1;
-  host::parseListen("8080", a, p, "view.listen");
+  io::parseListen("8080", a, p, "view.listen");
   EXPECT_EQ(a, "127.0.0.1");
   EXPECT_EQ(p, 8080);
-  host::parseListen("0.0.0.0:0", a, p, "view.listen");
+  io::parseListen("0.0.0.0:0", a, p, "view.listen");
   EXPECT_EQ(a, "0.0.0.0");
   EXPECT_EQ(p, 0);
-  host::parseListen("[::1]:9000", a, p, "view.listen");
+  io::parseListen("[::1]:9000", a, p, "view.listen");
   EXPECT_EQ(a, "::1");
   for (const char* bad : {"", "http", "127.0.0.1:", ":80", "127.0.0.1:70000", "8080x"})
-    EXPECT_THROW(host::parseListen(bad, a, p, "view.listen"), InputError) << bad;
+    EXPECT_THROW(io::parseListen(bad, a, p, "view.listen"), InputError) << bad;
 }
 
 TEST(LiveControls, OpacityRampIsIncreasingAndClipped) {

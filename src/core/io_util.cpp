@@ -260,4 +260,18 @@ void AtomicFile::commit() {
   syncFolderOf(finalPath_);
 }
 
+void parseListen(const std::string& listen, std::string& address, int& port, const std::string& what) {
+  const auto colon = listen.rfind(':');
+  address = colon == std::string::npos ? "127.0.0.1" : listen.substr(0, colon);
+  const std::string p = colon == std::string::npos ? listen : listen.substr(colon + 1);
+  if (address.size() > 2 && address.front() == '[' && address.back() == ']') address = address.substr(1, address.size() - 2);
+  char* end = nullptr;
+  const long v = std::strtol(p.c_str(), &end, 10);
+  if (p.empty() || address.empty() || *end != '\0' || v < 0 || v > 65535)
+    throw InputError(fmt::format("{} = \"{}\": give [ADDRESS:]PORT, e.g. 8080 or 127.0.0.1:8080 (port 0..65535)",
+                                 what, listen));
+  port = static_cast<int>(v);
+}
+
+
 }  // namespace pp5::io

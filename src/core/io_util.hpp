@@ -19,6 +19,11 @@ bool startsWith(std::string_view s, std::string_view prefix);
 bool endsWith(std::string_view s, std::string_view suffix);
 // Lower-cased extension including the dot (".mha"); empty when none.
 std::string extensionOf(const std::string& path);
+
+// "[ADDR:]PORT" (a server's listen address: the viewer's, the OpenIGTLink
+// server's) into its parts, 127.0.0.1 when no address is given and "[::1]"
+// unbracketed; InputError naming `what` when malformed.
+void parseListen(const std::string& listen, std::string& address, int& port, const std::string& what);
 // Whole-token parses: trailing garbage, empty text or overflow give nullopt.
 std::optional<double> parseDouble(std::string_view s);
 std::optional<std::int64_t> parseInt(std::string_view s);

@@ -36,7 +36,4 @@ void registerOptions(ConfigSchema& schema, ViewSettings& s);
 // view.listen, a view.drag_pixel_stride that does not divide 8.
 void checkViewSettings(const ViewSettings& s);
 
-// "[ADDR:]PORT" into its parts; InputError naming `what` when malformed.
-void parseListen(const std::string& listen, std::string& address, int& port, const std::string& what);
-
 }  // namespace pp5::host

@@ -15,6 +15,7 @@
 #include <cstdint>
 #include <cstring>
 #include <map>
+#include <memory>
 #include <mutex>
 #include <thread>
 #include <utility>
@@ -26,22 +27,36 @@
 #include <igtl_header.h>
 
 #include "core/error.hpp"
+#include "core/io_util.hpp"
 #include "igtl/igtl_wire.hpp"
 
 namespace pp5::igtl {
 
 void parseServeAddress(const std::string& text, const std::string& key, std::string& address, int& port) {
-  const auto colon = text.rfind(':');
-  address = colon == std::string::npos ? "127.0.0.1" : text.substr(0, colon);
-  const std::string p = colon == std::string::npos ? text : text.substr(colon + 1);
-  char* end = nullptr;
-  const long v = p.empty() ? -1 : std::strtol(p.c_str(), &end, 10);
-  if (p.empty() || *end != '\0' || v < 0 || v > 65535 || address.empty())
-    throw InputError(fmt::format("{} = \"{}\": give [ADDR:]PORT, e.g. 18944 or 127.0.0.1:18944", key, text));
+  io::parseListen(text, address, port, key);
   in_addr a{};
   if (::inet_pton(AF_INET, address.c_str(), &a) != 1)
     throw InputError(fmt::format("{} = \"{}\": '{}' is not an IPv4 address", key, text, address));
-  port = static_cast<int>(v);
+}
+
+int listenTcp(const std::string& address, int port, int backlog, int& boundPort, const std::string& what) {
+  sockaddr_in a{};
+  a.sin_family = AF_INET;
+  if (::inet_pton(AF_INET, address.c_str(), &a.sin_addr) != 1)
+    throw InputError(fmt::format("{}: '{}' is not an IPv4 address", what, address));
+  a.sin_port = htons(static_cast<std::uint16_t>(port));
+  const int fd = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC | SOCK_NONBLOCK, 0);
+  const int one = 1;
+  if (fd < 0 || ::setsockopt(fd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one) != 0 ||
+      ::bind(fd, reinterpret_cast<sockaddr*>(&a), sizeof a) != 0 || ::listen(fd, backlog) != 0) {
+    const std::string why = std::strerror(errno);
+    if (fd >= 0) ::close(fd);
+    throw InputError(fmt::format("{}: cannot listen on {}:{}: {}", what, address, port, why));
+  }
+  socklen_t len = sizeof a;
+  ::getsockname(fd, reinterpret_cast<sockaddr*>(&a), &len);
+  boundPort = ntohs(a.sin_port);
+  return fd;
 }
 
 namespace {
@@ -96,35 +111,24 @@ struct Server::Impl {
   struct Client {
     int fd = -1;
     std::vector<std::uint8_t> in;
-    std::string out;                                        // bytes being written
+    std::shared_ptr<const std::string> out;                 // the message being written (shared, not copied) ...
+    std::size_t outAt = 0;                                  // ... from here on
     std::map<std::pair<std::string, std::string>, std::uint64_t> sent;  // serial of each kind sent
-    std::vector<std::string> replies;                       // answers, in order
+    std::vector<std::shared_ptr<const std::string>> replies;  // answers, in order
     bool closed = false;
   };
   std::vector<Client> clients;
 
   void listen() {
-    sockaddr_in a{};
-    a.sin_family = AF_INET;
-    if (::inet_pton(AF_INET, options.address.c_str(), &a.sin_addr) != 1)
-      throw InputError(fmt::format("OpenIGTLink server: '{}' is not an IPv4 address", options.address));
-    a.sin_port = htons(static_cast<std::uint16_t>(options.port));
-    listenFd = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC | SOCK_NONBLOCK, 0);
-    const int one = 1;
-    if (listenFd < 0 || ::setsockopt(listenFd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one) != 0 ||
-        ::bind(listenFd, reinterpret_cast<sockaddr*>(&a), sizeof a) != 0 || ::listen(listenFd, 16) != 0)
-      throw InputError(fmt::format("OpenIGTLink server: cannot listen on {}:{}: {}", options.address, options.port,
-                                   std::strerror(errno)));
-    socklen_t len = sizeof a;
-    ::getsockname(listenFd, reinterpret_cast<sockaddr*>(&a), &len);
-    port = ntohs(a.sin_port);
+    listenFd = listenTcp(options.address, options.port, 16, port, "OpenIGTLink server");
     if (::pipe2(wake, O_CLOEXEC | O_NONBLOCK) != 0)
       throw InputError(fmt::format("OpenIGTLink server: cannot make its wake-up pipe: {}", std::strerror(errno)));
   }
 
   // What `c` still has to get, newest of each kind, into c.out (replies first).
   void fill(Client& c) {
-    if (!c.out.empty()) return;
+    if (c.out) return;
+    c.outAt = 0;
     if (!c.replies.empty()) {
       c.out = std::move(c.replies.front());
       c.replies.erase(c.replies.begin());
@@ -140,7 +144,11 @@ struct Server::Impl {
     }
     if (!next) return;
     c.sent[*key] = next->serial;
-    c.out = *next->bytes;
+    c.out = next->bytes;
+  }
+
+  static void reply(Client& c, std::string bytes) {
+    c.replies.push_back(std::make_shared<const std::string>(std::move(bytes)));
   }
 
   // The answer to one whole message from a client.
@@ -156,27 +164,27 @@ struct Server::Impl {
       }
       for (const char* get : {"GET_CAPABIL", "GET_STATUS", "GET_IMAGE", "GET_TRANSFORM"}) types.emplace_back(get);
       cap->SetTypes(types);
-      c.replies.push_back(packed(*cap));
+      reply(c, packed(*cap));
     } else if (type == "GET_STATUS") {
-      c.replies.push_back(status(::igtl::StatusMessage::STATUS_OK, device, "", "pp5echo is running"));
+      reply(c, status(::igtl::StatusMessage::STATUS_OK, device, "", "pp5echo is running"));
     } else if (type.rfind("GET_", 0) == 0) {
       // The newest message of that type and device (any device when none is named).
       const std::string wanted = type.substr(4);
-      std::vector<std::string> found;
+      std::vector<std::shared_ptr<const std::string>> found;
       {
         const std::lock_guard lock(m);
         for (const auto& [k, v] : latest)
-          if (k.first == wanted && (device.empty() || k.second == device)) found.push_back(*v.bytes);
+          if (k.first == wanted && (device.empty() || k.second == device)) found.push_back(v.bytes);
       }
       if (found.empty())
-        c.replies.push_back(status(::igtl::StatusMessage::STATUS_NOT_FOUND, device, "NOT_FOUND",
-                                   fmt::format("pp5echo has no {} named '{}' (yet)", wanted, device)));
+        reply(c, status(::igtl::StatusMessage::STATUS_NOT_FOUND, device, "NOT_FOUND",
+                        fmt::format("pp5echo has no {} named '{}' (yet)", wanted, device)));
       for (auto& f : found) c.replies.push_back(std::move(f));
     } else if (type == "STATUS" || type.rfind("STT_", 0) == 0 || type.rfind("STP_", 0) == 0) {
       // A client's own status, or a stream start/stop pp5echo does not offer: noted, not answered.
     } else {
-      c.replies.push_back(status(::igtl::StatusMessage::STATUS_UNKNOWN_INSTRUCTION, device, "UNKNOWN_INSTRUCTION",
-                                 fmt::format("pp5echo does not handle {} messages", type)));
+      reply(c, status(::igtl::StatusMessage::STATUS_UNKNOWN_INSTRUCTION, device, "UNKNOWN_INSTRUCTION",
+                      fmt::format("pp5echo does not handle {} messages", type)));
     }
   }
 
@@ -204,14 +212,15 @@ struct Server::Impl {
 
   void writeTo(Client& c) {
     fill(c);
-    while (!c.out.empty()) {
-      const ssize_t n = ::send(c.fd, c.out.data(), c.out.size(), MSG_NOSIGNAL);
+    while (c.out) {
+      const ssize_t n = ::send(c.fd, c.out->data() + c.outAt, c.out->size() - c.outAt, MSG_NOSIGNAL);
       if (n < 0 && (errno == EAGAIN || errno == EINTR)) return;
       if (n <= 0) {
         c.closed = true;
         return;
       }
-      c.out.erase(0, static_cast<std::size_t>(n));
+      c.outAt += static_cast<std::size_t>(n);
+      if (c.outAt == c.out->size()) c.out.reset();
       fill(c);
     }
   }
@@ -220,7 +229,7 @@ struct Server::Impl {
   bool pending() {
     for (Client& c : clients) {
       fill(c);
-      if (!c.out.empty()) return true;
+      if (c.out) return true;
     }
     return false;
   }
@@ -237,7 +246,7 @@ struct Server::Impl {
       std::vector<pollfd> fds = {{listenFd, POLLIN, 0}, {wake[0], POLLIN, 0}};
       for (Client& c : clients) {
         fill(c);
-        fds.push_back({c.fd, static_cast<short>(POLLIN | (c.out.empty() ? 0 : POLLOUT)), 0});
+        fds.push_back({c.fd, static_cast<short>(POLLIN | (c.out ? POLLOUT : 0)), 0});
       }
       if (::poll(fds.data(), fds.size(), 200) < 0 && errno != EINTR) break;
       if (fds[1].revents & POLLIN) {

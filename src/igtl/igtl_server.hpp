@@ -30,6 +30,11 @@ struct ServerOptions {
 // InputError naming `key` otherwise.
 void parseServeAddress(const std::string& text, const std::string& key, std::string& address, int& port);
 
+// A listening, non-blocking IPv4 TCP socket on address:port, with SO_REUSEADDR
+// (so that a port in TIME_WAIT can be listened on again); the port it got
+// into `boundPort`. InputError starting with `what` when it cannot.
+int listenTcp(const std::string& address, int port, int backlog, int& boundPort, const std::string& what);
+
 class Server {
 public:
   // Binds and starts serving; InputError when the address cannot be bound.

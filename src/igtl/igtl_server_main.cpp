@@ -32,6 +32,7 @@
 #include "core/error.hpp"
 #include "formats/sequence_io.hpp"
 #include "igtl/igtl_client.hpp"
+#include "igtl/igtl_server.hpp"
 #include "igtl/igtl_wire.hpp"
 
 namespace {
@@ -81,21 +82,12 @@ class Listener {
 public:
   ~Listener() { close(); }
   void open(const std::string& address, int port) {
-    sockaddr_in a{};
-    a.sin_family = AF_INET;
-    if (::inet_pton(AF_INET, address.c_str(), &a.sin_addr) != 1)
+    in_addr probe{};
+    if (::inet_pton(AF_INET, address.c_str(), &probe) != 1)
       throw InputError(fmt::format("--bind {}: give an IPv4 address (127.0.0.1 for this machine, 0.0.0.0 for every "
                                    "interface)",
                                    address));
-    a.sin_port = htons(static_cast<std::uint16_t>(port));
-    fd_ = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
-    const int one = 1;
-    if (fd_ < 0 || ::setsockopt(fd_, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one) != 0 ||
-        ::bind(fd_, reinterpret_cast<sockaddr*>(&a), sizeof a) != 0 || ::listen(fd_, 1) != 0)
-      throw InputError(fmt::format("cannot listen on {}:{}: {}", address, port, std::strerror(errno)));
-    socklen_t len = sizeof a;
-    ::getsockname(fd_, reinterpret_cast<sockaddr*>(&a), &len);
-    port_ = ntohs(a.sin_port);
+    fd_ = pp5::igtl::listenTcp(address, port, 1, port_, "pp5echo-igtl-server");
   }
   int port() const { return port_; }
   int accept(double timeoutS) {

@@ -1,5 +1,6 @@
 #include "outputs/live_view.hpp"
 #include "outputs/live_view_impl.hpp"
+#include "core/io_util.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -80,19 +81,6 @@ void checkViewSettings(const ViewSettings& s) {
     throw InputError(fmt::format("view.drag_pixel_stride = {}: give 1, 2, 4 or 8", s.dragPixelStride));
 }
 
-void parseListen(const std::string& listen, std::string& address, int& port, const std::string& what) {
-  const auto colon = listen.rfind(':');
-  address = colon == std::string::npos ? "127.0.0.1" : listen.substr(0, colon);
-  const std::string p = colon == std::string::npos ? listen : listen.substr(colon + 1);
-  if (address.size() > 2 && address.front() == '[' && address.back() == ']') address = address.substr(1, address.size() - 2);
-  char* end = nullptr;
-  const long v = std::strtol(p.c_str(), &end, 10);
-  if (p.empty() || address.empty() || *end != '\0' || v < 0 || v > 65535)
-    throw InputError(fmt::format("{} = \"{}\": give [ADDRESS:]PORT, e.g. 8080 or 127.0.0.1:8080 (port 0..65535)",
-                                 what, listen));
-  port = static_cast<int>(v);
-}
-
 std::vector<glm::dvec4> rampOpacity(double level, double window, double opacity) {
   const double lo = level - 0.5 * window, hi = level + 0.5 * window;
   auto at = [&](double v) { return opacity * std::clamp((v - lo) / (hi - lo), 0.0, 1.0); };
@@ -122,7 +110,7 @@ LiveView::LiveView(const ViewSettings& settings, const Grid& grid, const RenderS
   checkViewSettings(settings);
   impl_->recordDir = recordDir;
   viewer::ServerOptions o;
-  parseListen(settings.listen, o.address, o.port, "view.listen");
+  io::parseListen(settings.listen, o.address, o.port, "view.listen");
   o.root = settings.webRoot.empty() ? std::string(PP5_WEB_ROOT) : settings.webRoot;
   o.token = settings.token;
   if (o.token.empty() && !viewer::isLoopback(o.address)) o.token = randomToken();
