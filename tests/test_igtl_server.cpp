@@ -9,6 +9,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
@@ -23,6 +24,8 @@
 #include <igtlMessageHeader.h>
 #include <igtlStatusMessage.h>
 #include <igtlStringMessage.h>
+
+#include <fmt/format.h>
 
 #include "core/error.hpp"
 #include "formats/volume_io.hpp"
@@ -206,59 +209,226 @@ int freePort() {
   return ntohs(a.sin_port);
 }
 
-// A one-process run with run.igtl_serve: a client of Debian's library gets
-// the B-mode frames and the growing volume while the doll streams, and last
-// the final volume, voxel for voxel the volume.mha the run writes (as uint8).
-TEST(IgtlServe, ARunServesItsVolumeAndFramesToAClient) {
-  const std::string dir = (std::filesystem::temp_directory_path() / ("pp5_igtl_serve_" + std::to_string(::getpid()))).string();
+// A PlusServer command as Slicer's Plus Remote sends it: STRING CMD_<uid>.
+void sendCommand(igtl::ClientSocket& socket, const std::string& uid, const std::string& xml) {
+  auto m = igtl::StringMessage::New();
+  m->SetDeviceName(("CMD_" + uid).c_str());
+  m->SetEncoding(3);
+  m->SetString(xml.c_str());
+  m->Pack();
+  socket.Send(m->GetPackPointer(), m->GetPackSize());
+}
+
+// What a client of Debian's library saw of a run with run.igtl_serve: the
+// live volume assembled from the whole volume and its sub-volume updates,
+// the counts of each kind, and the PlusServer commands' replies and volumes.
+struct Seen {
+  std::vector<std::uint8_t> volume;
+  int dims[3] = {0, 0, 0};
+  int wholeVolumes = 0, subVolumes = 0, frames = 0, framePoses = 0, views = 0;
+  std::vector<std::string> replies;  // each ACK's text, in order
+  struct Commanded {
+    int dims[3];
+    float spacing[3], origin[3];
+  };
+  std::vector<Commanded> commanded;  // the RecVol_Reference IMAGEs
+  // The region of interest asked for: the middle half of the run's grid.
+  int roiDims[3] = {0, 0, 0};
+  double roiSpacing[3] = {0, 0, 0}, roiOrigin[3] = {0, 0, 0};  // voxel 0's centre
+};
+
+// One command of the workflow, sent once `framesBefore` B-mode frames came
+// after the reply to the one before ("{ROI}" becomes the region's attributes).
+struct Step {
+  std::string xml;
+  int framesBefore = 0;
+};
+
+// Runs the doll (paced, so that the commands land while it streams) with
+// run.igtl_serve and a client that sends the Plus Remote workflow's commands
+// one after the other, each after the reply to the one before.
+Seen runWithClient(const std::string& launcher, const std::string& dir, const std::vector<Step>& commands) {
   std::filesystem::remove_all(dir);
   const int port = freePort();
-  const std::string cmd = std::string(PP5_BINARY) + " run " + PP5_SOURCE_DIR + "/configs/doll.toml --serial -o " + dir +
-                          " --igtl-serve 127.0.0.1:" + std::to_string(port) +
-                          " --set sim.sweep.max_frames=40 --set run.orbit_frames=0 --set run.mpr=false > " + dir +
-                          ".log 2>&1";
-  std::thread runner([&] { EXPECT_EQ(std::system(cmd.c_str()), 0) << cmd; });
+  const std::string cmd = launcher + std::string(PP5_BINARY) + " run " + PP5_SOURCE_DIR + "/configs/doll.toml" +
+                          (launcher.empty() ? " --serial" : "") + " -o " + dir + " --igtl-serve 127.0.0.1:" + std::to_string(port) +
+                          " --set sim.sweep.max_frames=60 --set run.pace_fps=20 --set run.orbit_frames=0 "
+                          "--set run.mpr=false > " + dir + ".log 2>&1";
+  std::thread runner([&] { EXPECT_EQ(std::system(cmd.c_str()), 0) << cmd << "\n(see " << dir << ".log)"; });
+  Seen seen;
   auto socket = igtl::ClientSocket::New();
   bool connected = false;
-  for (int i = 0; i < 300 && !connected; ++i) {
+  for (int i = 0; i < 600 && !connected; ++i) {
     connected = socket->ConnectToServer("127.0.0.1", port) == 0;
     if (!connected) std::this_thread::sleep_for(std::chrono::milliseconds(50));
   }
-  ASSERT_TRUE(connected);
-  socket->SetReceiveTimeout(20000);
-  int frames = 0, volumes = 0;
-  std::vector<std::uint8_t> last;
-  int lastDims[3] = {0, 0, 0};
+  EXPECT_TRUE(connected);
+  if (!connected) {
+    runner.join();
+    return seen;
+  }
+  socket->SetReceiveTimeout(30000);
+  std::size_t nextCommand = 0;
+  int wait = -1;  // frames still to come before the next command (-1: waiting for a reply or the volume)
+  auto sendNext = [&] {
+    if (nextCommand >= commands.size()) return;
+    std::string xml = commands[nextCommand].xml;
+    const std::size_t at = xml.find("{ROI}");
+    if (at != std::string::npos)
+      xml.replace(at, 5, fmt::format("OutputSpacing=\"{} {} {}\" OutputOrigin=\"{} {} {}\" OutputExtent=\"0 {} 0 {} 0 {}\"",
+                                     seen.roiSpacing[0], seen.roiSpacing[1], seen.roiSpacing[2], seen.roiOrigin[0],
+                                     seen.roiOrigin[1], seen.roiOrigin[2], seen.roiDims[0] - 1, seen.roiDims[1] - 1,
+                                     seen.roiDims[2] - 1));
+    sendCommand(*socket, std::to_string(nextCommand + 1), xml);
+    ++nextCommand;
+    wait = -1;
+  };
+  auto schedule = [&] {
+    if (nextCommand < commands.size()) wait = commands[nextCommand].framesBefore;
+    if (wait == 0) sendNext();
+  };
   while (true) {
     auto h = igtl::MessageHeader::New();
     h->InitPack();
     if (socket->Receive(h->GetPackPointer(), h->GetPackSize()) != h->GetPackSize()) break;  // the run ended
     h->Unpack();
-    auto img = igtl::ImageMessage::New();
-    img->SetMessageHeader(h);
-    img->AllocatePack();
-    ASSERT_EQ(socket->Receive(img->GetPackBodyPointer(), img->GetPackBodySize()), img->GetPackBodySize());
-    ASSERT_STREQ(h->GetDeviceType(), "IMAGE");
-    img->Unpack(1);
-    if (std::string(h->GetDeviceName()) == "Image_Reference") {
-      ++frames;
+    const std::string type = h->GetDeviceType(), device = h->GetDeviceName();
+    igtl::MessageBase::Pointer body;
+    if (type == "IMAGE") body = igtl::ImageMessage::New();
+    else if (type == "STRING") body = igtl::StringMessage::New();
+    else body = igtl::MessageBase::New();
+    body->SetMessageHeader(h);
+    body->AllocatePack();
+    if (body->GetPackBodySize() > 0 &&
+        socket->Receive(body->GetPackBodyPointer(), body->GetPackBodySize()) != body->GetPackBodySize())
+      break;
+    EXPECT_TRUE(body->Unpack(1) & igtl::MessageHeader::UNPACK_BODY) << type << " " << device << ": bad CRC";
+    if (type == "TRANSFORM") {
+      if (device == "ImageToReference") ++seen.framePoses;
+      continue;
+    }
+    if (type == "STRING") {
+      auto* str = dynamic_cast<igtl::StringMessage*>(body.GetPointer());
+      EXPECT_EQ(device, "ACK_" + std::to_string(nextCommand));
+      seen.replies.emplace_back(str->GetString());
+      schedule();
+      continue;
+    }
+    EXPECT_EQ(type, "IMAGE") << device;
+    if (type != "IMAGE") continue;
+    auto* img = dynamic_cast<igtl::ImageMessage*>(body.GetPointer());
+    int d[3], sub[3], off[3];
+    img->GetDimensions(d);
+    img->GetSubVolume(sub, off);
+    if (device == "Image_Reference") {
+      ++seen.frames;
+      if (wait > 0 && --wait == 0) sendNext();
+    } else if (device == "RenderedView") {
+      EXPECT_EQ(img->GetNumComponents(), 3);
+      ++seen.views;
+    } else if (device == "RecVol_Reference") {
+      Seen::Commanded c;
+      img->GetDimensions(c.dims);
+      img->GetSpacing(c.spacing);
+      img->GetOrigin(c.origin);
+      seen.commanded.push_back(c);
     } else {
-      ASSERT_STREQ(h->GetDeviceName(), "Volume_Reference");
-      ++volumes;
-      img->GetDimensions(lastDims);
+      EXPECT_EQ(device, "Volume_Reference");
       const auto* p = static_cast<const std::uint8_t*>(img->GetScalarPointer());
-      last.assign(p, p + static_cast<std::size_t>(lastDims[0]) * lastDims[1] * lastDims[2]);
+      const bool whole = sub[0] == d[0] && sub[1] == d[1] && sub[2] == d[2];
+      if (whole) {
+        ++seen.wholeVolumes;
+        std::copy(d, d + 3, seen.dims);
+        seen.volume.assign(p, p + static_cast<std::size_t>(d[0]) * d[1] * d[2]);
+        if (seen.wholeVolumes == 1) {  // the workflow starts once the volume is there, on its middle half
+          float spacing[3], centre[3];
+          img->GetSpacing(spacing);
+          img->GetOrigin(centre);
+          for (int a = 0; a < 3; ++a) {
+            seen.roiSpacing[a] = spacing[a];
+            seen.roiDims[a] = d[a] / 2;
+            seen.roiOrigin[a] = centre[a] - (d[a] - 1) / 2.0 * spacing[a] + (d[a] / 4) * spacing[a];
+          }
+          schedule();
+        }
+      } else {
+        ++seen.subVolumes;
+        EXPECT_TRUE(std::equal(d, d + 3, seen.dims)) << "a sub-volume of another volume";
+        for (int z = 0; z < sub[2]; ++z)
+          for (int y = 0; y < sub[1]; ++y)
+            std::copy_n(p + (static_cast<std::size_t>(z) * sub[1] + y) * sub[0], sub[0],
+                        seen.volume.begin() + ((static_cast<std::ptrdiff_t>(off[2]) + z) * d[1] + off[1] + y) * d[0] + off[0]);
+      }
     }
   }
   runner.join();
-  EXPECT_GE(frames, 1);
-  EXPECT_GE(volumes, 2);  // the live one and the final one
+  return seen;
+}
+
+// A run with run.igtl_serve, in one process and on 4 ranks: a client of
+// Debian's library assembles the volume from the whole one and the
+// sub-volume updates of the bricks that changed, and ends with the run's
+// volume.mha bit for bit; it gets B-mode frames with their poses and rendered
+// views; it drives a reconstruction of a region of interest through
+// PlusServer's commands (Start, Suspend, Resume, a snapshot, Stop), each
+// answered SUCCESS, the volumes on the region asked for.
+void servesTheRun(const std::string& launcher, const std::string& name) {
+  const std::string dir =
+      (std::filesystem::temp_directory_path() / ("pp5_igtl_" + name + "_" + std::to_string(::getpid()))).string();
+  const std::vector<Step> commands = {
+      {R"(<Command Name="StartVolumeReconstruction" {ROI} OutputVolDeviceName="RecVol_Reference"/>)", 0},
+      {R"(<Command Name="SuspendVolumeReconstruction"/>)", 8},
+      {R"(<Command Name="ResumeVolumeReconstruction"/>)", 8},
+      {R"(<Command Name="GetVolumeReconstructionSnapshot" ApplyHoleFilling="TRUE"/>)", 8},
+      {R"(<Command Name="StopVolumeReconstruction" OutputVolFilename="roi.mha"/>)", 4},
+      {R"(<Command Name="NoSuchCommand"/>)", 0},
+  };
+  const Seen seen = runWithClient(launcher, dir, commands);
+  std::printf("%s: %d whole volumes, %d sub-volumes, %d frames, %d poses, %d views; replies:\n", name.c_str(),
+              seen.wholeVolumes, seen.subVolumes, seen.frames, seen.framePoses, seen.views);
+  for (const auto& r : seen.replies) std::printf("  %s\n", r.c_str());
+  EXPECT_GE(seen.frames, 1);
+  EXPECT_GE(seen.framePoses, 1);
+  EXPECT_GE(seen.views, 1);
+  EXPECT_GE(seen.wholeVolumes, 1);
+  EXPECT_GE(seen.subVolumes, 1);
+  ASSERT_EQ(seen.replies.size(), commands.size());
+  for (std::size_t i = 0; i + 1 < commands.size(); ++i)
+    EXPECT_NE(seen.replies[i].find("Status=\"SUCCESS\""), std::string::npos) << commands[i].xml << " -> " << seen.replies[i];
+  EXPECT_NE(seen.replies.back().find("Status=\"FAIL\""), std::string::npos) << seen.replies.back();
+  // Frames went in while it ran, none while suspended: fewer than it ran for.
+  int inserted = -1;
+  const std::size_t at = seen.replies[4].find(" voxels, ");
+  if (at != std::string::npos) inserted = std::atoi(seen.replies[4].c_str() + at + 9);
+  EXPECT_GT(inserted, 0) << seen.replies[4];
+  EXPECT_LT(inserted, seen.frames - 8) << seen.replies[4];
+  ASSERT_EQ(seen.commanded.size(), 2u);  // the snapshot's and the stop's
+  for (const auto& c : seen.commanded)
+    for (int a = 0; a < 3; ++a) {
+      EXPECT_EQ(c.dims[a], seen.roiDims[a]) << a;
+      EXPECT_FLOAT_EQ(c.spacing[a], static_cast<float>(seen.roiSpacing[a])) << a;
+      // OpenIGTLink's origin: the region's centre
+      EXPECT_NEAR(c.origin[a], seen.roiOrigin[a] + (seen.roiDims[a] - 1) / 2.0 * seen.roiSpacing[a], 1e-3) << a;
+    }
+  const pp5::Volume roi = pp5::readVolume(dir + "/roi.mha");
+  for (int a = 0; a < 3; ++a) {
+    EXPECT_EQ(roi.grid.dims[a], seen.roiDims[a]) << a;
+    EXPECT_NEAR(roi.grid.origin[a], seen.roiOrigin[a], 1e-3) << a;
+  }
+  EXPECT_GT(std::count_if(roi.bytes.begin(), roi.bytes.end(), [](std::uint8_t b) { return b != 0; }), 0)
+      << "the commanded reconstruction is empty";
   const pp5::Volume v = pp5::readVolume(dir + "/volume.mha").as(pp5::ScalarType::U8);
-  ASSERT_EQ(lastDims[0], v.grid.dims.x);
-  ASSERT_EQ(lastDims[1], v.grid.dims.y);
-  ASSERT_EQ(lastDims[2], v.grid.dims.z);
-  EXPECT_TRUE(last == v.bytes) << "the last volume sent is not the run's final volume";
-  std::filesystem::remove_all(dir);
+  ASSERT_EQ(seen.dims[0], v.grid.dims.x);
+  ASSERT_EQ(seen.dims[1], v.grid.dims.y);
+  ASSERT_EQ(seen.dims[2], v.grid.dims.z);
+  EXPECT_TRUE(seen.volume == v.bytes) << "the volume assembled from the updates is not the run's volume.mha";
+  if (!::testing::Test::HasFailure()) std::filesystem::remove_all(dir);
+}
+
+TEST(IgtlServe, AOneProcessRunServesItsVolumeViewsFramesAndCommands) { servesTheRun("", "serial"); }
+
+TEST(IgtlServe, AFourRankRunServesItsVolumeViewsFramesAndCommands) {
+  servesTheRun(std::string(PP5_SOURCE_DIR) + "/scripts/mpirun.sh 4 ", "ranks");
 }
 
 TEST(IgtlServe, ServeAddresses) {

@@ -12,7 +12,8 @@ namespace pp5::host {
 
 struct IgtlServeSettings {
   std::string serve;       // "[ADDR:]PORT"; "" = no server (`run --igtl-serve` sets it)
-  double volumeHz = 10.0;  // the live volume to the clients at most this often
+  double volumeHz = 10.0;  // the live volume's changes to the clients at most this often
+  double viewHz = 30.0;    // the rendered view to the clients at most this often
 };
 void registerOptions(ConfigSchema& schema, IgtlServeSettings& s);
 

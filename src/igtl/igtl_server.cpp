@@ -9,6 +9,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <deque>
 #include <atomic>
 #include <cerrno>
 #include <chrono>
@@ -22,9 +23,8 @@
 #include <vector>
 
 #include <fmt/format.h>
-#include <igtlCapabilityMessage.h>
 #include <igtlStatusMessage.h>
-#include <igtl_header.h>
+#include <spdlog/spdlog.h>
 
 #include "core/error.hpp"
 #include "core/io_util.hpp"
@@ -59,37 +59,6 @@ int listenTcp(const std::string& address, int port, int backlog, int& boundPort,
   return fd;
 }
 
-namespace {
-
-std::uint64_t bigEndian64(const std::uint8_t* p) {
-  std::uint64_t v = 0;
-  for (int i = 0; i < 8; ++i) v = (v << 8) | p[i];
-  return v;
-}
-
-std::string field(const std::uint8_t* p, std::size_t n) {
-  std::size_t len = 0;
-  while (len < n && p[len] != 0) ++len;
-  return {reinterpret_cast<const char*>(p), len};
-}
-
-std::string packed(::igtl::MessageBase& m) {
-  m.Pack();
-  return {static_cast<const char*>(m.GetPackPointer()), static_cast<std::size_t>(m.GetPackSize())};
-}
-
-std::string status(int code, const std::string& device, const std::string& errorName, const std::string& text) {
-  auto s = ::igtl::StatusMessage::New();
-  s->SetDeviceName(device.c_str());
-  s->SetCode(code);
-  s->SetSubCode(0);
-  s->SetErrorName(errorName.substr(0, 19).c_str());  // a 20-byte field
-  s->SetStatusString(text.c_str());
-  return packed(*s);
-}
-
-}  // namespace
-
 struct Server::Impl {
   ServerOptions options;
   int listenFd = -1;
@@ -99,25 +68,47 @@ struct Server::Impl {
   std::atomic<std::size_t> clientCount{0};
   std::thread thread;
 
-  // The newest message of each (type, device); `serial` orders them.
+  using Bytes = std::shared_ptr<const std::string>;
+  // Under `m`: the newest message of each (type, device), `serial` ordering
+  // them; the live volume; replies posted from other threads; the handler.
   struct Kept {
-    std::shared_ptr<const std::string> bytes;
+    Bytes bytes;
     std::uint64_t serial = 0;
+  };
+  struct LiveVolume {
+    std::string device;
+    Index3 dims{0};
+    Mat4 pixelToFrame{1.0};
+    std::shared_ptr<const std::vector<std::uint8_t>> voxels;
+    std::vector<std::uint64_t> brickSerial;  // the serial of each brick's last change
+    std::uint64_t serial = 0;                // of the newest change
+    std::uint64_t geometry = 0;              // counts changes of device, size or geometry
+    double timeS = 0.0;
   };
   std::mutex m;
   std::map<std::pair<std::string, std::string>, Kept> latest;
+  LiveVolume volume;
   std::uint64_t serial = 0;
+  std::vector<std::pair<std::uint64_t, Bytes>> posted;  // (client id, reply)
+  CommandHandler handler;
 
   struct Client {
+    std::uint64_t id = 0;
     int fd = -1;
-    std::vector<std::uint8_t> in;
-    std::shared_ptr<const std::string> out;                 // the message being written (shared, not copied) ...
+    std::string peer;                                       // "127.0.0.1:54321", for the log
+    MessageReader reader{0};
+    Bytes out;                                              // the message being written (shared, not copied) ...
     std::size_t outAt = 0;                                  // ... from here on
     std::map<std::pair<std::string, std::string>, std::uint64_t> sent;  // serial of each kind sent
-    std::vector<std::shared_ptr<const std::string>> replies;  // answers, in order
+    std::deque<Bytes> replies;                              // answers, in order
+    std::deque<Bytes> volumeParts;                          // the volume update being sent
+    std::uint64_t volumeSent = 0;                           // the volume serial it has (0: none)
+    std::uint64_t volumeGeometry = 0;
+    std::deque<std::chrono::steady_clock::time_point> commandTimes;  // within the last second
     bool closed = false;
   };
   std::vector<Client> clients;
+  std::uint64_t nextId = 0;
 
   void listen() {
     listenFd = listenTcp(options.address, options.port, 16, port, "OpenIGTLink server");
@@ -125,16 +116,62 @@ struct Server::Impl {
       throw InputError(fmt::format("OpenIGTLink server: cannot make its wake-up pipe: {}", std::strerror(errno)));
   }
 
-  // What `c` still has to get, newest of each kind, into c.out (replies first).
+  void wakeUp() {
+    const char b = 1;
+    (void)!::write(wake[1], &b, 1);
+  }
+
+  // The volume's update for `c`: whole when it has none or the geometry
+  // changed, else a sub-volume for each run of changed bricks along x.
+  void packVolume(Client& c, const LiveVolume& v, const std::vector<std::uint64_t>& brickSerial) {
+    const std::uint8_t* voxels = v.voxels->data();
+    const bool whole = c.volumeSent == 0 || c.volumeGeometry != v.geometry;
+    if (whole) {
+      c.volumeParts.push_back(std::make_shared<const std::string>(
+          wire::packCentredImage(v.device, v.dims, voxels, v.pixelToFrame, v.timeS)));
+    } else {
+      const Index3 nb = bricks(v.dims);
+      const std::int64_t b = kVolumeBrick;
+      for (std::int64_t k = 0; k < nb.z; ++k)
+        for (std::int64_t j = 0; j < nb.y; ++j)
+          for (std::int64_t i = 0; i < nb.x;) {
+            const auto changed = [&](std::int64_t x) { return brickSerial[static_cast<std::size_t>((k * nb.y + j) * nb.x + x)] > c.volumeSent; };
+            if (!changed(i)) {
+              ++i;
+              continue;
+            }
+            std::int64_t e = i;
+            while (e < nb.x && changed(e)) ++e;
+            const Index3 lo(i * b, j * b, k * b);
+            const Index3 hi = glm::min(Index3(e * b, (j + 1) * b, (k + 1) * b), v.dims);
+            c.volumeParts.push_back(std::make_shared<const std::string>(
+                wire::packSubVolume(v.device, v.dims, voxels, v.pixelToFrame, lo, hi - lo, v.timeS)));
+            i = e;
+          }
+    }
+    c.volumeSent = v.serial;
+    c.volumeGeometry = v.geometry;
+  }
+
+  // What `c` gets next into c.out: its replies first, then the volume update
+  // under way, then the oldest kind it has not had the newest of.
   void fill(Client& c) {
     if (c.out) return;
     c.outAt = 0;
-    if (!c.replies.empty()) {
-      c.out = std::move(c.replies.front());
-      c.replies.erase(c.replies.begin());
-      return;
-    }
-    const std::lock_guard lock(m);
+    std::unique_lock lock(m);
+    for (auto it = posted.begin(); it != posted.end();)
+      if (Client* to = find(it->first)) {
+        to->replies.push_back(std::move(it->second));
+        it = posted.erase(it);
+      } else {
+        it = posted.erase(it);  // its client has gone
+      }
+    for (std::deque<Bytes>* q : {&c.replies, &c.volumeParts})
+      if (!q->empty()) {
+        c.out = std::move(q->front());
+        q->pop_front();
+        return;
+      }
     const Kept* next = nullptr;
     const std::pair<std::string, std::string>* key = nullptr;
     for (const auto& [k, v] : latest) {
@@ -142,49 +179,109 @@ struct Server::Impl {
       if (it != c.sent.end() && it->second >= v.serial) continue;
       if (!next || v.serial < next->serial) next = &v, key = &k;
     }
+    if (volume.voxels && volume.serial > c.volumeSent && (!next || volume.serial < next->serial)) {
+      const LiveVolume v = volume;  // shares the voxels; the packing is done unlocked
+      lock.unlock();
+      packVolume(c, v, v.brickSerial);
+      if (!c.volumeParts.empty()) {
+        c.out = std::move(c.volumeParts.front());
+        c.volumeParts.pop_front();
+      }
+      return;
+    }
     if (!next) return;
     c.sent[*key] = next->serial;
     c.out = next->bytes;
   }
 
-  static void reply(Client& c, std::string bytes) {
-    c.replies.push_back(std::make_shared<const std::string>(std::move(bytes)));
+  Client* find(std::uint64_t id) {
+    for (Client& c : clients)
+      if (c.id == id) return &c;
+    return nullptr;
+  }
+
+  static void reply(Client& c, std::string bytes) { c.replies.push_back(std::make_shared<const std::string>(std::move(bytes))); }
+
+  void command(Client& c, const Incoming& msg) {
+    const auto now = std::chrono::steady_clock::now();
+    while (!c.commandTimes.empty() && now - c.commandTimes.front() > std::chrono::seconds(1)) c.commandTimes.pop_front();
+    const std::string uid = msg.device.substr(4);
+    if (static_cast<int>(c.commandTimes.size()) >= options.commandsPerSecond) {
+      reply(c, packCommandReply(uid, false, fmt::format("more than {} commands a second; this one was not run",
+                                                        options.commandsPerSecond)));
+      return;
+    }
+    c.commandTimes.push_back(now);
+    Command cmd;
+    try {
+      cmd = parseCommand(msg);
+    } catch (const InputError& e) {
+      spdlog::warn("igtl: {}: {}", c.peer, e.what());
+      if (uid.empty()) reply(c, packStatus(::igtl::StatusMessage::STATUS_UNKNOWN_INSTRUCTION, msg.device, "BAD_COMMAND", e.what()));
+      else reply(c, packCommandReply(uid, false, e.what()));
+      return;
+    }
+    CommandHandler h;
+    {
+      const std::lock_guard lock(m);
+      h = handler;
+    }
+    if (!h) {
+      reply(c, packCommandReply(cmd.uid, false, fmt::format("{}: this server runs no commands", cmd.name)));
+      return;
+    }
+    const std::weak_ptr<Impl> self = weakSelf;
+    const std::uint64_t id = c.id;
+    h(cmd, [self, id, uid = cmd.uid](bool ok, const std::string& message) {
+      if (const auto impl = self.lock()) {
+        {
+          const std::lock_guard lock(impl->m);
+          impl->posted.emplace_back(id, std::make_shared<const std::string>(packCommandReply(uid, ok, message)));
+        }
+        impl->wakeUp();
+      }
+    });
   }
 
   // The answer to one whole message from a client.
-  void answer(Client& c, const std::string& type, const std::string& device) {
-    if (type == "GET_CAPABIL") {
-      auto cap = ::igtl::CapabilityMessage::New();
-      cap->SetDeviceName(device.c_str());
-      std::vector<std::string> types = {"CAPABILITY", "STATUS"};
+  void answer(Client& c, const Incoming& msg) {
+    const std::string& type = msg.type;
+    const std::string& device = msg.device;
+    if (isCommand(msg)) {
+      command(c, msg);
+    } else if (type == "GET_CAPABIL") {
+      std::vector<std::string> types = {"CAPABILITY", "STATUS", "STRING"};
       {
         const std::lock_guard lock(m);
+        if (volume.voxels) types.emplace_back("IMAGE");
         for (const auto& [k, v] : latest)
           if (std::find(types.begin(), types.end(), k.first) == types.end()) types.push_back(k.first);
       }
-      for (const char* get : {"GET_CAPABIL", "GET_STATUS", "GET_IMAGE", "GET_TRANSFORM"}) types.emplace_back(get);
-      cap->SetTypes(types);
-      reply(c, packed(*cap));
+      for (const char* get : {"GET_CAPABIL", "GET_STATUS", "GET_IMAGE", "GET_TRANS"}) types.emplace_back(get);
+      reply(c, packCapability(device, types));
     } else if (type == "GET_STATUS") {
-      reply(c, status(::igtl::StatusMessage::STATUS_OK, device, "", "pp5echo is running"));
-    } else if (type.rfind("GET_", 0) == 0) {
-      // The newest message of that type and device (any device when none is named).
-      const std::string wanted = type.substr(4);
-      std::vector<std::shared_ptr<const std::string>> found;
+      reply(c, packStatus(::igtl::StatusMessage::STATUS_OK, device, "", "pp5echo is running"));
+    } else if (type == "GET_IMAGE" || type == "GET_TRANS") {
+      // The newest message of that type and device (every device when none is named).
+      const std::string wanted = type == "GET_IMAGE" ? "IMAGE" : "TRANSFORM";
+      std::vector<Bytes> found;
+      bool theVolume = false;
       {
         const std::lock_guard lock(m);
         for (const auto& [k, v] : latest)
           if (k.first == wanted && (device.empty() || k.second == device)) found.push_back(v.bytes);
+        theVolume = wanted == "IMAGE" && volume.voxels && (device.empty() || device == volume.device);
       }
-      if (found.empty())
-        reply(c, status(::igtl::StatusMessage::STATUS_NOT_FOUND, device, "NOT_FOUND",
-                        fmt::format("pp5echo has no {} named '{}' (yet)", wanted, device)));
+      if (theVolume) c.volumeSent = 0;  // the whole volume comes next
+      if (found.empty() && !theVolume)
+        reply(c, packStatus(::igtl::StatusMessage::STATUS_NOT_FOUND, device, "NOT_FOUND",
+                            fmt::format("pp5echo has no {} named '{}' (yet)", wanted, device)));
       for (auto& f : found) c.replies.push_back(std::move(f));
     } else if (type == "STATUS" || type.rfind("STT_", 0) == 0 || type.rfind("STP_", 0) == 0) {
       // A client's own status, or a stream start/stop pp5echo does not offer: noted, not answered.
     } else {
-      reply(c, status(::igtl::StatusMessage::STATUS_UNKNOWN_INSTRUCTION, device, "UNKNOWN_INSTRUCTION",
-                      fmt::format("pp5echo does not handle {} messages", type)));
+      reply(c, packStatus(::igtl::StatusMessage::STATUS_UNKNOWN_INSTRUCTION, device, "UNKNOWN_INSTRUCTION",
+                          fmt::format("pp5echo does not handle {} messages", type)));
     }
   }
 
@@ -196,17 +293,11 @@ struct Server::Impl {
       return;
     }
     if (n < 0) return;
-    c.in.insert(c.in.end(), buf, buf + n);
-    while (c.in.size() >= IGTL_HEADER_SIZE) {
-      const std::uint64_t body = bigEndian64(c.in.data() + 42);  // after version, type, device, timestamp
-      if (body > options.maxMessageBytes) {
-        c.closed = true;  // too large: the connection ends, the server goes on
-        return;
-      }
-      if (c.in.size() < IGTL_HEADER_SIZE + body) return;
-      const std::string type = field(c.in.data() + 2, 12), device = field(c.in.data() + 14, 20);
-      c.in.erase(c.in.begin(), c.in.begin() + static_cast<std::ptrdiff_t>(IGTL_HEADER_SIZE + body));
-      answer(c, type, device);
+    try {
+      for (const Incoming& msg : c.reader.feed(buf, static_cast<std::size_t>(n))) answer(c, msg);
+    } catch (const InputError& e) {
+      spdlog::warn("igtl: {}: {}; connection closed", c.peer, e.what());
+      c.closed = true;
     }
   }
 
@@ -232,6 +323,23 @@ struct Server::Impl {
       if (c.out) return true;
     }
     return false;
+  }
+
+  void accept() {
+    for (int fd; (fd = ::accept4(listenFd, nullptr, nullptr, SOCK_CLOEXEC | SOCK_NONBLOCK)) >= 0;) {
+      const int one = 1;  // each message as soon as it is written
+      ::setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
+      Client c;
+      c.id = ++nextId;
+      c.fd = fd;
+      c.reader = MessageReader(options.maxMessageBytes);
+      sockaddr_in a{};
+      socklen_t len = sizeof a;
+      char text[INET_ADDRSTRLEN] = "?";
+      if (::getpeername(fd, reinterpret_cast<sockaddr*>(&a), &len) == 0) ::inet_ntop(AF_INET, &a.sin_addr, text, sizeof text);
+      c.peer = fmt::format("client {}:{}", text, ntohs(a.sin_port));
+      clients.push_back(std::move(c));  // gets the newest of every kind at the next turn
+    }
   }
 
   void run() {
@@ -264,43 +372,76 @@ struct Server::Impl {
         if (c.closed) ::close(c.fd);
         return c.closed;
       });
-      if (fds[0].revents & POLLIN)
-        for (int fd; (fd = ::accept4(listenFd, nullptr, nullptr, SOCK_CLOEXEC | SOCK_NONBLOCK)) >= 0;) {
-          const int one = 1;  // each message as soon as it is written
-          ::setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
-          Client c;
-          c.fd = fd;
-          clients.push_back(std::move(c));  // gets the newest of every kind at the next turn
-        }
+      if (fds[0].revents & POLLIN) accept();
       clientCount = clients.size();
     }
     for (Client& c : clients) ::close(c.fd);
     clients.clear();
     clientCount = 0;
   }
+
+  std::weak_ptr<Impl> weakSelf;
 };
 
-Server::Server(const ServerOptions& options) : impl_(std::make_unique<Impl>()) {
+Server::Server(const ServerOptions& options) : impl_(std::make_shared<Impl>()) {
   impl_->options = options;
+  impl_->weakSelf = impl_;
   impl_->listen();
   impl_->thread = std::thread([impl = impl_.get()] { impl->run(); });
 }
 
 Server::~Server() {
   impl_->quit = true;
-  const char b = 1;
-  (void)!::write(impl_->wake[1], &b, 1);
+  impl_->wakeUp();
   if (impl_->thread.joinable()) impl_->thread.join();
   for (const int fd : {impl_->listenFd, impl_->wake[0], impl_->wake[1]})
     if (fd >= 0) ::close(fd);
+  impl_->wake[1] = -1;
 }
 
 int Server::port() const { return impl_->port; }
 std::size_t Server::clients() const { return impl_->clientCount.load(); }
 
+void Server::onCommand(CommandHandler handler) {
+  const std::lock_guard lock(impl_->m);
+  impl_->handler = std::move(handler);
+}
+
+Index3 Server::bricks(const Index3& dims) { return (dims + Index3(kVolumeBrick - 1)) / Index3(kVolumeBrick); }
+
 void Server::publishImage(const std::string& device, const Index3& dims, const std::uint8_t* voxels,
-                          const Mat4& pixelToFrame, double timeS) {
-  publish("IMAGE", device, wire::packCentredImage(device, dims, voxels, pixelToFrame, timeS));
+                          const Mat4& pixelToFrame, double timeS, int components) {
+  publish("IMAGE", device, wire::packCentredImage(device, dims, voxels, pixelToFrame, timeS, components));
+}
+
+void Server::publishVolume(const std::string& device, const Index3& dims,
+                           std::shared_ptr<const std::vector<std::uint8_t>> voxels, const Mat4& pixelToFrame,
+                           const std::vector<std::uint8_t>& changed, double timeS) {
+  const Index3 nb = bricks(dims);
+  const std::size_t n = static_cast<std::size_t>(nb.x * nb.y * nb.z);
+  if (!voxels || voxels->size() != static_cast<std::size_t>(dims.x * dims.y * dims.z) || (!changed.empty() && changed.size() != n))
+    throw InvariantError("publishVolume: voxels or the changed bricks do not match the volume's size");
+  {
+    const std::lock_guard lock(impl_->m);
+    Impl::LiveVolume& v = impl_->volume;
+    const bool geometry = v.device != device || v.dims != dims || v.pixelToFrame != pixelToFrame;
+    if (geometry) {
+      ++v.geometry;
+      v.device = device;
+      v.dims = dims;
+      v.pixelToFrame = pixelToFrame;
+      v.brickSerial.assign(n, 0);
+    }
+    const std::uint64_t s = impl_->serial + 1;
+    bool any = geometry;
+    for (std::size_t i = 0; i < n; ++i)
+      if (changed.empty() || changed[i]) v.brickSerial[i] = s, any = true;
+    v.voxels = std::move(voxels);
+    v.timeS = timeS;
+    if (!any) return;
+    v.serial = impl_->serial = s;
+  }
+  impl_->wakeUp();
 }
 
 void Server::publish(const std::string& type, const std::string& device, std::string bytes) {
@@ -310,8 +451,7 @@ void Server::publish(const std::string& type, const std::string& device, std::st
     k.bytes = std::make_shared<const std::string>(std::move(bytes));
     k.serial = ++impl_->serial;
   }
-  const char b = 1;
-  (void)!::write(impl_->wake[1], &b, 1);
+  impl_->wakeUp();
 }
 
 }  // namespace pp5::igtl

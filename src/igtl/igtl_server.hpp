@@ -1,30 +1,51 @@
 #pragma once
 // An OpenIGTLink server for any number of clients, on a thread of its own, so
-// that no client ever slows its caller (issue 41's foundation). What it sends
-// is what its caller publishes: each published message is kept as the newest
-// of its type and device name, sent to every client at once (a slow client
-// gets only the newest of each), to each newcomer when it connects, and as the
-// answer to GET_<type> with that device name (or with none: every one of the
-// type). It answers GET_CAPABIL with the types it sends, GET_STATUS with
-// STATUS OK, and any other message with a STATUS error naming it.
+// that no client ever slows its caller (issue 41). What it sends is what its
+// caller publishes:
+//  - messages (frames, transforms, rendered views): each kept as the newest of
+//    its type and device name, sent to every client as soon as it can take
+//    it (a slow client gets only the newest of each), to each newcomer when
+//    it connects, and as the answer to GET_<type>;
+//  - the live volume: whole to a newcomer and on GET_IMAGE, then as
+//    sub-volume IMAGEs of the bricks that changed since that client last got
+//    them (so an update a client has not taken merges into the next);
+//  - command replies, to the client that asked.
+// It answers GET_CAPABIL with the types it sends, GET_STATUS with STATUS OK,
+// PlusServer's commands (STRING CMD_<uid>) through the caller's handler, and
+// any other message with a STATUS error naming it. A client that sends what
+// MessageReader refuses (igtl/igtl_protocol.hpp) is logged in one line and
+// dropped; the others go on.
 //
 // Bound to 127.0.0.1 unless another address is given (then the caller warns).
-// Incoming messages are bounded in size, as the viewer's are.
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "core/grid.hpp"
 #include "core/transform.hpp"
+#include "igtl/igtl_protocol.hpp"
 
 namespace pp5::igtl {
 
 struct ServerOptions {
   std::string address = "127.0.0.1";
   int port = 18944;                          // 0: any free port (port() says which)
-  std::size_t maxMessageBytes = 64 * 1024;   // the largest message a client may send
+  std::size_t maxMessageBytes = 64 * 1024;   // the largest message body a client may send
+  int commandsPerSecond = 20;                // each client's budget; beyond it a command is refused
 };
+
+// The live volume's sub-volume updates are in bricks of this many voxels a side.
+constexpr int kVolumeBrick = 16;
+
+// Answers a command: ok and the reply's message. May be called from any
+// thread, once; a reply to a client that has gone is dropped.
+using CommandReply = std::function<void(bool ok, const std::string& message)>;
+// Called on the server's thread for each command; must return soon (long
+// work goes to the caller's thread, which replies when it is done).
+using CommandHandler = std::function<void(const Command& command, CommandReply reply)>;
 
 // "[ADDR:]PORT" (the form of run.igtl_serve) into the address and port;
 // InputError naming `key` otherwise.
@@ -45,20 +66,32 @@ public:
 
   int port() const;
   std::size_t clients() const;
+  // The commands' handler (none: every command is answered FAIL). Set before
+  // clients connect.
+  void onCommand(CommandHandler handler);
 
   // A packed message (header and body, as igtl::MessageBase::Pack leaves it)
   // of `type` ("IMAGE", "TRANSFORM", ...) and `device`: the newest of its kind.
   void publish(const std::string& type, const std::string& device, std::string packed);
   // A uint8 IMAGE of `dims` (x fastest; z = 1 for a 2D image) whose voxel
   // (i, j, k) lies at pixelToFrame * (i, j, k, 1), its origin the voxels'
-  // centre as OpenIGTLink defines it; InputError when it cannot be sent.
+  // centre as OpenIGTLink defines it; `components` bytes a voxel (3: RGB).
+  // InputError when it cannot be sent.
   void publishImage(const std::string& device, const Index3& dims, const std::uint8_t* voxels, const Mat4& pixelToFrame,
-                    double timeS);
+                    double timeS, int components = 1);
+  // The live volume (uint8, x fastest) of `dims` at `pixelToFrame` (as
+  // publishImage). `changed` has one byte per brick of kVolumeBrick voxels
+  // (x fastest; nonzero: changed since the last call); empty means every
+  // brick. A new device name, size or geometry sends the whole volume again.
+  void publishVolume(const std::string& device, const Index3& dims, std::shared_ptr<const std::vector<std::uint8_t>> voxels,
+                     const Mat4& pixelToFrame, const std::vector<std::uint8_t>& changed, double timeS);
+  // The bricks of `dims` along each axis.
+  static Index3 bricks(const Index3& dims);
 
   struct Impl;
 
 private:
-  std::unique_ptr<Impl> impl_;
+  std::shared_ptr<Impl> impl_;  // shared with the command replies still out
 };
 
 }  // namespace pp5::igtl

@@ -116,6 +116,15 @@ void imageToFrame(::igtl::ImageMessage& img, Frame& f) {
   f.imageValid = true;
 }
 
+namespace {
+// An IMAGE's voxel-block centre in voxel indices: (dims - 1) / 2.
+Vec3 centreIndex(::igtl::ImageMessage& img) {
+  int dims[3];
+  img.GetDimensions(dims);
+  return 0.5 * Vec3(dims[0] - 1, dims[1] - 1, dims[2] - 1);
+}
+}  // namespace
+
 Mat4 imagePixelToFrame(::igtl::ImageMessage& img) {
   ::igtl::Matrix4x4 m;
   img.GetMatrix(m);
@@ -125,6 +134,10 @@ Mat4 imagePixelToFrame(::igtl::ImageMessage& img) {
   for (int col = 0; col < 3; ++col) r[col] *= static_cast<double>(spacing[col]);
   r[0][3] = r[1][3] = r[2][3] = 0.0;
   r[3][3] = 1.0;
+  // The matrix's translation is the centre of the voxels: pixel 0 lies half
+  // the block before it.
+  const Vec3 centre(r[3]);
+  r[3] = Vec4(centre - glm::dmat3(r) * centreIndex(img), 1.0);
   return r;
 }
 
@@ -140,31 +153,55 @@ void setImageGeometry(::igtl::ImageMessage& img, const Mat4& pixelToFrame) {
     for (int row = 0; row < 3; ++row) m[row][col] = static_cast<float>(axis[row] / len);
     m[3][col] = 0.0f;
   }
-  for (int row = 0; row < 3; ++row) m[row][3] = static_cast<float>(pixelToFrame[3][row]);
+  const Vec4 centre = pixelToFrame * Vec4(centreIndex(img), 1.0);
+  for (int row = 0; row < 3; ++row) m[row][3] = static_cast<float>(centre[row]);
   m[3][3] = 1.0f;
   img.SetSpacing(spacing);
   img.SetMatrix(m);
 }
 
-std::string packCentredImage(const std::string& device, const Index3& dims, const std::uint8_t* voxels,
-                             const Mat4& pixelToFrame, double timeS) {
+namespace {
+
+std::string packImage(const std::string& device, const Index3& dims, const std::uint8_t* voxels,
+                      const Mat4& pixelToFrame, const Index3& offset, const Index3& size, double timeS,
+                      int components) {
   auto img = ::igtl::ImageMessage::New();
   img->SetDeviceName(device.substr(0, kMaxDeviceName).c_str());
   img->SetDimensions(static_cast<int>(dims.x), static_cast<int>(dims.y), static_cast<int>(dims.z));
-  img->SetSubVolume(static_cast<int>(dims.x), static_cast<int>(dims.y), static_cast<int>(dims.z), 0, 0, 0);
-  img->SetNumComponents(1);
+  img->SetSubVolume(static_cast<int>(size.x), static_cast<int>(size.y), static_cast<int>(size.z),
+                    static_cast<int>(offset.x), static_cast<int>(offset.y), static_cast<int>(offset.z));
+  img->SetNumComponents(components);
   img->SetScalarType(::igtl::ImageMessage::TYPE_UINT8);
   img->SetEndian(::igtl::ImageMessage::ENDIAN_LITTLE);
-  const Vec4 centre = pixelToFrame * Vec4(0.5 * Vec3(dims - Index3(1)), 1.0);
-  Mat4 m = pixelToFrame;
-  m[3] = centre;
-  setImageGeometry(*img, m);
+  setImageGeometry(*img, pixelToFrame);
   img->AllocateScalars();
-  std::memcpy(img->GetScalarPointer(), voxels, static_cast<std::size_t>(dims.x * dims.y * dims.z));
+  auto* out = static_cast<std::uint8_t*>(img->GetScalarPointer());
+  const std::size_t c = static_cast<std::size_t>(components), row = static_cast<std::size_t>(size.x) * c;
+  for (std::int64_t z = 0; z < size.z; ++z)
+    for (std::int64_t y = 0; y < size.y; ++y) {
+      const std::size_t from = static_cast<std::size_t>(((offset.z + z) * dims.y + offset.y + y) * dims.x + offset.x) * c;
+      std::memcpy(out, voxels + from, row);
+      out += row;
+    }
   const WireTime t = encodeTime(std::max(0.0, timeS));
   img->SetTimeStamp(t.sec, t.frac);
   img->Pack();
   return {static_cast<const char*>(img->GetPackPointer()), static_cast<std::size_t>(img->GetPackSize())};
+}
+
+}  // namespace
+
+std::string packCentredImage(const std::string& device, const Index3& dims, const std::uint8_t* voxels,
+                             const Mat4& pixelToFrame, double timeS, int components) {
+  return packImage(device, dims, voxels, pixelToFrame, Index3(0), dims, timeS, components);
+}
+
+std::string packSubVolume(const std::string& device, const Index3& dims, const std::uint8_t* voxels,
+                          const Mat4& pixelToFrame, const Index3& offset, const Index3& size, double timeS) {
+  for (int a = 0; a < 3; ++a)
+    if (offset[a] < 0 || size[a] <= 0 || offset[a] + size[a] > dims[a])
+      throw InvariantError("packSubVolume: the box is not inside the volume");
+  return packImage(device, dims, voxels, pixelToFrame, offset, size, timeS, 1);
 }
 
 }  // namespace pp5::igtl::wire

@@ -14,6 +14,7 @@
 #include "core/frame.hpp"
 #include "core/grid.hpp"
 #include "core/transform.hpp"
+#include "igtl/igtl_protocol.hpp"
 
 namespace pp5::igtl::wire {
 
@@ -39,25 +40,32 @@ std::string transformName(const std::string& device);
 // PLUS names an image by the frame it is given in: "Image_Reference" ->
 // "Reference". Empty for any other name (its matrix is then not a pose).
 std::string imageFrameName(const std::string& device);
-// Names are at most this long on the wire (longer ones are cut).
-constexpr std::size_t kMaxDeviceName = 20;
+constexpr std::size_t kMaxDeviceName = kDeviceNameLength;
 
 // Size, pixel type, pixels (u16 little-endian) and timestamp of an unpacked
 // IMAGE into f. InputError naming the device when a Frame cannot hold it.
 void imageToFrame(::igtl::ImageMessage& img, Frame& f);
-// The IMAGE's matrix (rotation and origin) times diag(spacing, 1): pixel
-// indices -> mm in the image's frame.
+// Pixel indices -> mm in the image's frame, from the IMAGE's matrix, spacing
+// and dimensions: the rotation times diag(spacing), and the matrix's
+// translation taken as OpenIGTLink (and Slicer, and PlusServer) define it,
+// the centre of the voxel block, at index (dims - 1) / 2.
 Mat4 imagePixelToFrame(::igtl::ImageMessage& img);
-// The inverse split for a sender: spacing = the column lengths of m's 3x3 part,
-// rotation = the columns divided by them. InputError for a zero column.
+// The inverse for a sender, after SetDimensions: spacing = the column lengths
+// of m's 3x3 part, rotation = the columns divided by them, translation = where
+// m puts the voxels' centre. InputError for a zero column.
 void setImageGeometry(::igtl::ImageMessage& img, const Mat4& pixelToFrame);
 
 // A packed 3D IMAGE of `dims` uint8 voxels (x fastest) whose voxel (i, j, k)
 // lies at pixelToFrame * (i, j, k, 1): the matrix's translation is the
 // centre of the voxel block, as OpenIGTLink defines an IMAGE's origin (the
 // voxels' centre at (dims - 1) / 2), so that Slicer places it right. A 2D
-// image is dims.z = 1.
+// image is dims.z = 1; `components` bytes a voxel (3: RGB).
 std::string packCentredImage(const std::string& device, const Index3& dims, const std::uint8_t* voxels,
-                             const Mat4& pixelToFrame, double timeS);
+                             const Mat4& pixelToFrame, double timeS, int components = 1);
+// The box of `size` voxels at `offset` of that uint8 volume (`voxels` the
+// whole volume's) as an IMAGE sub-volume: dimensions and matrix are the whole
+// volume's, the data the box's, x fastest.
+std::string packSubVolume(const std::string& device, const Index3& dims, const std::uint8_t* voxels,
+                          const Mat4& pixelToFrame, const Index3& offset, const Index3& size, double timeS);
 
 }  // namespace pp5::igtl::wire

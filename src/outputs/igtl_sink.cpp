@@ -1,26 +1,36 @@
 // The OpenIGTLink server as a sink (igtl/igtl_server.hpp): every client gets
-// the live volume as a 3D IMAGE at igtl.volume_hz (whole on connect), each
-// B-mode frame as a 2D IMAGE with its ImageToReference, and the final volume
-// at the end, named as PlusServer names its images (Image_Reference).
+// the live volume (whole on connect, then the bricks that changed, at
+// igtl.volume_hz), each B-mode frame as a 2D IMAGE with its ImageToReference
+// and as a TRANSFORM, the rendered view as an RGB IMAGE (at most 30 a
+// second), the final volume at the end, and PlusServer's commands
+// (outputs/igtl_commands.hpp); named as PlusServer names them.
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
+#include <cstring>
 #include <memory>
+#include <optional>
 
 #include <spdlog/spdlog.h>
 
 #include "core/config.hpp"
 #include "host/run_loop.hpp"
 #include "igtl/igtl_server.hpp"
+#include "outputs/igtl_commands.hpp"
 #include "outputs/sinks.hpp"
+#include "rendering/ray_cache.hpp"
 #include "viewer/viewer_server.hpp"
 
 namespace pp5::host {
 
 void registerOptions(ConfigSchema& c, IgtlServeSettings& s) {
-  c.section("igtl", "The OpenIGTLink server a run offers (run.igtl_serve): the live volume, the B-mode frames.");
+  c.section("igtl", "The OpenIGTLink server a run offers (run.igtl_serve): the live volume, the B-mode frames, "
+                    "the rendered view, PlusServer's commands.");
   c.option("igtl.volume_hz", &s.volumeHz, 10.0, 1.0, 30.0,
-           "The live volume to the OpenIGTLink clients at most this many times a second (whole each time).");
+           "The live volume's changes to the OpenIGTLink clients at most this many times a second (whole to a "
+           "newcomer, then the bricks that changed).");
+  c.option("igtl.view_hz", &s.viewHz, 30.0, 1.0, 30.0,
+           "The rendered view to the OpenIGTLink clients (an RGB IMAGE) at most this many times a second.");
 }
 
 }  // namespace pp5::host
@@ -32,26 +42,38 @@ namespace {
 using Clock = std::chrono::steady_clock;
 
 constexpr const char* kFrameDevice = "Image_Reference";    // PlusServer's name: the image in the Reference frame
-constexpr const char* kVolumeDevice = "Volume_Reference";  // the reconstruction, in the Reference frame
+constexpr const char* kFramePose = "ImageToReference";     // ... and its pose as a TRANSFORM
+constexpr const char* kVolumeDevice = "Volume_Reference";  // the run's reconstruction, in the Reference frame
+constexpr const char* kViewDevice = "RenderedView";        // the 3D view the user steers
+
+// When `t` (a steady-clock instant) was, on the wall clock: what a client on
+// this machine compares its own receipt time with.
+double wallSeconds(Clock::time_point t) {
+  const auto sys = std::chrono::system_clock::now() - std::chrono::duration_cast<std::chrono::system_clock::duration>(Clock::now() - t);
+  return std::chrono::duration<double>(sys.time_since_epoch()).count();
+}
 
 class IgtlSink final : public host::Sink {
 public:
-  explicit IgtlSink(const host::RunJob& j) : period_(1.0 / j.igtl.volumeHz) {
+  explicit IgtlSink(const host::RunJob& j) : volumePeriod_(1.0 / j.igtl.volumeHz), viewPeriod_(1.0 / j.igtl.viewHz) {
     igtl::ServerOptions o;
     igtl::parseServeAddress(j.igtl.serve, "run.igtl_serve", o.address, o.port);
     if (!viewer::isLoopback(o.address))
       spdlog::warn("igtl: serving on {}, not only this machine: any client that reaches it gets the volume and "
-                   "frames",
+                   "frames, and can command reconstructions and recordings",
                    o.address);
     server_ = std::make_unique<igtl::Server>(o);
-    std::printf("igtl: serving OpenIGTLink on %s:%d (%s, %s)\n", o.address.c_str(), server_->port(), kVolumeDevice,
-                kFrameDevice);
+    commands_ = std::make_unique<PlusCommands>(j, *server_);
+    std::printf("igtl: serving OpenIGTLink on %s:%d (%s, %s, %s; PlusServer's commands)\n", o.address.c_str(),
+                server_->port(), kVolumeDevice, kFrameDevice, kViewDevice);
     std::fflush(stdout);
   }
 
   void start(const host::RunStart& r) override { grid_ = r.grid; }
 
   void frame(const host::AcquiredFrame& a, std::uint64_t) override {
+    if (!firstSince_) firstSince_ = a.arrival;
+    commands_->frame(a);
     if (server_->clients() == 0) return;
     const Frame& f = a.frame;
     const std::uint8_t* px = f.pixels.data();
@@ -64,35 +86,77 @@ public:
     }
     try {
       server_->publishImage(kFrameDevice, Index3(f.width, f.height, 1), px, a.imageToReference, a.timeS);
+      server_->publish("TRANSFORM", kFramePose, igtl::packTransform(kFramePose, a.imageToReference, a.timeS));
     } catch (const InputError& e) {
       if (!saidFrame_) spdlog::warn("igtl: a frame cannot be sent ({}); such frames are not sent", e.what());
       saidFrame_ = true;
     }
   }
 
+  void image(const host::ImageView& im) override {
+    if (server_->clients() == 0 || !im.rgba || Clock::now() - lastView_ < std::chrono::duration<double>(viewPeriod_)) return;
+    lastView_ = Clock::now();
+    const std::vector<std::uint8_t> rgb = pp::toRgb8(pp::TileImage{im.width, im.height, *im.rgba});
+    // Row 0 of the rendered image is its top; an IMAGE's j axis points down the rows.
+    Mat4 m(1.0);
+    m[1][1] = -1.0;
+    m[3] = Vec4(0.0, static_cast<double>(im.height - 1), 0.0, 1.0);
+    server_->publishImage(kViewDevice, Index3(im.width, im.height, 1), rgb.data(), m, 0.0, 3);
+  }
+
   bool wantsVolume() const override {
-    return server_->clients() > 0 && Clock::now() - lastVolume_ >= std::chrono::duration<double>(period_);
+    if (server_->clients() == 0 || Clock::now() - lastVolume_ < std::chrono::duration<double>(volumePeriod_)) return false;
+    if (!asked_) {  // what this snapshot will hold that the last did not: the frames from firstSince_ on
+      asked_ = true;
+      stamp_ = firstSince_.value_or(Clock::now());
+      firstSince_.reset();
+    }
+    return true;
   }
   void volume(const Volume& v) override {
     lastVolume_ = Clock::now();
-    publishVolume(v);
+    asked_ = false;
+    publishVolume(v, stamp_);
   }
   bool wantsFinalVolume() const override { return true; }
-  void finalVolume(const Volume& v) override { publishVolume(v); }
+  void finalVolume(const Volume& v) override { publishVolume(v, firstSince_.value_or(stamp_)); }
+  void inputEnded() override { commands_->finish(); }
 
 private:
-  void publishVolume(const Volume& v) {
-    const Volume u8 = v.type == ScalarType::U8 ? v : v.as(ScalarType::U8);
+  // The voxels as uint8; only the bricks that changed since the last are sent.
+  void publishVolume(const Volume& v, Clock::time_point stamp) {
+    auto u8 = std::make_shared<std::vector<std::uint8_t>>(v.type == ScalarType::U8 ? v.bytes : v.as(ScalarType::U8).bytes);
+    const Index3 d = v.grid.dims, nb = igtl::Server::bricks(d);
+    std::vector<std::uint8_t> changed;
+    if (last_ && last_->size() == u8->size() && lastGrid_.dims == d) {
+      changed.assign(static_cast<std::size_t>(nb.x * nb.y * nb.z), 0);
+      const std::int64_t b = igtl::kVolumeBrick;
+      for (std::int64_t z = 0; z < d.z; ++z)
+        for (std::int64_t y = 0; y < d.y; ++y)
+          for (std::int64_t bx = 0; bx < nb.x; ++bx) {
+            const std::size_t at = static_cast<std::size_t>((z * d.y + y) * d.x + bx * b);
+            const std::size_t n = static_cast<std::size_t>(std::min(b, d.x - bx * b));
+            if (std::memcmp(u8->data() + at, last_->data() + at, n) != 0)
+              changed[static_cast<std::size_t>(((z / b) * nb.y + y / b) * nb.x + bx)] = 1;
+          }
+    }
     Mat4 m(1.0);
     for (int a = 0; a < 3; ++a) m[a][a] = v.grid.spacing[a];
     m[3] = Vec4(v.grid.origin, 1.0);
-    server_->publishImage(kVolumeDevice, v.grid.dims, u8.bytes.data(), m, 0.0);
+    server_->publishVolume(kVolumeDevice, d, u8, m, changed, wallSeconds(stamp));
+    last_ = std::move(u8);
+    lastGrid_ = v.grid;
   }
 
-  double period_;
-  Grid grid_;
+  double volumePeriod_, viewPeriod_;
+  Grid grid_, lastGrid_;
   std::unique_ptr<igtl::Server> server_;
-  Clock::time_point lastVolume_{};
+  std::unique_ptr<PlusCommands> commands_;  // after the server: ends before it
+  std::shared_ptr<const std::vector<std::uint8_t>> last_;
+  Clock::time_point lastVolume_{}, lastView_{};
+  mutable std::optional<Clock::time_point> firstSince_;  // the first frame since the last snapshot was asked for
+  mutable bool asked_ = false;
+  mutable Clock::time_point stamp_{};
   bool saidFrame_ = false;
 };
 
