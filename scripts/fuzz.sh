@@ -7,6 +7,7 @@
 #   plus_xml a PLUS device-set config (coordinates, reconstruction, phantom, segmentation)
 #   toml     a TOML settings file with every section pp5echo registers
 #   igtl     an OpenIGTLink stream decoded by the live source's client
+#   igtl_server  a client's stream read by the OpenIGTLink server (run.igtl_serve), commands parsed
 #   control  the live viewer's control messages
 # The parsers' corpora are made from ../shared/data/plus, configs/ and packed
 # seed messages each time, in the build folder; only the decoder's is committed.
@@ -27,7 +28,7 @@ root=$(cd "$(dirname "$0")/.." && pwd)
 secs=60
 merge=0
 seeds=0
-only="decoder,metaio,nrrd,journal,plus_xml,toml,igtl,control"
+only="decoder,metaio,nrrd,journal,plus_xml,toml,igtl,igtl_server,control"
 while [ $# -gt 0 ]; do
   case "$1" in
     --merge) merge=1 ;;
@@ -55,8 +56,8 @@ IFS=, read -r -a names <<<"$only"
 targets=()
 for n in "${names[@]}"; do
   case "$n" in
-    decoder|metaio|nrrd|journal|plus_xml|toml|igtl|control) targets+=("fuzz_$n") ;;
-    *) echo "fuzz.sh: unknown target '$n' (decoder, metaio, nrrd, journal, plus_xml, toml, igtl, control)" >&2; exit 2 ;;
+    decoder|metaio|nrrd|journal|plus_xml|toml|igtl|igtl_server|control) targets+=("fuzz_$n") ;;
+    *) echo "fuzz.sh: unknown target '$n' (decoder, metaio, nrrd, journal, plus_xml, toml, igtl, igtl_server, control)" >&2; exit 2 ;;
   esac
 done
 [ "$seeds" = 1 ] && targets=(fuzz_decoder_seeds)
@@ -113,7 +114,7 @@ PY
     fuzz_plus_xml) cp "$data"/*.xml "$dir"/ 2>/dev/null || true ;;
     fuzz_toml)
       cp "$root"/configs/*.toml "$root"/tests/configs/*.toml "$dir"/ 2>/dev/null || true ;;
-    fuzz_igtl|fuzz_control|fuzz_journal) PP5_FUZZ_SEEDS_DIR="$dir" "$bindir/$t" ;;
+    fuzz_igtl|fuzz_igtl_server|fuzz_control|fuzz_journal) PP5_FUZZ_SEEDS_DIR="$dir" "$bindir/$t" ;;
   esac
 }
 

@@ -28,7 +28,7 @@ for a in "$@"; do
     *) secs=$a ;;
   esac
 done
-fuzz_targets=(fuzz_decoder fuzz_metaio fuzz_nrrd fuzz_journal fuzz_plus_xml fuzz_toml fuzz_igtl fuzz_control)
+fuzz_targets=(fuzz_decoder fuzz_metaio fuzz_nrrd fuzz_journal fuzz_plus_xml fuzz_toml fuzz_igtl fuzz_igtl_server fuzz_control)
 
 cxx=$(bash "$root/scripts/clang.sh") || exit 77
 dir=${PP5_FUZZ_BUILD_DIR:-$root/build-fuzz}

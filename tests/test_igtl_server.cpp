@@ -14,6 +14,7 @@
 #include <cstring>
 #include <filesystem>
 #include <functional>
+#include <sstream>
 #include <string>
 #include <thread>
 #include <vector>
@@ -24,12 +25,15 @@
 #include <igtlMessageHeader.h>
 #include <igtlStatusMessage.h>
 #include <igtlStringMessage.h>
+#include <spdlog/sinks/ostream_sink.h>
+#include <spdlog/spdlog.h>
 
 #include <fmt/format.h>
 
 #include "core/error.hpp"
 #include "formats/volume_io.hpp"
 #include "igtl/igtl_server.hpp"
+#include "igtl/igtl_wire.hpp"
 
 namespace {
 
@@ -196,6 +200,101 @@ TEST(IgtlServe, AnImagesOriginIsItsCentre) {
   EXPECT_EQ(sec, 12u);
 }
 
+// A raw TCP connection to the server, for bytes no library would send.
+int rawConnect(int port) {
+  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
+  sockaddr_in a{};
+  a.sin_family = AF_INET;
+  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  a.sin_port = htons(static_cast<std::uint16_t>(port));
+  EXPECT_EQ(::connect(fd, reinterpret_cast<sockaddr*>(&a), sizeof a), 0);
+  timeval tv{10, 0};
+  ::setsockopt(fd, SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof tv);
+  return fd;
+}
+
+// Whether the server closed `fd` (reading what it sent before, up to the end).
+bool closedByServer(int fd) {
+  char buf[4096];
+  while (true) {
+    const ssize_t n = ::recv(fd, buf, sizeof buf, 0);
+    if (n == 0) return true;
+    if (n < 0) return false;  // timed out: still open
+  }
+}
+
+std::string packedOf(igtl::MessageBase& m) {
+  m.Pack();
+  return {static_cast<const char*>(m.GetPackPointer()), static_cast<std::size_t>(m.GetPackSize())};
+}
+
+// A hostile client: garbage, a claimed 1 GiB body, a body size that wraps, a
+// bad CRC. Each ends its connection with one clear line in the log; the
+// server serves the next client.
+TEST(IgtlServe, HostileInputEndsThatConnectionWithOneLogLine) {
+  auto stream = std::make_shared<std::ostringstream>();
+  auto sink = std::make_shared<spdlog::sinks::ostream_sink_mt>(*stream);
+  spdlog::default_logger()->sinks().push_back(sink);
+  Server s(anyPort());
+  s.publish("IMAGE", "Volume_Reference", volumeMessage("Volume_Reference", 3));
+  auto status = igtl::GetStatusMessage::New();
+  const std::string good = packedOf(*status);
+  auto withBodySize = [&](std::uint64_t size) {
+    std::string m = good;
+    for (int i = 0; i < 8; ++i) m[42 + i] = static_cast<char>(size >> (56 - 8 * i));
+    return m;
+  };
+  auto text = igtl::StringMessage::New();
+  text->SetDeviceName("CMD_1");
+  text->SetString(R"(<Command Name="StartRecording"/>)");
+  std::string badCrc = packedOf(*text);
+  badCrc.back() ^= 0x20;  // the body changed after its CRC was taken
+  const std::vector<std::pair<std::string, std::string>> cases = {
+      {std::string(64, 'x') + "GET / HTTP/1.1\r\n\r\n", "not OpenIGTLink"},
+      {withBodySize(std::uint64_t{1} << 30), "1073741824 bytes claimed"},
+      {withBodySize(~std::uint64_t{0}), "18446744073709551615 bytes claimed"},
+      {badCrc, "CRC"},
+  };
+  for (const auto& [bytes, said] : cases) {
+    stream->str("");
+    const int fd = rawConnect(s.port());
+    ASSERT_EQ(::send(fd, bytes.data(), bytes.size(), MSG_NOSIGNAL), static_cast<ssize_t>(bytes.size()));
+    EXPECT_TRUE(closedByServer(fd)) << said;
+    ::close(fd);
+    const std::string log = stream->str();
+    EXPECT_EQ(std::count(log.begin(), log.end(), '\n'), 1) << log;
+    EXPECT_NE(log.find(said), std::string::npos) << log;
+    EXPECT_NE(log.find("connection closed"), std::string::npos) << log;
+  }
+  Peer next(s.port());
+  igtl::MessageBase::Pointer m;
+  EXPECT_STREQ(next.next(m)->GetDeviceName(), "Volume_Reference");
+  spdlog::default_logger()->sinks().pop_back();
+}
+
+// A client reads an IMAGE's origin as OpenIGTLink defines it (the centre of
+// the voxels), as PlusServer and Slicer send it: pixel 0 lies half the image
+// before it.
+TEST(IgtlServe, AClientReadsAnImagesOriginAsItsCentre) {
+  auto img = igtl::ImageMessage::New();
+  img->SetDimensions(5, 3, 1);
+  img->SetSpacing(0.5f, 0.25f, 1.0f);
+  img->SetOrigin(10.0f, 20.0f, 30.0f);
+  const pp5::Mat4 m = pp5::igtl::wire::imagePixelToFrame(*img);
+  EXPECT_DOUBLE_EQ(m[3][0], 10.0 - 2 * 0.5);
+  EXPECT_DOUBLE_EQ(m[3][1], 20.0 - 1 * 0.25);
+  EXPECT_DOUBLE_EQ(m[3][2], 30.0);
+  EXPECT_DOUBLE_EQ(m[0][0], 0.5);
+  // and back: the sender's matrix puts the centre there again
+  auto back = igtl::ImageMessage::New();
+  back->SetDimensions(5, 3, 1);
+  pp5::igtl::wire::setImageGeometry(*back, m);
+  float origin[3];
+  back->GetOrigin(origin);
+  EXPECT_FLOAT_EQ(origin[0], 10.0f);
+  EXPECT_FLOAT_EQ(origin[1], 20.0f);
+}
+
 // A free TCP port on 127.0.0.1 (bound, read, closed).
 int freePort() {
   const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
@@ -251,7 +350,7 @@ Seen runWithClient(const std::string& launcher, const std::string& dir, const st
   std::filesystem::remove_all(dir);
   const int port = freePort();
   const std::string cmd = launcher + std::string(PP5_BINARY) + " run " + PP5_SOURCE_DIR + "/configs/doll.toml" +
-                          (launcher.empty() ? " --serial" : "") + " -o " + dir + " --igtl-serve 127.0.0.1:" + std::to_string(port) +
+                          (launcher.empty() ? " --serial" : " --verify") + " -o " + dir + " --igtl-serve 127.0.0.1:" + std::to_string(port) +
                           " --set sim.sweep.max_frames=60 --set run.pace_fps=20 --set run.orbit_frames=0 "
                           "--set run.mpr=false > " + dir + ".log 2>&1";
   std::thread runner([&] { EXPECT_EQ(std::system(cmd.c_str()), 0) << cmd << "\n(see " << dir << ".log)"; });
@@ -371,7 +470,9 @@ Seen runWithClient(const std::string& launcher, const std::string& dir, const st
 // volume.mha bit for bit; it gets B-mode frames with their poses and rendered
 // views; it drives a reconstruction of a region of interest through
 // PlusServer's commands (Start, Suspend, Resume, a snapshot, Stop), each
-// answered SUCCESS, the volumes on the region asked for.
+// answered SUCCESS, the volumes on the region asked for. On 4 ranks with
+// --verify: the volume the host assembles from the GPs' changed bricks equals
+// the serial pipeline's.
 void servesTheRun(const std::string& launcher, const std::string& name) {
   const std::string dir =
       (std::filesystem::temp_directory_path() / ("pp5_igtl_" + name + "_" + std::to_string(::getpid()))).string();

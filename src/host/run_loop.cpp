@@ -39,7 +39,7 @@ public:
       for (Sink* s : sinks_) s->image(im);
     };
     e.volume = [this](const Volume& v) {
-      for (Sink* s : volumeTo_) s->volume(v);
+      for (Sink* s : volumeTo_) s->volume(v, volumeFrames_);
       volumeTo_.clear();
     };
     e.stats = [this](const std::vector<double>& row) {
@@ -58,6 +58,7 @@ private:
   Steering* steer_ = nullptr;
   Sink* steerSink_ = nullptr;
   std::vector<Sink*> volumeTo_;  // the sinks a snapshot on its way is for
+  std::uint64_t volumeFrames_ = 0;  // ... and the frames it holds
   ViewState state_;              // what the pipeline renders now
   std::uint64_t frames_ = 0;
   const Acquisition* acq_ = nullptr;
@@ -92,6 +93,7 @@ private:
       if (frames_ > 0 && s->wantsVolume() && std::find(volumeTo_.begin(), volumeTo_.end(), s) == volumeTo_.end()) {
         const bool first = volumeTo_.empty();
         volumeTo_.push_back(s);
+        if (first) volumeFrames_ = frames_;
         if (first && p_.requestVolume()) acted = true;
       }
     if (Clock::now() - lastFigures_ > std::chrono::milliseconds(250)) publishFigures();
@@ -200,7 +202,7 @@ void RunLoop::serveVolume() {
   RunStart rs{j_.grid, j_.pipeline.render.width, j_.pipeline.render.height, state_, p_.statsColumns()};
   for (Sink* s : sinks_) s->start(rs);
   const Volume& v = p_.volume();
-  for (Sink* s : sinks_) s->volume(v);
+  for (Sink* s : sinks_) s->volume(v, 0);
   for (Sink* s : sinks_) s->inputEnded();
   if (steer_) serveFinal();
 }

@@ -65,9 +65,10 @@ public:
   }
   virtual void image(const ImageView& im) { (void)im; }
   virtual void stats(const std::vector<double>& row) { (void)row; }
-  // A snapshot of the growing volume, asked for while the input runs.
+  // A snapshot of the growing volume, asked for while the input runs; it
+  // holds the first `frames` frames (those frame() was given with k < frames).
   virtual bool wantsVolume() const { return false; }
-  virtual void volume(const Volume& v) { (void)v; }
+  virtual void volume(const Volume& v, std::uint64_t frames) { (void)v, (void)frames; }
   virtual void figures(const LiveFigures& f) { (void)f; }
   virtual void inputEnded() {}
   // After the final passes: the image of every frame.

@@ -62,7 +62,7 @@ std::vector<Incoming> MessageReader::feed(const std::uint8_t* bytes, std::size_t
     if (m.type.empty()) throw InputError("not OpenIGTLink: the header's type is empty");
     const std::uint64_t body = bigEndian64(h + 42);
     if (body > maxBody_)
-      throw InputError(fmt::format("a {} message of {} bytes claimed, over the limit of {} bytes", m.type, body,
+      throw InputError(fmt::format("{} message of {} bytes claimed, over the limit of {} bytes", m.type, body,
                                    maxBody_));
     if (in_.size() - at < IGTL_HEADER_SIZE + body) break;
     const std::uint64_t crc = bigEndian64(h + 50);

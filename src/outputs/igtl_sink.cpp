@@ -8,6 +8,7 @@
 #include <chrono>
 #include <cstdio>
 #include <cstring>
+#include <deque>
 #include <memory>
 #include <optional>
 
@@ -71,8 +72,17 @@ public:
 
   void start(const host::RunStart& r) override { grid_ = r.grid; }
 
-  void frame(const host::AcquiredFrame& a, std::uint64_t) override {
-    if (!firstSince_) firstSince_ = a.arrival;
+  void frame(const host::AcquiredFrame& a, std::uint64_t k) override {
+    if (server_->clients() == 0) arrivals_.clear();  // no snapshot is asked for: only the newest matters
+    arrivals_.emplace_back(k, a.arrival);
+    // A snapshot is asked for right after a frame went in, once the period
+    // since the frame that asked for the last is over (by the frames' own
+    // arrival times, less 5 % for their jitter): that frame waits for none,
+    // the oldest for the least.
+    if (!asked_ && std::chrono::duration<double>(a.arrival - lastAskedBy_).count() >= 0.95 * volumePeriod_) {
+      due_ = true;
+      dueBy_ = a.arrival;
+    }
     commands_->frame(a);
     if (server_->clients() == 0) return;
     const Frame& f = a.frame;
@@ -105,39 +115,71 @@ public:
   }
 
   bool wantsVolume() const override {
-    if (server_->clients() == 0 || Clock::now() - lastVolume_ < std::chrono::duration<double>(volumePeriod_)) return false;
-    if (!asked_) {  // what this snapshot will hold that the last did not: the frames from firstSince_ on
-      asked_ = true;
-      stamp_ = firstSince_.value_or(Clock::now());
-      firstSince_.reset();
-    }
+    if (server_->clients() == 0 || asked_) return false;
+    // Frames that came when none was due yet, and no frame since for a
+    // period (the input paused or ended): theirs now.
+    if (!due_ && !arrivals_.empty() && Clock::now() - arrivals_.back().second >= std::chrono::duration<double>(volumePeriod_))
+      due_ = true, dueBy_ = Clock::now();
+    if (!due_) return false;
+    asked_ = true;  // the loop asks for it now, or joins the request on its way
+    due_ = false;
+    lastAskedBy_ = dueBy_;
     return true;
   }
-  void volume(const Volume& v) override {
-    lastVolume_ = Clock::now();
+  void volume(const Volume& v, std::uint64_t frames) override {
     asked_ = false;
-    publishVolume(v, stamp_);
+    publishVolume(v, frames);
   }
   bool wantsFinalVolume() const override { return true; }
-  void finalVolume(const Volume& v) override { publishVolume(v, firstSince_.value_or(stamp_)); }
+  void finalVolume(const Volume& v) override { publishVolume(v, ~std::uint64_t{0}); }
   void inputEnded() override { commands_->finish(); }
 
 private:
-  // The voxels as uint8; only the bricks that changed since the last are sent.
-  void publishVolume(const Volume& v, Clock::time_point stamp) {
-    auto u8 = std::make_shared<std::vector<std::uint8_t>>(v.type == ScalarType::U8 ? v.bytes : v.as(ScalarType::U8).bytes);
+  // When the oldest frame this snapshot holds and the last did not reached
+  // the host (the newest frame's time when it holds none new): the latency
+  // of its changes is counted from there.
+  Clock::time_point stampOf(std::uint64_t frames) {
+    Clock::time_point stamp = arrivals_.empty() ? Clock::now() : arrivals_.back().second;
+    bool first = true;
+    while (!arrivals_.empty() && arrivals_.front().first < frames) {
+      if (first) stamp = arrivals_.front().second, first = false;
+      arrivals_.pop_front();
+    }
+    return stamp;
+  }
+
+  // The voxels as uint8; only the bricks that changed since the last are
+  // sent. The rows of x-bricks whose voxels changed since the last snapshot
+  // are found by comparing with it in the volume's own type, and only those
+  // are converted (the whole volume the first time, or when its size changes).
+  void publishVolume(const Volume& v, std::uint64_t frames) {
+    const Clock::time_point stamp = stampOf(frames);
     const Index3 d = v.grid.dims, nb = igtl::Server::bricks(d);
+    const bool fresh = !last_ || lastGrid_.dims != d || lastGrid_.origin != v.grid.origin ||
+                       lastGrid_.spacing != v.grid.spacing || lastRaw_.type != v.type;
+    auto u8 = fresh ? std::make_shared<std::vector<std::uint8_t>>(v.grid.voxelCount())
+                    : std::make_shared<std::vector<std::uint8_t>>(*last_);
     std::vector<std::uint8_t> changed;
-    if (last_ && last_->size() == u8->size() && lastGrid_.dims == d) {
+    if (fresh) {
+      lastRaw_ = v;
+      const Volume c = v.type == ScalarType::U8 ? v : v.as(ScalarType::U8);
+      std::memcpy(u8->data(), c.bytes.data(), u8->size());
+    } else {
       changed.assign(static_cast<std::size_t>(nb.x * nb.y * nb.z), 0);
       const std::int64_t b = igtl::kVolumeBrick;
+      const std::size_t bpv = static_cast<std::size_t>(scalarBytes(v.type));
       for (std::int64_t z = 0; z < d.z; ++z)
         for (std::int64_t y = 0; y < d.y; ++y)
           for (std::int64_t bx = 0; bx < nb.x; ++bx) {
             const std::size_t at = static_cast<std::size_t>((z * d.y + y) * d.x + bx * b);
             const std::size_t n = static_cast<std::size_t>(std::min(b, d.x - bx * b));
-            if (std::memcmp(u8->data() + at, last_->data() + at, n) != 0)
-              changed[static_cast<std::size_t>(((z / b) * nb.y + y / b) * nb.x + bx)] = 1;
+            if (std::memcmp(v.bytes.data() + at * bpv, lastRaw_.bytes.data() + at * bpv, n * bpv) == 0) continue;
+            std::memcpy(lastRaw_.bytes.data() + at * bpv, v.bytes.data() + at * bpv, n * bpv);
+            for (std::size_t i = at; i < at + n; ++i) {  // as Volume::as rounds them for volume.mha
+              one_.setValue(0, v.value(i));
+              (*u8)[i] = one_.bytes[0];
+            }
+            changed[static_cast<std::size_t>(((z / b) * nb.y + y / b) * nb.x + bx)] = 1;
           }
     }
     Mat4 m(1.0);
@@ -152,11 +194,15 @@ private:
   Grid grid_, lastGrid_;
   std::unique_ptr<igtl::Server> server_;
   std::unique_ptr<PlusCommands> commands_;  // after the server: ends before it
-  std::shared_ptr<const std::vector<std::uint8_t>> last_;
-  Clock::time_point lastVolume_{}, lastView_{};
-  mutable std::optional<Clock::time_point> firstSince_;  // the first frame since the last snapshot was asked for
-  mutable bool asked_ = false;
-  mutable Clock::time_point stamp_{};
+  std::shared_ptr<const std::vector<std::uint8_t>> last_;  // what the clients were last given
+  Volume lastRaw_;                                          // ... in the volume's own type
+  Volume one_{Grid{Vec3(0.0), Vec3(1.0), Index3(1)}, ScalarType::U8, {0}};  // one voxel, to convert with
+  Clock::time_point lastView_{};
+  std::deque<std::pair<std::uint64_t, Clock::time_point>> arrivals_;  // frames no snapshot has held yet
+  mutable bool asked_ = false;  // a snapshot is on its way
+  mutable bool due_ = false;          // a frame went in once the period was over ...
+  mutable Clock::time_point dueBy_{};  // ... at this arrival time
+  mutable Clock::time_point lastAskedBy_{};  // the arrival of the frame that asked for the last
   bool saidFrame_ = false;
 };
 

@@ -264,6 +264,10 @@ private:
       r = update_->reconstructor().insert(f, pose, fm.timeS);
     }
     clock_.stop();
+    if (!r.dirty.empty()) {
+      if (sinceVolume_.bricks().empty() && sinceVolume_.grid().dims != r.dirty.grid().dims) sinceVolume_ = DirtyRegion(r.dirty.grid(), r.dirty.brickSize());
+      sinceVolume_.merge(r.dirty);
+    }
     return r;
   }
 
@@ -292,6 +296,7 @@ private:
     if (ch & ControlMsg::kFinish) {
       clock_.start(kReconstruct);
       update_->reconstructor().finish();
+      volumeWhole_ = true;
     }
     std::uint64_t samples = 0;
     const std::uint64_t bytes0 = t_.totals().bytesSent;
@@ -361,38 +366,71 @@ private:
   }
 
   // This GP's part of the reconstructed volume, in runs of z planes.
+  // This GP's part of the volume: whole the first time and after the final
+  // passes (which change voxels no frame's dirty region names), then only the
+  // runs of bricks along x that frames changed since the last request (the
+  // host keeps the volume it assembled).
   void sendVolume(const Header& h) {
     const Grid& g = c_.grid;
-    const Box3 box = partition_->volumePart(g_);
+    const Box3 part = partition_->volumePart(g_);
+    std::vector<Box3> boxes;
+    if (volumeWhole_ || part.empty()) {
+      boxes.push_back(part);
+    } else {
+      const Index3 bd = sinceVolume_.brickDims();
+      const auto& ids = sinceVolume_.bricks();
+      for (std::size_t i = 0; i < ids.size();) {
+        std::size_t e = i + 1;
+        while (e < ids.size() && ids[e] == ids[e - 1] + 1 && ids[e] % bd.x != 0) ++e;  // one row of bricks
+        Box3 b = sinceVolume_.brickBox(ids[i]);
+        b.hi = sinceVolume_.brickBox(ids[e - 1]).hi;
+        b.lo = glm::max(b.lo, part.lo);
+        b.hi = glm::min(b.hi, part.hi);
+        if (!b.empty()) boxes.push_back(b);
+        i = e;
+      }
+      if (boxes.empty()) boxes.push_back(Box3{});  // nothing changed: the last message alone
+    }
+    volumeWhole_ = false;
+    sinceVolume_.clear();
     const Volume& v = update_->reconstructor().output();
     const auto bpv = static_cast<std::size_t>(scalarBytes(v.type));
-    const std::int64_t nx = box.hi.x - box.lo.x, ny = box.hi.y - box.lo.y;
-    const std::size_t planeBytes = static_cast<std::size_t>(std::max<std::int64_t>(0, nx * ny)) * bpv;
-    const std::int64_t planesPerMsg =
-        planeBytes ? std::max<std::int64_t>(1, static_cast<std::int64_t>((std::size_t{64} << 20) / planeBytes)) : 1;
-    std::int64_t z = box.lo.z;
-    do {
-      const std::int64_t z1 = box.empty() ? z : std::min(box.hi.z, z + planesPerMsg);
-      VolumeMsg vm;
-      vm.h = {kTagVolume, h.epoch, h.frame};
-      vm.gp = static_cast<std::uint32_t>(g_);
-      vm.scalarType = static_cast<std::uint32_t>(v.type);
-      vm.lo[0] = box.lo.x, vm.lo[1] = box.lo.y, vm.lo[2] = z;
-      vm.hi[0] = box.hi.x, vm.hi[1] = box.hi.y, vm.hi[2] = z1;
-      vm.last = z1 >= box.hi.z || box.empty();
-      std::vector<std::byte> buf(sizeof vm + planeBytes * static_cast<std::size_t>(std::max<std::int64_t>(0, z1 - z)));
-      std::memcpy(buf.data(), &vm, sizeof vm);
-      std::byte* out = buf.data() + sizeof vm;
-      for (std::int64_t k = z; k < z1; ++k)
-        for (std::int64_t j = box.lo.y; j < box.hi.y; ++j) {
-          std::memcpy(out, v.bytes.data() + g.linear(box.lo.x, j, k) * bpv, static_cast<std::size_t>(nx) * bpv);
-          out += static_cast<std::size_t>(nx) * bpv;
-        }
-      t_.sendBuffer(0, kTagVolume, std::move(buf));
-      z = z1;
-      if (vm.last) break;
-    } while (true);
+    for (std::size_t bi = 0; bi < boxes.size(); ++bi) {
+      const Box3& box = boxes[bi];
+      const std::int64_t nx = box.hi.x - box.lo.x, ny = box.hi.y - box.lo.y;
+      const std::size_t planeBytes = static_cast<std::size_t>(std::max<std::int64_t>(0, nx * ny)) * bpv;
+      const std::int64_t planesPerMsg =
+          planeBytes ? std::max<std::int64_t>(1, static_cast<std::int64_t>((std::size_t{64} << 20) / planeBytes)) : 1;
+      std::int64_t z = box.lo.z;
+      do {
+        const std::int64_t z1 = box.empty() ? z : std::min(box.hi.z, z + planesPerMsg);
+        VolumeMsg vm;
+        vm.h = {kTagVolume, h.epoch, h.frame};
+        vm.gp = static_cast<std::uint32_t>(g_);
+        vm.scalarType = static_cast<std::uint32_t>(v.type);
+        vm.lo[0] = box.lo.x, vm.lo[1] = box.lo.y, vm.lo[2] = z;
+        vm.hi[0] = box.hi.x, vm.hi[1] = box.hi.y, vm.hi[2] = z1;
+        const bool lastOfBox = z1 >= box.hi.z || box.empty();
+        vm.last = lastOfBox && bi + 1 == boxes.size();
+        std::vector<std::byte> buf(sizeof vm + planeBytes * static_cast<std::size_t>(std::max<std::int64_t>(0, z1 - z)));
+        std::memcpy(buf.data(), &vm, sizeof vm);
+        std::byte* out = buf.data() + sizeof vm;
+        for (std::int64_t k = z; k < z1; ++k)
+          for (std::int64_t j = box.lo.y; j < box.hi.y; ++j) {
+            std::memcpy(out, v.bytes.data() + g.linear(box.lo.x, j, k) * bpv, static_cast<std::size_t>(nx) * bpv);
+            out += static_cast<std::size_t>(nx) * bpv;
+          }
+        t_.sendBuffer(0, kTagVolume, std::move(buf));
+        z = z1;
+        if (lastOfBox) break;
+      } while (true);
+    }
   }
+
+  // The bricks frames changed since the last volume request; whether the
+  // next sends the whole part instead.
+  DirtyRegion sinceVolume_;
+  bool volumeWhole_ = true;
 };
 
 }  // namespace
