@@ -14,6 +14,8 @@
 #include <cstring>
 #include <filesystem>
 #include <functional>
+#include <map>
+#include <mutex>
 #include <sstream>
 #include <string>
 #include <thread>
@@ -25,6 +27,8 @@
 #include <igtlMessageHeader.h>
 #include <igtlStatusMessage.h>
 #include <igtlStringMessage.h>
+#include <igtlTransformMessage.h>
+#include <igtl_util.h>
 #include <spdlog/sinks/ostream_sink.h>
 #include <spdlog/spdlog.h>
 
@@ -32,6 +36,7 @@
 
 #include "core/error.hpp"
 #include "formats/volume_io.hpp"
+#include "igtl/igtl_client.hpp"
 #include "igtl/igtl_server.hpp"
 #include "igtl/igtl_wire.hpp"
 
@@ -272,27 +277,185 @@ TEST(IgtlServe, HostileInputEndsThatConnectionWithOneLogLine) {
   spdlog::default_logger()->sinks().pop_back();
 }
 
+// Big-endian bytes, written out here from OpenIGTLink 3's layout (not with
+// pp5echo's codec), for the messages Debian's 1.11 library cannot make.
+void be(std::string& s, std::uint64_t v, int bytes) {
+  for (int i = bytes - 1; i >= 0; --i) s.push_back(static_cast<char>((v >> (8 * i)) & 0xff));
+}
+std::uint64_t readBe(const std::string& s, std::size_t at, int bytes) {
+  std::uint64_t v = 0;
+  for (int i = 0; i < bytes; ++i) v = (v << 8) | static_cast<std::uint8_t>(s[at + static_cast<std::size_t>(i)]);
+  return v;
+}
+
+// A version 2 message: header, extended header (12 bytes, no metadata), content.
+std::string v2Message(const std::string& type, const std::string& device, std::uint32_t messageId, const std::string& content,
+                      std::uint32_t seconds = 0) {
+  std::string body;
+  be(body, 12, 2);  // extended header size
+  be(body, 0, 2);   // metadata header size
+  be(body, 0, 4);   // metadata size
+  be(body, messageId, 4);
+  body += content;
+  std::string m;
+  be(m, 2, 2);
+  std::string t = type, d = device;
+  t.resize(12, '\0');
+  d.resize(20, '\0');
+  m += t + d;
+  be(m, std::uint64_t{seconds} << 32, 8);  // timestamp
+  be(m, body.size(), 8);
+  be(m, crc64(reinterpret_cast<unsigned char*>(body.data()), body.size(), 0), 8);  // Debian's library's CRC
+  return m + body;
+}
+
+// OpenIGTLink 3's COMMAND, as Slicer's Plus Remote sends it to a v3
+// PlusServer: answered by an RTS_COMMAND (header version 2) with the same id
+// and name, its metadata Status SUCCESS and the reply's text; an unknown one
+// FAIL with an ErrorMessage.
+TEST(IgtlServe, AnOpenIgtLink3CommandGetsAnRtsCommand) {
+  Server s(anyPort());
+  std::vector<pp5::igtl::Command> seen;
+  std::mutex m;
+  s.onCommand([&](const pp5::igtl::Command& c, pp5::igtl::CommandReply reply) {
+    {
+      const std::lock_guard lock(m);
+      seen.push_back(c);
+    }
+    reply(c.name == "StartRecording", c.name == "StartRecording" ? "recording into " + c.attribute("OutputFilename") : "no");
+  });
+  const int fd = rawConnect(s.port());
+  auto command = [&](std::uint32_t id, const std::string& name, const std::string& xml) {
+    std::string c;
+    be(c, id, 4);
+    std::string n = name;
+    n.resize(128, '\0');
+    c += n;
+    be(c, 3, 2);  // US-ASCII
+    be(c, xml.size(), 4);
+    c += xml;
+    const std::string msg = v2Message("COMMAND", "Plus", id, c);
+    ASSERT_EQ(::send(fd, msg.data(), msg.size(), MSG_NOSIGNAL), static_cast<ssize_t>(msg.size()));
+  };
+  // Reads one message; its type, version, and the content and metadata of its version 2 body.
+  auto receive = [&](std::string& type, int& version, std::string& content, std::map<std::string, std::string>& meta) {
+    std::string h(58, '\0');
+    ASSERT_EQ(::recv(fd, h.data(), 58, MSG_WAITALL), 58);
+    version = static_cast<int>(readBe(h, 0, 2));
+    type = h.substr(2, 12).c_str();
+    std::string body(readBe(h, 42, 8), '\0');
+    ASSERT_EQ(::recv(fd, body.data(), body.size(), MSG_WAITALL), static_cast<ssize_t>(body.size()));
+    EXPECT_EQ(readBe(h, 50, 8), crc64(reinterpret_cast<unsigned char*>(body.data()), body.size(), 0));
+    meta.clear();
+    if (version < 2) {
+      content = body;
+      return;
+    }
+    const std::size_t ext = readBe(body, 0, 2), metaHead = readBe(body, 2, 2), metaSize = readBe(body, 4, 4);
+    content = body.substr(ext, body.size() - ext - metaHead - metaSize);
+    std::size_t at = ext + content.size();
+    const std::size_t n = readBe(body, at, 2);
+    std::size_t data = at + metaHead;
+    at += 2;
+    for (std::size_t i = 0; i < n; ++i, at += 8) {
+      const std::size_t k = readBe(body, at, 2), v = readBe(body, at + 4, 4);
+      meta[body.substr(data, k)] = body.substr(data + k, v);
+      data += k + v;
+    }
+  };
+  command(41, "StartRecording", R"(<Command Name="StartRecording" OutputFilename="a.mha"/>)");
+  std::string type, content;
+  int version = 0;
+  std::map<std::string, std::string> meta;
+  receive(type, version, content, meta);
+  EXPECT_EQ(type, "RTS_COMMAND");
+  EXPECT_EQ(version, 2);
+  ASSERT_GE(content.size(), 138u);
+  EXPECT_EQ(readBe(content, 0, 4), 41u);
+  EXPECT_STREQ(content.substr(4, 128).c_str(), "StartRecording");
+  EXPECT_EQ(meta["Status"], "SUCCESS");
+  EXPECT_NE(content.find("recording into a.mha"), std::string::npos) << content;
+  command(42, "NoSuch", R"(<Command Name="NoSuch"/>)");
+  receive(type, version, content, meta);
+  EXPECT_EQ(readBe(content, 0, 4), 42u);
+  EXPECT_EQ(meta["Status"], "FAIL");
+  EXPECT_EQ(meta["ErrorMessage"], "no");
+  ::close(fd);
+  const std::lock_guard lock(m);
+  ASSERT_EQ(seen.size(), 2u);
+  EXPECT_TRUE(seen[0].v3);
+  EXPECT_EQ(seen[0].attribute("OutputFilename"), "a.mha");
+}
+
+// An OpenIGTLink 3 server (a v3 PlusServer) sends version 2 bodies: the
+// live source's client reads their content past the extended header, here
+// a TRANSFORM and an IMAGE whose contents Debian's library packed.
+TEST(IgtlServe, TheClientReadsVersion2Messages) {
+  auto tr = igtl::TransformMessage::New();
+  tr->SetDeviceName("ProbeToTracker");
+  igtl::Matrix4x4 mat;
+  igtl::IdentityMatrix(mat);
+  mat[0][3] = 12.5f;
+  tr->SetMatrix(mat);
+  tr->SetTimeStamp(5, 0);
+  auto img = igtl::ImageMessage::New();
+  img->SetDeviceName("Image");
+  img->SetDimensions(4, 2, 1);
+  img->SetScalarType(igtl::ImageMessage::TYPE_UINT8);
+  img->AllocateScalars();
+  std::memset(img->GetScalarPointer(), 9, 8);
+  img->SetTimeStamp(5, 0);
+  auto contentOf = [](igtl::MessageBase& msg) { return packedOf(msg).substr(58); };
+  const std::string stream = v2Message("TRANSFORM", "ProbeToTracker", 1, contentOf(*tr), 5) +
+                             v2Message("IMAGE", "Image", 2, contentOf(*img), 5);
+  int fds[2];
+  ASSERT_EQ(::socketpair(AF_UNIX, SOCK_STREAM, 0, fds), 0);
+  ASSERT_EQ(::send(fds[1], stream.data(), stream.size(), MSG_NOSIGNAL), static_cast<ssize_t>(stream.size()));
+  ::close(fds[1]);
+  pp5::igtl::ClientOptions o;
+  pp5::igtl::Client client(o);
+  std::vector<pp5::Frame> frames;
+  client.decode(fds[0], [&](pp5::Frame&& f) { frames.push_back(std::move(f)); });
+  ::close(fds[0]);
+  ASSERT_EQ(frames.size(), 1u);
+  EXPECT_EQ(frames[0].width, 4);
+  EXPECT_EQ(frames[0].pixels[7], 9);
+  const pp5::FrameTransform* t = frames[0].findTransform("ProbeToTracker");
+  ASSERT_NE(t, nullptr);
+  EXPECT_DOUBLE_EQ(t->matrix[3][0], 12.5);
+}
+
 // A client reads an IMAGE's origin as OpenIGTLink defines it (the centre of
 // the voxels), as PlusServer and Slicer send it: pixel 0 lies half the image
 // before it.
 TEST(IgtlServe, AClientReadsAnImagesOriginAsItsCentre) {
-  auto img = igtl::ImageMessage::New();
+  auto img = igtl::ImageMessage::New();  // packed by Debian's library, read by pp5echo's codec
   img->SetDimensions(5, 3, 1);
   img->SetSpacing(0.5f, 0.25f, 1.0f);
   img->SetOrigin(10.0f, 20.0f, 30.0f);
-  const pp5::Mat4 m = pp5::igtl::wire::imagePixelToFrame(*img);
+  img->SetScalarType(igtl::ImageMessage::TYPE_UINT8);
+  img->AllocateScalars();
+  std::memset(img->GetScalarPointer(), 7, 15);
+  const std::string bytes = packedOf(*img);
+  namespace codec = pp5::igtl::codec;
+  const codec::Header h = codec::readHeader(reinterpret_cast<const std::uint8_t*>(bytes.data()));
+  const std::string content = codec::readBody(h.version, bytes.substr(codec::kHeaderBytes)).content;
+  const codec::Image im = codec::readImage(content);
+  const pp5::Mat4 m = pp5::igtl::wire::imagePixelToFrame(im);
   EXPECT_DOUBLE_EQ(m[3][0], 10.0 - 2 * 0.5);
   EXPECT_DOUBLE_EQ(m[3][1], 20.0 - 1 * 0.25);
   EXPECT_DOUBLE_EQ(m[3][2], 30.0);
   EXPECT_DOUBLE_EQ(m[0][0], 0.5);
+  pp5::Frame f;
+  pp5::igtl::wire::imageToFrame(im, content, h.device, h.time, f);
+  EXPECT_EQ(f.width, 5);
+  EXPECT_EQ(f.pixels[14], 7);
   // and back: the sender's matrix puts the centre there again
-  auto back = igtl::ImageMessage::New();
-  back->SetDimensions(5, 3, 1);
-  pp5::igtl::wire::setImageGeometry(*back, m);
-  float origin[3];
-  back->GetOrigin(origin);
-  EXPECT_FLOAT_EQ(origin[0], 10.0f);
-  EXPECT_FLOAT_EQ(origin[1], 20.0f);
+  codec::Image back;
+  back.size[0] = 5, back.size[1] = 3;
+  pp5::igtl::wire::setImageGeometry(back, m);
+  EXPECT_FLOAT_EQ(back.matrix[9], 10.0f);
+  EXPECT_FLOAT_EQ(back.matrix[10], 20.0f);
 }
 
 // A free TCP port on 127.0.0.1 (bound, read, closed).

@@ -16,12 +16,10 @@
 #include <thread>
 #include <vector>
 
-#include <igtlMessageHeader.h>
-#include <igtl_image.h>
-#include <igtl_transform.h>
 #include <spdlog/spdlog.h>
 
 #include "core/error.hpp"
+#include "igtl/igtl_codec.hpp"
 #include "igtl/igtl_wire.hpp"
 
 namespace pp5::igtl {
@@ -270,78 +268,69 @@ struct Client::Impl {
 
   Status receiveOne(Connection& c, const std::function<void(Frame&&)>& onFrame, const std::atomic<bool>& stop,
                     std::string* why) {
-    auto header = ::igtl::MessageHeader::New();
-    header->InitPack();
-    if (const Status s = c.readExact(header->GetPackPointer(), static_cast<std::size_t>(header->GetPackSize()), stop, why);
-        s != Status::Ok)
-      return s;
-    bytes += static_cast<std::uint64_t>(header->GetPackSize());
+    std::uint8_t raw[codec::kHeaderBytes];
+    if (const Status s = c.readExact(raw, sizeof raw, stop, why); s != Status::Ok) return s;
+    bytes += sizeof raw;
     // After a bad header the message boundaries are lost: treat it as a break.
-    if (!(header->Unpack() & ::igtl::MessageHeader::UNPACK_HEADER)) {
-      *why = "a malformed message header";
+    codec::Header header;
+    try {
+      header = codec::readHeader(raw);
+    } catch (const InputError& e) {
+      *why = fmt::format("a malformed message header ({})", e.what());
       return Status::Closed;
     }
-    const std::string type = header->GetDeviceType();
-    const std::string device = header->GetDeviceName();
-    const int bodySize = header->GetBodySizeToRead();
-    if (bodySize < 0 || static_cast<std::uint64_t>(bodySize) > kMaxBody) {
-      *why = fmt::format("a {} message from '{}' claims a body of {} bytes", type, device, bodySize);
+    const std::string& type = header.type;
+    const std::string& device = header.device;
+    if (header.bodySize > kMaxBody) {
+      *why = fmt::format("a {} message from '{}' claims a body of {} bytes", type, device, header.bodySize);
       return Status::Closed;
     }
+    const std::size_t bodySize = static_cast<std::size_t>(header.bodySize);
     const bool wantImage = type == "IMAGE" && (opt.imageDevice.empty() || device == opt.imageDevice);
-    const bool wantTransform = type == "TRANSFORM" && bodySize == IGTL_TRANSFORM_SIZE;
-    const bool imageSizeOk = bodySize >= IGTL_IMAGE_HEADER_SIZE;
-    if (!(wantImage && imageSizeOk) && !wantTransform) {
+    const bool wantTransform = type == "TRANSFORM";
+    if (!wantImage && !wantTransform) {
       ++skipped;
-      bytes += static_cast<std::uint64_t>(bodySize);
-      return c.skip(static_cast<std::uint64_t>(bodySize), stop, why);
-    }
-
-    ::igtl::MessageBase::Pointer msg;
-    ::igtl::ImageMessage::Pointer img;
-    ::igtl::TransformMessage::Pointer tr;
-    if (wantImage) {
-      img = ::igtl::ImageMessage::New();
-      msg = img;
-    } else {
-      tr = ::igtl::TransformMessage::New();
-      msg = tr;
+      bytes += bodySize;
+      return c.skip(bodySize, stop, why);
     }
     // The body is read in chunks into a buffer that grows with what arrives, so
     // a header that claims a huge body costs memory only as the bytes come
     // (a corrupt or hostile header once made the client allocate 1 GiB).
-    std::vector<std::uint8_t> body;
-    while (body.size() < static_cast<std::size_t>(bodySize)) {
-      const std::size_t chunk = std::min<std::size_t>(static_cast<std::size_t>(bodySize) - body.size(), std::size_t{1} << 20);
+    std::string body;
+    while (body.size() < bodySize) {
+      const std::size_t chunk = std::min<std::size_t>(bodySize - body.size(), std::size_t{1} << 20);
       const std::size_t at = body.size();
       body.resize(at + chunk);
-      if (const Status s = c.readExact(body.data() + at, chunk, stop, why); s != Status::Ok) return s;
+      if (const Status s = c.readExact(reinterpret_cast<std::uint8_t*>(body.data()) + at, chunk, stop, why); s != Status::Ok)
+        return s;
     }
-    bytes += static_cast<std::uint64_t>(bodySize);
-    msg->SetMessageHeader(header);
-    msg->AllocatePack();
-    if (static_cast<std::size_t>(msg->GetPackBodySize()) != body.size()) {
-      *why = fmt::format("a {} message from '{}' whose body size the library reads differently", type, device);
-      return Status::Closed;
-    }
-    if (!body.empty()) std::memcpy(msg->GetPackBodyPointer(), body.data(), body.size());
-    if (!(msg->Unpack(1) & ::igtl::MessageHeader::UNPACK_BODY)) {  // CRC mismatch: drop this one message
-      spdlog::warn("igtl: dropped a {} message from '{}' (bad CRC)", type, device);
+    bytes += bodySize;
+    if (codec::crc64(reinterpret_cast<const std::uint8_t*>(body.data()), body.size()) != header.crc) {
+      spdlog::warn("igtl: dropped a {} message from '{}' (bad CRC)", type, device);  // this one message only
       ++skipped;
       return Status::Ok;
     }
-
-    if (tr) {
-      ::igtl::Matrix4x4 m;
-      tr->GetMatrix(m);
-      addTransform(device, wire::messageTime(*tr), wire::toMat4(m));
-      ++transforms;
+    std::string content;
+    codec::Image im;
+    try {
+      content = codec::readBody(header.version, body).content;  // OpenIGTLink 3 peers send version 2 bodies
+      if (wantTransform) {
+        if (content.size() != codec::kTransformBytes)
+          throw InputError(fmt::format("a TRANSFORM of {} bytes (48 expected)", content.size()));
+        addTransform(device, wire::decodeTime(header.time), wire::transformOf(content));
+        ++transforms;
+        return Status::Ok;
+      }
+      im = codec::readImage(content);
+    } catch (const InputError& e) {
+      if (wantImage && rejected++ < 5) spdlog::warn("igtl: skipped an IMAGE from '{}': {}", device, e.what());
+      ++skipped;
       return Status::Ok;
     }
 
     Frame f;
     try {
-      wire::imageToFrame(*img, f);
+      wire::imageToFrame(im, content, device, header.time, f);
     } catch (const InputError& e) {
       // An image a Frame cannot hold (RGB, a size that does not match its
       // data): skipped and counted, never the end of the scan.
@@ -353,7 +342,7 @@ struct Client::Impl {
     const int n = pair(f);
     paired += static_cast<std::uint64_t>(n);
     const std::string frameName = wire::imageFrameName(device);
-    if (!frameName.empty()) f.transforms.push_back({"ImageTo" + frameName, wire::imagePixelToFrame(*img), true});
+    if (!frameName.empty()) f.transforms.push_back({"ImageTo" + frameName, wire::imagePixelToFrame(im), true});
     if (n == 0 && frameName.empty()) ++imagesWithoutPose;
     ++images;
     onFrame(std::move(f));

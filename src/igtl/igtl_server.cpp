@@ -23,11 +23,11 @@
 #include <vector>
 
 #include <fmt/format.h>
-#include <igtlStatusMessage.h>
 #include <spdlog/spdlog.h>
 
 #include "core/error.hpp"
 #include "core/io_util.hpp"
+#include "igtl/igtl_codec.hpp"
 #include "igtl/igtl_wire.hpp"
 
 namespace pp5::igtl {
@@ -203,12 +203,19 @@ struct Server::Impl {
   static void reply(Client& c, std::string bytes) { c.replies.push_back(std::make_shared<const std::string>(std::move(bytes))); }
 
   void command(Client& c, const Incoming& msg) {
+    Command head;
+    try {
+      head = commandOf(msg);
+    } catch (const InputError& e) {
+      spdlog::warn("igtl: {}: {}", c.peer, e.what());
+      reply(c, packStatus(codec::kStatusUnknownInstruction, msg.device, "BAD_COMMAND", e.what()));
+      return;
+    }
     const auto now = std::chrono::steady_clock::now();
     while (!c.commandTimes.empty() && now - c.commandTimes.front() > std::chrono::seconds(1)) c.commandTimes.pop_front();
-    const std::string uid = msg.device.substr(4);
     if (static_cast<int>(c.commandTimes.size()) >= options.commandsPerSecond) {
-      reply(c, packCommandReply(uid, false, fmt::format("more than {} commands a second; this one was not run",
-                                                        options.commandsPerSecond)));
+      reply(c, packCommandReply(head, false, fmt::format("more than {} commands a second; this one was not run",
+                                                         options.commandsPerSecond)));
       return;
     }
     c.commandTimes.push_back(now);
@@ -217,8 +224,7 @@ struct Server::Impl {
       cmd = parseCommand(msg);
     } catch (const InputError& e) {
       spdlog::warn("igtl: {}: {}", c.peer, e.what());
-      if (uid.empty()) reply(c, packStatus(::igtl::StatusMessage::STATUS_UNKNOWN_INSTRUCTION, msg.device, "BAD_COMMAND", e.what()));
-      else reply(c, packCommandReply(uid, false, e.what()));
+      reply(c, packCommandReply(head, false, e.what()));
       return;
     }
     CommandHandler h;
@@ -227,16 +233,18 @@ struct Server::Impl {
       h = handler;
     }
     if (!h) {
-      reply(c, packCommandReply(cmd.uid, false, fmt::format("{}: this server runs no commands", cmd.name)));
+      reply(c, packCommandReply(cmd, false, fmt::format("{}: this server runs no commands", cmd.name)));
       return;
     }
     const std::weak_ptr<Impl> self = weakSelf;
     const std::uint64_t id = c.id;
-    h(cmd, [self, id, uid = cmd.uid](bool ok, const std::string& message) {
+    Command form = cmd;  // what the reply needs
+    form.attributes.clear();
+    h(cmd, [self, id, form](bool ok, const std::string& message) {
       if (const auto impl = self.lock()) {
         {
           const std::lock_guard lock(impl->m);
-          impl->posted.emplace_back(id, std::make_shared<const std::string>(packCommandReply(uid, ok, message)));
+          impl->posted.emplace_back(id, std::make_shared<const std::string>(packCommandReply(form, ok, message)));
         }
         impl->wakeUp();
       }
@@ -250,17 +258,17 @@ struct Server::Impl {
     if (isCommand(msg)) {
       command(c, msg);
     } else if (type == "GET_CAPABIL") {
-      std::vector<std::string> types = {"CAPABILITY", "STATUS", "STRING"};
+      std::vector<std::string> types = {"CAPABILITY", "STATUS", "STRING", "RTS_COMMAND"};
       {
         const std::lock_guard lock(m);
         if (volume.voxels) types.emplace_back("IMAGE");
         for (const auto& [k, v] : latest)
           if (std::find(types.begin(), types.end(), k.first) == types.end()) types.push_back(k.first);
       }
-      for (const char* get : {"GET_CAPABIL", "GET_STATUS", "GET_IMAGE", "GET_TRANS"}) types.emplace_back(get);
+      for (const char* get : {"GET_CAPABIL", "GET_STATUS", "GET_IMAGE", "GET_TRANS", "COMMAND"}) types.emplace_back(get);
       reply(c, packCapability(device, types));
     } else if (type == "GET_STATUS") {
-      reply(c, packStatus(::igtl::StatusMessage::STATUS_OK, device, "", "pp5echo is running"));
+      reply(c, packStatus(codec::kStatusOk, device, "", "pp5echo is running"));
     } else if (type == "GET_IMAGE" || type == "GET_TRANS") {
       // The newest message of that type and device (every device when none is named).
       const std::string wanted = type == "GET_IMAGE" ? "IMAGE" : "TRANSFORM";
@@ -274,13 +282,13 @@ struct Server::Impl {
       }
       if (theVolume) c.volumeSent = 0;  // the whole volume comes next
       if (found.empty() && !theVolume)
-        reply(c, packStatus(::igtl::StatusMessage::STATUS_NOT_FOUND, device, "NOT_FOUND",
+        reply(c, packStatus(codec::kStatusNotFound, device, "NOT_FOUND",
                             fmt::format("pp5echo has no {} named '{}' (yet)", wanted, device)));
       for (auto& f : found) c.replies.push_back(std::move(f));
     } else if (type == "STATUS" || type.rfind("STT_", 0) == 0 || type.rfind("STP_", 0) == 0) {
       // A client's own status, or a stream start/stop pp5echo does not offer: noted, not answered.
     } else {
-      reply(c, packStatus(::igtl::StatusMessage::STATUS_UNKNOWN_INSTRUCTION, device, "UNKNOWN_INSTRUCTION",
+      reply(c, packStatus(codec::kStatusUnknownInstruction, device, "UNKNOWN_INSTRUCTION",
                           fmt::format("pp5echo does not handle {} messages", type)));
     }
   }

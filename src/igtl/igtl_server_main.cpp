@@ -24,15 +24,12 @@
 
 #include <CLI/CLI.hpp>
 #include <fmt/format.h>
-#include <igtlImageMessage.h>
-#include <igtlMessageHeader.h>
-#include <igtlTransformMessage.h>
-#include <igtl_header.h>
 
 #include "core/error.hpp"
 #include "formats/sequence_io.hpp"
 #include "igtl/igtl_client.hpp"
 #include "igtl/igtl_server.hpp"
+#include "igtl/igtl_codec.hpp"
 #include "igtl/igtl_wire.hpp"
 
 namespace {
@@ -115,9 +112,9 @@ private:
   int port_ = 0;
 };
 
-void sendMessage(int fd, ::igtl::MessageBase& m, std::uint64_t frame) {
-  const auto* p = static_cast<const char*>(m.GetPackPointer());
-  std::size_t left = static_cast<std::size_t>(m.GetPackSize());
+void sendMessage(int fd, const std::string& m, std::uint64_t frame) {
+  const char* p = m.data();
+  std::size_t left = m.size();
   while (left > 0) {
     const ssize_t n = ::send(fd, p, left, MSG_NOSIGNAL);
     if (n < 0 && errno == EINTR) continue;
@@ -127,20 +124,15 @@ void sendMessage(int fd, ::igtl::MessageBase& m, std::uint64_t frame) {
   }
 }
 
-// Decodes a packed IMAGE as a receiver would, so the recording holds exactly
-// what a client got (the matrix goes through OpenIGTLink's float arithmetic).
-::igtl::ImageMessage::Pointer receivedCopy(::igtl::ImageMessage& sent) {
-  auto header = ::igtl::MessageHeader::New();
-  header->InitPack();
-  std::memcpy(header->GetPackPointer(), sent.GetPackPointer(), IGTL_HEADER_SIZE);
-  header->Unpack();
-  auto copy = ::igtl::ImageMessage::New();
-  copy->SetMessageHeader(header);
-  copy->AllocatePack();
-  std::memcpy(copy->GetPackBodyPointer(), static_cast<const char*>(sent.GetPackPointer()) + IGTL_HEADER_SIZE,
-              static_cast<std::size_t>(copy->GetPackBodySize()));
-  copy->Unpack(1);
-  return copy;
+// Decodes a packed IMAGE as a receiver does (the client's own decoding), so
+// that the recording holds exactly what a client got.
+void receivedCopy(const std::string& packed, Frame& f, Mat4& pixelToFrame) {
+  namespace codec = pp5::igtl::codec;
+  const codec::Header h = codec::readHeader(reinterpret_cast<const std::uint8_t*>(packed.data()));
+  const std::string content = codec::readBody(h.version, packed.substr(codec::kHeaderBytes)).content;
+  const codec::Image im = codec::readImage(content);
+  pp5::igtl::wire::imageToFrame(im, content, h.device, h.time, f);
+  pixelToFrame = pp5::igtl::wire::imagePixelToFrame(im);
 }
 
 int serve(const Options& o) {
@@ -226,52 +218,28 @@ int serve(const Options& o) {
           event("frame {}: no valid {} transform; it is not sent for such frames", k, name);
         continue;
       }
-      auto msg = ::igtl::TransformMessage::New();
-      msg->SetDeviceName(name.c_str());
-      ::igtl::Matrix4x4 m;
-      pp5::igtl::wire::toIgtl(t->matrix, m);
-      msg->SetMatrix(m);
       const auto tstamp = o.transformOffsetS == 0.0 ? stamp : pp5::igtl::wire::encodeTime(f.timestamp + o.transformOffsetS);
-      msg->SetTimeStamp(tstamp.sec, tstamp.frac);
-      msg->Pack();
-      sendMessage(client, *msg, k);
-      sent.transforms.push_back({pp5::igtl::wire::transformName(name), pp5::igtl::wire::toMat4(m), true});
+      const std::string msg = pp5::igtl::wire::packTransform(name, t->matrix, pp5::igtl::wire::decodeTime(tstamp));
+      sendMessage(client, msg, k);
+      const pp5::igtl::codec::Body got = pp5::igtl::codec::readBody(1, msg.substr(pp5::igtl::codec::kHeaderBytes));
+      sent.transforms.push_back({pp5::igtl::wire::transformName(name), pp5::igtl::wire::transformOf(got.content), true});
     }
 
-    auto img = ::igtl::ImageMessage::New();
-    img->SetDeviceName(o.imageDevice.c_str());
-    img->SetDimensions(f.width, f.height, 1);
-    img->SetSubVolume(f.width, f.height, 1, 0, 0, 0);
-    img->SetNumComponents(1);
-    img->SetScalarType(f.pixelType == PixelType::U8 ? ::igtl::ImageMessage::TYPE_UINT8
-                                                    : ::igtl::ImageMessage::TYPE_UINT16);
-    img->SetEndian(o.bigEndian ? ::igtl::ImageMessage::ENDIAN_BIG : ::igtl::ImageMessage::ENDIAN_LITTLE);
-    if (imageFrame.empty()) {
-      img->SetSpacing(1.0f, 1.0f, 1.0f);
-      ::igtl::Matrix4x4 identity;
-      ::igtl::IdentityMatrix(identity);
-      img->SetMatrix(identity);
-    } else {
+    Mat4 pixelToFrame(1.0);
+    if (!imageFrame.empty()) {
       const FrameTransform* t = f.findTransform(imageTransform);
       if (!t || !t->valid)
         throw InputError(fmt::format("{}: frame {} has no valid {} transform, which --image-device {} sends",
                                      o.sequence, k, imageTransform, o.imageDevice));
-      pp5::igtl::wire::setImageGeometry(*img, t->matrix);
+      pixelToFrame = t->matrix;
     }
-    img->AllocateScalars();
-    auto* dst = static_cast<std::uint8_t*>(img->GetScalarPointer());
-    std::memcpy(dst, f.pixels.data(), f.byteSize());
-    if (o.bigEndian && f.pixelType == PixelType::U16)  // Frame pixels are little-endian
-      for (std::size_t i = 0; i + 1 < f.byteSize(); i += 2) std::swap(dst[i], dst[i + 1]);
-    img->SetTimeStamp(stamp.sec, stamp.frac);
-    img->Pack();
-    sendMessage(client, *img, k);
+    const std::string img = pp5::igtl::wire::packFrame(o.imageDevice, f, pixelToFrame, o.bigEndian, stamp);
+    sendMessage(client, img, k);
 
     if (sentWriter) {
-      auto copy = receivedCopy(*img);
-      pp5::igtl::wire::imageToFrame(*copy, sent);
-      if (!imageFrame.empty())
-        sent.transforms.push_back({imageTransform, pp5::igtl::wire::imagePixelToFrame(*copy), true});
+      Mat4 received(1.0);
+      receivedCopy(img, sent, received);
+      if (!imageFrame.empty()) sent.transforms.push_back({imageTransform, received, true});
       sentWriter->write(sent);
     }
     event("frame {} sent (t = {:.6f} s)", k, f.timestamp);
