@@ -9,6 +9,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -35,6 +36,7 @@
 #include <fmt/format.h>
 
 #include "core/error.hpp"
+#include "formats/sequence_io.hpp"
 #include "formats/volume_io.hpp"
 #include "igtl/igtl_client.hpp"
 #include "igtl/igtl_server.hpp"
@@ -124,6 +126,55 @@ TEST(IgtlServe, NewcomersGetTheNewestAndEveryoneGetsWhatFollows) {
     p->next(m);
     EXPECT_EQ(static_cast<std::uint8_t*>(dynamic_cast<igtl::ImageMessage*>(m.GetPointer())->GetScalarPointer())[0], 50);
   }
+}
+
+// The live volume: whole to a newcomer, then a sub-volume IMAGE of only the
+// bricks that changed (the whole volume's size and matrix, the box's offset,
+// size and voxels), and whole again on GET_IMAGE.
+TEST(IgtlServe, TheLiveVolumeGoesWholeThenAsTheBricksThatChanged) {
+  Server s(anyPort());
+  const pp5::Index3 dims(40, 20, 18);  // 3 x 2 x 2 bricks of 16, the last ones partial
+  auto v = std::make_shared<std::vector<std::uint8_t>>(40 * 20 * 18, 1);
+  pp5::Mat4 m(1.0);
+  m[3] = pp5::Vec4(5.0, 6.0, 7.0, 1.0);
+  s.publishVolume("Volume_Reference", dims, v, m, {}, 1.0);
+  Peer p(s.port());
+  igtl::MessageBase::Pointer msg;
+  auto image = [&] {
+    EXPECT_STREQ(p.next(msg)->GetDeviceName(), "Volume_Reference");
+    return dynamic_cast<igtl::ImageMessage*>(msg.GetPointer());
+  };
+  int size[3], sub[3], off[3];
+  image()->GetSubVolume(sub, off);
+  EXPECT_EQ(sub[0] * sub[1] * sub[2], 40 * 20 * 18);
+  // brick (2, 1, 1) changed: voxels x 32..39, y 16..19, z 16..17
+  auto next = std::make_shared<std::vector<std::uint8_t>>(*v);
+  (*next)[(17 * 20 + 19) * 40 + 39] = 200;
+  std::vector<std::uint8_t> changed(12, 0);
+  changed[(1 * 2 + 1) * 3 + 2] = 1;
+  s.publishVolume("Volume_Reference", dims, next, m, changed, 2.0);
+  auto* img = image();
+  img->GetDimensions(size);
+  img->GetSubVolume(sub, off);
+  EXPECT_EQ(size[0], 40);
+  EXPECT_EQ(size[2], 18);
+  EXPECT_EQ(off[0], 32);
+  EXPECT_EQ(off[1], 16);
+  EXPECT_EQ(off[2], 16);
+  EXPECT_EQ(sub[0], 8);
+  EXPECT_EQ(sub[1], 4);
+  EXPECT_EQ(sub[2], 2);
+  const auto* px = static_cast<const std::uint8_t*>(img->GetScalarPointer());
+  EXPECT_EQ(px[8 * 4 * 2 - 1], 200);
+  EXPECT_EQ(px[0], 1);
+  float origin[3];
+  img->GetOrigin(origin);
+  EXPECT_FLOAT_EQ(origin[0], 5.0f + 19.5f);  // the whole volume's centre
+  auto get = igtl::GetImageMessage::New();
+  get->SetDeviceName("Volume_Reference");
+  p.send(*get);
+  image()->GetSubVolume(sub, off);
+  EXPECT_EQ(sub[0] * sub[1] * sub[2], 40 * 20 * 18);
 }
 
 // GET_CAPABIL lists what it sends and answers; GET_STATUS is OK; GET_IMAGE
@@ -494,6 +545,8 @@ struct Seen {
     float spacing[3], origin[3];
   };
   std::vector<Commanded> commanded;  // the RecVol_Reference IMAGEs
+  int againVolumes = 0;              // ReconstructVolume's ("Again")
+  int probePoses = 0, rigidProbePoses = 0;  // ProbeToReference TRANSFORMs, and those that are rigid
   // The region of interest asked for: the middle half of the run's grid.
   int roiDims[3] = {0, 0, 0};
   double roiSpacing[3] = {0, 0, 0}, roiOrigin[3] = {0, 0, 0};  // voxel 0's centre
@@ -567,6 +620,20 @@ Seen runWithClient(const std::string& launcher, const std::string& dir, const st
     EXPECT_TRUE(body->Unpack(1) & igtl::MessageHeader::UNPACK_BODY) << type << " " << device << ": bad CRC";
     if (type == "TRANSFORM") {
       if (device == "ImageToReference") ++seen.framePoses;
+      if (device == "ProbeToReference") {
+        ++seen.probePoses;
+        auto tr = igtl::TransformMessage::New();
+        tr->SetMessageHeader(h);
+        tr->AllocatePack();
+        std::memcpy(tr->GetPackBodyPointer(), body->GetPackBodyPointer(), static_cast<std::size_t>(body->GetPackBodySize()));
+        tr->Unpack(1);
+        igtl::Matrix4x4 m;
+        tr->GetMatrix(m);
+        bool rigid = true;  // the probe's pose has no pixel spacing in it: unit columns
+        for (int col = 0; col < 3; ++col)
+          rigid = rigid && std::abs(std::sqrt(m[0][col] * m[0][col] + m[1][col] * m[1][col] + m[2][col] * m[2][col]) - 1.0) < 1e-4;
+        if (rigid) ++seen.rigidProbePoses;
+      }
       continue;
     }
     if (type == "STRING") {
@@ -588,6 +655,8 @@ Seen runWithClient(const std::string& launcher, const std::string& dir, const st
     } else if (device == "RenderedView") {
       EXPECT_EQ(img->GetNumComponents(), 3);
       ++seen.views;
+    } else if (device == "Again") {
+      ++seen.againVolumes;
     } else if (device == "RecVol_Reference") {
       Seen::Commanded c;
       img->GetDimensions(c.dims);
@@ -640,11 +709,14 @@ void servesTheRun(const std::string& launcher, const std::string& name) {
   const std::string dir =
       (std::filesystem::temp_directory_path() / ("pp5_igtl_" + name + "_" + std::to_string(::getpid()))).string();
   const std::vector<Step> commands = {
+      {R"(<Command Name="StartRecording" OutputFilename="rec.mha"/>)", 0},
       {R"(<Command Name="StartVolumeReconstruction" {ROI} OutputVolDeviceName="RecVol_Reference"/>)", 0},
       {R"(<Command Name="SuspendVolumeReconstruction"/>)", 8},
       {R"(<Command Name="ResumeVolumeReconstruction"/>)", 8},
       {R"(<Command Name="GetVolumeReconstructionSnapshot" ApplyHoleFilling="TRUE"/>)", 8},
       {R"(<Command Name="StopVolumeReconstruction" OutputVolFilename="roi.mha"/>)", 4},
+      {R"(<Command Name="StopRecording"/>)", 0},
+      {R"(<Command Name="ReconstructVolume" InputSeqFilename="rec.mha" OutputVolFilename="again.mha" OutputVolDeviceName="Again"/>)", 0},
       {R"(<Command Name="NoSuchCommand"/>)", 0},
   };
   const Seen seen = runWithClient(launcher, dir, commands);
@@ -653,6 +725,8 @@ void servesTheRun(const std::string& launcher, const std::string& name) {
   for (const auto& r : seen.replies) std::printf("  %s\n", r.c_str());
   EXPECT_GE(seen.frames, 1);
   EXPECT_GE(seen.framePoses, 1);
+  EXPECT_GE(seen.probePoses, 1);
+  EXPECT_EQ(seen.rigidProbePoses, seen.probePoses);
   EXPECT_GE(seen.views, 1);
   EXPECT_GE(seen.wholeVolumes, 1);
   EXPECT_GE(seen.subVolumes, 1);
@@ -662,10 +736,18 @@ void servesTheRun(const std::string& launcher, const std::string& name) {
   EXPECT_NE(seen.replies.back().find("Status=\"FAIL\""), std::string::npos) << seen.replies.back();
   // Frames went in while it ran, none while suspended: fewer than it ran for.
   int inserted = -1;
-  const std::size_t at = seen.replies[4].find(" voxels, ");
-  if (at != std::string::npos) inserted = std::atoi(seen.replies[4].c_str() + at + 9);
-  EXPECT_GT(inserted, 0) << seen.replies[4];
-  EXPECT_LT(inserted, seen.frames - 8) << seen.replies[4];
+  const std::string& stopped = seen.replies[5];
+  const std::size_t at = stopped.find(" voxels, ");
+  if (at != std::string::npos) inserted = std::atoi(stopped.c_str() + at + 9);
+  EXPECT_GT(inserted, 0) << stopped;
+  EXPECT_LT(inserted, seen.frames - 8) << stopped;
+  // The recording holds what came from its start to its stop, and reconstructs again.
+  const auto recorded = pp5::SequenceReader::open(dir + "/rec.mha")->info().frameCount;
+  EXPECT_GT(recorded, static_cast<std::uint64_t>(inserted)) << "the recording ran longer than the reconstruction";
+  EXPECT_NE(seen.replies[7].find(std::to_string(recorded) + " of " + std::to_string(recorded) + " frames"), std::string::npos)
+      << seen.replies[7];
+  EXPECT_EQ(seen.againVolumes, 1);
+  EXPECT_TRUE(std::filesystem::exists(dir + "/again.mha"));
   ASSERT_EQ(seen.commanded.size(), 2u);  // the snapshot's and the stop's
   for (const auto& c : seen.commanded)
     for (int a = 0; a < 3; ++a) {

@@ -182,6 +182,7 @@ host::RunJob makeJob(const Settings& s, host::Source src, const Grid& grid, cons
   j.interrupt = interrupt;
   j.view = s.view;
   j.igtl = s.igtl;
+  j.plusConfig = s.run.plusConfig;
   j.alsoWrote = {"settings.toml"};
   return j;
 }

@@ -43,25 +43,36 @@ host::LiveSetup liveSetup(const Settings& s, const std::string& what) {
 host::Source makeSource(const Settings& s) {
   // A recording that could not start is found before any frame is taken.
   if (!s.run.record.empty()) checkRecordingTarget(s.run.record);
-  if (s.run.source == SourceKind::Board)
-    return host::boardSource(driverOptions(s), armCalibration(s), s.board.transform, liveSetup(s, "board"));
+  // The probe's calibration, where the source has one.
+  auto withProbe = [](host::Source src, const PlusConfig& cfg) {
+    src.imageToProbe = cfg.coordinates.get("Image", "Probe");
+    return src;
+  };
+  if (s.run.source == SourceKind::Board) {
+    const host::LiveSetup live = liveSetup(s, "board");
+    return withProbe(host::boardSource(driverOptions(s), armCalibration(s), s.board.transform, live), live.config);
+  }
   if (s.run.source == SourceKind::Igtl) {
     igtl::ClientOptions opt;
     opt.endpoint = igtl::parseIgtlUrl(s.run.igtlUrl);
     opt.reconnect = s.run.igtlReconnectS > 0.0;
     opt.reconnectTimeoutS = s.run.igtlReconnectS;
-    return host::igtlSource(opt, liveSetup(s, "igtl"));
+    const host::LiveSetup live = liveSetup(s, "igtl");
+    return withProbe(host::igtlSource(opt, live), live.config);
   }
   if (s.run.source == SourceKind::Sequence) {
     if (s.run.sequence.empty() || s.run.plusConfig.empty())
       throw InputError("run.source = \"sequence\" needs run.sequence and run.plus_config");
     auto seq = std::make_shared<PosedSequence>(openPosedSequence(s.run.sequence, s.run.plusConfig));
     const Grid grid = commandGrid(*seq, s.recon, &s.grid, s.grid.spacing);
-    return host::recorded(host::sequenceSource(seq, grid), s.run.record);
+    return host::recorded(withProbe(host::sequenceSource(seq, grid), seq->config), s.run.record);
   }
   auto sim = std::make_shared<sim::SweepSimulator>(s.sim);
-  if (s.run.simulateLive)
-    return host::recorded(host::simulatorSource(sim, sweepGrid(s, *sim), s.sim.threads), s.run.record);
+  if (s.run.simulateLive) {
+    host::Source src = host::simulatorSource(sim, sweepGrid(s, *sim), s.sim.threads);
+    src.imageToProbe = sim->imageToProbe();
+    return host::recorded(src, s.run.record);
+  }
   // The sweep from the cache, on the live simulator's grid. Filling the cache
   // takes seconds the first time, so it is the source's prepare step: the
   // host runs it once the viewer's URL is out.
@@ -95,6 +106,7 @@ host::Source makeSource(const Settings& s) {
   cached->sim = sim;
   host::Source src = host::simulatorSource(sim, grid, s.sim.threads);  // its description, frames and grid
   src.description += " (simulated once, streamed from run.sweep_cache)";
+  src.imageToProbe = sim->imageToProbe();
   src.prepare = [cached] { cached->ready(); };
   src.run = [cached](const host::FrameSink& sink) {
     cached->ready();

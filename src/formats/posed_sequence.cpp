@@ -1,14 +1,20 @@
 #include "formats/posed_sequence.hpp"
 
+#include <utility>
+
 #include "core/error.hpp"
 
 namespace pp5 {
 
 PosedSequence openPosedSequence(const std::string& sequencePath, const std::string& plusConfigPath) {
+  return openPosedSequence(sequencePath, readPlusConfig(plusConfigPath));
+}
+
+PosedSequence openPosedSequence(const std::string& sequencePath, PlusConfig config) {
   PosedSequence seq;
   seq.path = sequencePath;
   seq.reader = SequenceReader::open(sequencePath);
-  seq.config = readPlusConfig(plusConfigPath);
+  seq.config = std::move(config);
   const SequenceInfo& info = seq.reader->info();
   if (info.frameCount == 0) inputError(sequencePath, "the sequence has no frames; there is nothing to reconstruct");
 

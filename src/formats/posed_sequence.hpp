@@ -28,5 +28,8 @@ struct PosedSequence {
 // Opens the sequence and computes every frame's pose from the header alone.
 // Empty sequences and sequences with no placeable frame are InputErrors.
 PosedSequence openPosedSequence(const std::string& sequencePath, const std::string& plusConfigPath);
+// The same with a configuration in hand (an empty one places frames that
+// carry their ImageToReference, as the host's recordings do).
+PosedSequence openPosedSequence(const std::string& sequencePath, PlusConfig config);
 
 }  // namespace pp5

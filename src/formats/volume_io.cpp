@@ -44,8 +44,31 @@ Volume Volume::as(ScalarType t) const {
   Volume out;
   out.allocate(grid, t);
   const std::size_t n = grid.voxelCount();
+  if (t == ScalarType::U8) {
+    toU8(0, n, out.bytes.data());
+    return out;
+  }
   for (std::size_t i = 0; i < n; ++i) out.setValue(i, value(i));
   return out;
+}
+
+void Volume::toU8(std::size_t first, std::size_t n, std::uint8_t* out) const {
+  Volume one;  // setValue's rounding, voxel by voxel (a float volume's in a tight loop)
+  one.type = ScalarType::U8;
+  one.bytes.resize(1);
+  if (type == ScalarType::F32 && std::endian::native == std::endian::little) {
+    for (std::size_t i = 0; i < n; ++i) {
+      float f;
+      std::memcpy(&f, bytes.data() + 4 * (first + i), 4);  // stored little-endian, as this machine's
+      one.setValue(0, static_cast<double>(f));
+      out[i] = one.bytes[0];
+    }
+    return;
+  }
+  for (std::size_t i = 0; i < n; ++i) {
+    one.setValue(0, value(first + i));
+    out[i] = one.bytes[0];
+  }
 }
 
 double Volume::value(std::size_t i) const {

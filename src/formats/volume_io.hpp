@@ -25,6 +25,8 @@ struct Volume {
   void setValue(std::size_t linearIndex, double v);  // clamps and rounds for integer types
   // The same volume in another voxel type (rounded and clamped by setValue).
   Volume as(ScalarType t) const;
+  // Voxels [first, first + n) as as(U8) makes them, into out.
+  void toU8(std::size_t first, std::size_t n, std::uint8_t* out) const;
 };
 
 struct VolumeHeader {

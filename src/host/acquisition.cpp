@@ -14,6 +14,24 @@ namespace {
 struct StopRequested {};
 }  // namespace
 
+Mat4 preprocessPixels(const Preprocess& p) {
+  Mat4 m(1.0);
+  if (p.crop.z > 0) {
+    Mat4 t(1.0);
+    t[3] = Vec4(p.crop.x, p.crop.y, 0.0, 1.0);
+    m = m * t;
+  }
+  if (p.subsample > 1) {
+    const int s = p.subsample;
+    Mat4 t(1.0);
+    t[0][0] = s;
+    t[1][1] = s;
+    t[3] = Vec4(0.5 * (s - 1), 0.5 * (s - 1), 0.0, 1.0);
+    m = m * t;
+  }
+  return m;
+}
+
 void preprocess(const Preprocess& p, Frame& f, Mat4& pose) {
   if (p.identity()) return;
   const int bpp = bytesPerPixel(f.pixelType);
@@ -29,9 +47,6 @@ void preprocess(const Preprocess& p, Frame& f, Mat4& pose) {
     f.pixels = std::move(px);
     f.width = w;
     f.height = h;
-    Mat4 t(1.0);
-    t[3] = Vec4(x, y, 0.0, 1.0);
-    pose = pose * t;
   }
   if (p.subsample > 1) {
     const int s = p.subsample, w = f.width / s, h = f.height / s;
@@ -58,12 +73,8 @@ void preprocess(const Preprocess& p, Frame& f, Mat4& pose) {
     f.pixels = std::move(out.pixels);
     f.width = w;
     f.height = h;
-    Mat4 t(1.0);
-    t[0][0] = s;
-    t[1][1] = s;
-    t[3] = Vec4(0.5 * (s - 1), 0.5 * (s - 1), 0.0, 1.0);
-    pose = pose * t;
   }
+  pose = pose * preprocessPixels(p);
 }
 
 DropPolicy dropPolicyFromName(const std::string& name) { return enumFromName<DropPolicy>(name); }

@@ -13,6 +13,7 @@
 #include <deque>
 #include <exception>
 #include <functional>
+#include <optional>
 #include <mutex>
 #include <string>
 #include <thread>
@@ -39,6 +40,10 @@ struct Source {
   std::function<void()> interrupt;
   // Live sources: the device's counters as a JSON object, for summary.json.
   std::function<std::string()> statsJson;
+  // The frames' ImageToProbe (pixels -> probe, mm), where the source knows
+  // it (the simulated probe, a device set's calibration): the probe's pose is
+  // then ImageToReference times its inverse (ProbeToReference, for clients).
+  std::optional<Mat4> imageToProbe;
   // Work before the first frame that may take seconds (the simulated sweep's
   // cache fill), or empty. The host runs it once the viewer's URL is out,
   // before the first frame (the other ranks wait at the start barrier); a
@@ -57,6 +62,9 @@ struct Preprocess {
 };
 // InputError naming the frame when the crop does not fit inside it.
 void preprocess(const Preprocess& p, Frame& f, Mat4& imageToReference);
+// What preprocess() multiplies a frame's pose by on the right: a new pixel's
+// indices -> the old pixel indices where its block's centre was.
+Mat4 preprocessPixels(const Preprocess& p);
 
 enum class DropPolicy { Oldest, Newest };
 DropPolicy dropPolicyFromName(const std::string& name);  // "oldest" | "newest"

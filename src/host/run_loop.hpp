@@ -45,6 +45,7 @@ struct RunJob {
   std::vector<ScriptedControl> script;
 
   std::string outDir;
+  std::string plusConfig;  // run.plus_config ("" = none): what places a sequence a command reconstructs
   int buildupEvery = 1;
   double buildupFps = 15.0;
   int orbitFrames = 36;

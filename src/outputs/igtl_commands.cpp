@@ -16,7 +16,9 @@
 #include "core/error.hpp"
 #include "formats/volume_io.hpp"
 #include "host/recorder.hpp"
+#include "formats/posed_sequence.hpp"
 #include "reconstruction/hole_fill.hpp"
+#include "reconstruction/recon_run.hpp"
 #include "reconstruction/reconstruction.hpp"
 
 namespace pp5::outputs {
@@ -107,8 +109,11 @@ struct PlusCommands::Impl {
   int recordings = 0;
   std::thread thread;
 
+  std::string plusConfig;
+
   Impl(const host::RunJob& j, igtl::Server& s)
-      : server(s), outDir(j.outDir), runGrid(j.grid), recon(j.pipeline.recon), memoryLimit(j.memoryLimitBytes) {
+      : server(s), outDir(j.outDir), runGrid(j.grid), recon(j.pipeline.recon), memoryLimit(j.memoryLimitBytes),
+        plusConfig(j.plusConfig) {
     recon.threads = 1;  // the host's other work (the loop, the encoders) keeps the other cores
   }
 
@@ -264,6 +269,29 @@ struct PlusCommands::Impl {
       volume.reset();
       return std::nullopt;
     }
+    if (n == "ReconstructVolume") {
+      // A sequence in the run's folder (a recording made with StartRecording, or one put there), offline.
+      const std::string in = fileIn(outDir, c, "InputSeqFilename");
+      if (in.empty()) throw InputError("InputSeqFilename: the sequence to reconstruct is needed");
+      if (!fs::exists(in)) throw InputError(fmt::format("InputSeqFilename: {} does not exist", in));
+      if (in == recording) throw InputError(fmt::format("{} is being recorded; stop the recording first", in));
+      const std::string device = deviceName(c, "OutputVolDeviceName", kDefaultVolumeDevice);
+      const std::string file = fileIn(outDir, c, "OutputVolFilename");
+      PosedSequence seq = plusConfig.empty() ? openPosedSequence(in, PlusConfig{}) : openPosedSequence(in, plusConfig);
+      const Grid g = c.has("OutputExtent") || c.has("OutputSpacing")
+                         ? regionOfInterest(c)
+                         : gp::chooseGrid(seq, recon, runGrid.spacing, 0.0, false);
+      auto r = gp::makeReconstructor(g, recon, memoryLimit, "ReconstructVolume's grid");
+      const gp::ReconRunStats st = gp::runReconstruction(seq, *r);
+      r->finish();
+      const Volume v = r->output().as(ScalarType::U8);
+      if (!file.empty()) writeVolume(file, v, true);
+      reply(true, fmt::format("reconstructed {} into {} ({}x{}x{} voxels, {} of {} frames){}", in, device, g.dims.x,
+                              g.dims.y, g.dims.z, st.inserted, st.frames,
+                              file.empty() ? "" : fmt::format(", written to {}", file)));
+      server.publishImage(device, v.grid.dims, v.bytes.data(), voxelToReference(v.grid), 0.0);
+      return std::nullopt;
+    }
     if (n == "StartRecording") {
       if (!recording.empty()) throw InputError(fmt::format("already recording into {}; stop it first", recording));
       std::string path = fileIn(outDir, c, "OutputFilename");
@@ -288,8 +316,8 @@ struct PlusCommands::Impl {
     }
     throw InputError(fmt::format("pp5echo does not run this command (it runs StartVolumeReconstruction, "
                                  "SuspendVolumeReconstruction, ResumeVolumeReconstruction, "
-                                 "GetVolumeReconstructionSnapshot, StopVolumeReconstruction, StartRecording, "
-                                 "StopRecording)"));
+                                 "GetVolumeReconstructionSnapshot, StopVolumeReconstruction, ReconstructVolume, "
+                                 "StartRecording, StopRecording)"));
   }
 };
 

@@ -4,8 +4,9 @@
 // (Slicer's Plus Remote): StartVolumeReconstruction (a region of interest:
 // OutputSpacing, OutputOrigin, OutputExtent; OutputVolDeviceName;
 // OutputVolFilename), Suspend-, Resume-, StopVolumeReconstruction,
-// GetVolumeReconstructionSnapshot (ApplyHoleFilling), StartRecording and
-// StopRecording.
+// GetVolumeReconstructionSnapshot (ApplyHoleFilling), ReconstructVolume (a
+// sequence in the run's folder, offline, placed by run.plus_config or by its
+// frames' own ImageToReference), StartRecording and StopRecording.
 //
 // As in PlusServer, a commanded reconstruction is a volume of its own: every
 // frame that reaches the host from the start on (and not while suspended) is

@@ -1,7 +1,8 @@
 // The OpenIGTLink server as a sink (igtl/igtl_server.hpp): every client gets
 // the live volume (whole on connect, then the bricks that changed, at
 // igtl.volume_hz), each B-mode frame as a 2D IMAGE with its ImageToReference
-// and as a TRANSFORM, the rendered view as an RGB IMAGE (at most 30 a
+// and as a TRANSFORM (with the probe's ProbeToReference where the source
+// knows its calibration), the rendered view as an RGB IMAGE (at most 30 a
 // second), the final volume at the end, and PlusServer's commands
 // (outputs/igtl_commands.hpp); named as PlusServer names them.
 #include <algorithm>
@@ -44,6 +45,7 @@ using Clock = std::chrono::steady_clock;
 
 constexpr const char* kFrameDevice = "Image_Reference";    // PlusServer's name: the image in the Reference frame
 constexpr const char* kFramePose = "ImageToReference";     // ... and its pose as a TRANSFORM
+constexpr const char* kProbePose = "ProbeToReference";     // the probe's pose, as PlusServer names it
 constexpr const char* kVolumeDevice = "Volume_Reference";  // the run's reconstruction, in the Reference frame
 constexpr const char* kViewDevice = "RenderedView";        // the 3D view the user steers
 
@@ -57,6 +59,8 @@ double wallSeconds(Clock::time_point t) {
 class IgtlSink final : public host::Sink {
 public:
   explicit IgtlSink(const host::RunJob& j) : volumePeriod_(1.0 / j.igtl.volumeHz), viewPeriod_(1.0 / j.igtl.viewHz) {
+    // A frame's pixels -> the probe, after the run's crop and subsampling.
+    if (j.source.imageToProbe) probeToPixels_ = glm::inverse(*j.source.imageToProbe * host::preprocessPixels(j.preprocess));
     igtl::ServerOptions o;
     igtl::parseServeAddress(j.igtl.serve, "run.igtl_serve", o.address, o.port);
     if (!viewer::isLoopback(o.address))
@@ -97,6 +101,8 @@ public:
     try {
       server_->publishImage(kFrameDevice, Index3(f.width, f.height, 1), px, a.imageToReference, a.timeS);
       server_->publish("TRANSFORM", kFramePose, igtl::packTransform(kFramePose, a.imageToReference, a.timeS));
+      if (probeToPixels_)
+        server_->publish("TRANSFORM", kProbePose, igtl::packTransform(kProbePose, a.imageToReference * *probeToPixels_, a.timeS));
     } catch (const InputError& e) {
       if (!saidFrame_) spdlog::warn("igtl: a frame cannot be sent ({}); such frames are not sent", e.what());
       saidFrame_ = true;
@@ -162,8 +168,7 @@ private:
     std::vector<std::uint8_t> changed;
     if (fresh) {
       lastRaw_ = v;
-      const Volume c = v.type == ScalarType::U8 ? v : v.as(ScalarType::U8);
-      std::memcpy(u8->data(), c.bytes.data(), u8->size());
+      v.toU8(0, u8->size(), u8->data());
     } else {
       changed.assign(static_cast<std::size_t>(nb.x * nb.y * nb.z), 0);
       const std::int64_t b = igtl::kVolumeBrick;
@@ -175,10 +180,7 @@ private:
             const std::size_t n = static_cast<std::size_t>(std::min(b, d.x - bx * b));
             if (std::memcmp(v.bytes.data() + at * bpv, lastRaw_.bytes.data() + at * bpv, n * bpv) == 0) continue;
             std::memcpy(lastRaw_.bytes.data() + at * bpv, v.bytes.data() + at * bpv, n * bpv);
-            for (std::size_t i = at; i < at + n; ++i) {  // as Volume::as rounds them for volume.mha
-              one_.setValue(0, v.value(i));
-              (*u8)[i] = one_.bytes[0];
-            }
+            v.toU8(at, n, u8->data() + at);  // as Volume::as rounds them for volume.mha
             changed[static_cast<std::size_t>(((z / b) * nb.y + y / b) * nb.x + bx)] = 1;
           }
     }
@@ -191,12 +193,12 @@ private:
   }
 
   double volumePeriod_, viewPeriod_;
+  std::optional<Mat4> probeToPixels_;  // inverse(ImageToProbe after preprocessing), when the source knows it
   Grid grid_, lastGrid_;
   std::unique_ptr<igtl::Server> server_;
   std::unique_ptr<PlusCommands> commands_;  // after the server: ends before it
   std::shared_ptr<const std::vector<std::uint8_t>> last_;  // what the clients were last given
   Volume lastRaw_;                                          // ... in the volume's own type
-  Volume one_{Grid{Vec3(0.0), Vec3(1.0), Index3(1)}, ScalarType::U8, {0}};  // one voxel, to convert with
   Clock::time_point lastView_{};
   std::deque<std::pair<std::uint64_t, Clock::time_point>> arrivals_;  // frames no snapshot has held yet
   mutable bool asked_ = false;  // a snapshot is on its way
