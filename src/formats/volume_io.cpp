@@ -52,23 +52,25 @@ Volume Volume::as(ScalarType t) const {
   return out;
 }
 
+namespace {
+// What an integer voxel holds of v: 0 for anything not above 0 (NaN too), hi
+// at and above it, rounded between.
+double clampRound(double x, double hi) {
+  if (!(x > 0.0)) return 0.0;
+  return x >= hi ? hi : std::round(x);
+}
+}  // namespace
+
 void Volume::toU8(std::size_t first, std::size_t n, std::uint8_t* out) const {
-  Volume one;  // setValue's rounding, voxel by voxel (a float volume's in a tight loop)
-  one.type = ScalarType::U8;
-  one.bytes.resize(1);
   if (type == ScalarType::F32 && std::endian::native == std::endian::little) {
-    for (std::size_t i = 0; i < n; ++i) {
+    for (std::size_t i = 0; i < n; ++i) {  // a tight loop: float voxels stored little-endian, as this machine's
       float f;
-      std::memcpy(&f, bytes.data() + 4 * (first + i), 4);  // stored little-endian, as this machine's
-      one.setValue(0, static_cast<double>(f));
-      out[i] = one.bytes[0];
+      std::memcpy(&f, bytes.data() + 4 * (first + i), 4);
+      out[i] = static_cast<std::uint8_t>(clampRound(static_cast<double>(f), 255.0));
     }
     return;
   }
-  for (std::size_t i = 0; i < n; ++i) {
-    one.setValue(0, value(first + i));
-    out[i] = one.bytes[0];
-  }
+  for (std::size_t i = 0; i < n; ++i) out[i] = static_cast<std::uint8_t>(clampRound(value(first + i), 255.0));
 }
 
 double Volume::value(std::size_t i) const {
@@ -85,10 +87,6 @@ double Volume::value(std::size_t i) const {
 }
 
 void Volume::setValue(std::size_t i, double v) {
-  auto clampRound = [](double x, double hi) {
-    if (!(x > 0.0)) return 0.0;  // also NaN
-    return x >= hi ? hi : std::round(x);
-  };
   switch (type) {
     case ScalarType::U8: bytes[i] = static_cast<std::uint8_t>(clampRound(v, 255.0)); break;
     case ScalarType::U16: {
