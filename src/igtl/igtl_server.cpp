@@ -70,7 +70,7 @@ struct Server::Impl {
 
   using Bytes = std::shared_ptr<const std::string>;
   // Under `m`: the newest message of each (type, device), `serial` ordering
-  // them; the live volume; replies posted from other threads; the handler.
+  // them; the live volume; replies posted from other threads.
   struct Kept {
     Bytes bytes;
     std::uint64_t serial = 0;
@@ -90,6 +90,7 @@ struct Server::Impl {
   LiveVolume volume;
   std::uint64_t serial = 0;
   std::vector<std::pair<std::uint64_t, Bytes>> posted;  // (client id, reply)
+  std::mutex handlerMutex;  // held while the handler runs, and to replace it
   CommandHandler handler;
 
   struct Client {
@@ -227,11 +228,10 @@ struct Server::Impl {
       reply(c, packCommandReply(head, false, e.what()));
       return;
     }
-    CommandHandler h;
-    {
-      const std::lock_guard lock(m);
-      h = handler;
-    }
+    // The handler runs under its own lock, so that once onCommand() has
+    // replaced it no call of the old one is under way.
+    const std::lock_guard handling(handlerMutex);
+    const CommandHandler& h = handler;
     if (!h) {
       reply(c, packCommandReply(cmd, false, fmt::format("{}: this server runs no commands", cmd.name)));
       return;
@@ -411,7 +411,7 @@ int Server::port() const { return impl_->port; }
 std::size_t Server::clients() const { return impl_->clientCount.load(); }
 
 void Server::onCommand(CommandHandler handler) {
-  const std::lock_guard lock(impl_->m);
+  const std::lock_guard lock(impl_->handlerMutex);
   impl_->handler = std::move(handler);
 }
 

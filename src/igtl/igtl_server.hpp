@@ -66,8 +66,8 @@ public:
 
   int port() const;
   std::size_t clients() const;
-  // The commands' handler (none: every command is answered FAIL). Set before
-  // clients connect.
+  // The commands' handler (none: every command is answered FAIL). Once it
+  // returns, the handler it replaced is not running and will not be called.
   void onCommand(CommandHandler handler);
 
   // A packed message (header and body, as igtl::MessageBase::Pack leaves it)

@@ -332,6 +332,7 @@ PlusCommands::PlusCommands(const host::RunJob& job, igtl::Server& server) : impl
 }
 
 PlusCommands::~PlusCommands() {
+  impl_->server.onCommand({});  // no command reaches this object from now on
   try {
     finish();
   } catch (const std::exception& e) {
