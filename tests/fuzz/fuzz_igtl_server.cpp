@@ -66,7 +66,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
         pp5::fuzz::inputErrorsOnly([&] {
           const pp5::igtl::Command c = pp5::igtl::parseCommand(m);
           if (c.name.empty()) std::abort();
-          (void)pp5::igtl::packCommandReply(c.uid, false, c.name + ": " + c.attribute("OutputExtent"));
+          (void)pp5::igtl::packCommandReply(c, false, c.name + ": " + c.attribute("OutputExtent"));
         });
       }
   });
