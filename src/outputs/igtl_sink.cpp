@@ -74,8 +74,6 @@ public:
     std::fflush(stdout);
   }
 
-  void start(const host::RunStart& r) override { grid_ = r.grid; }
-
   void frame(const host::AcquiredFrame& a, std::uint64_t k) override {
     if (server_->clients() == 0) arrivals_.clear();  // no snapshot is asked for: only the newest matters
     arrivals_.emplace_back(k, a.arrival);
@@ -161,8 +159,9 @@ private:
   void publishVolume(const Volume& v, std::uint64_t frames) {
     const Clock::time_point stamp = stampOf(frames);
     const Index3 d = v.grid.dims, nb = igtl::Server::bricks(d);
-    const bool fresh = !last_ || lastGrid_.dims != d || lastGrid_.origin != v.grid.origin ||
-                       lastGrid_.spacing != v.grid.spacing || lastRaw_.type != v.type;
+    const Grid& was = lastRaw_.grid;
+    const bool fresh = !last_ || was.dims != d || was.origin != v.grid.origin || was.spacing != v.grid.spacing ||
+                       lastRaw_.type != v.type;
     auto u8 = fresh ? std::make_shared<std::vector<std::uint8_t>>(v.grid.voxelCount())
                     : std::make_shared<std::vector<std::uint8_t>>(*last_);
     std::vector<std::uint8_t> changed;
@@ -189,12 +188,10 @@ private:
     m[3] = Vec4(v.grid.origin, 1.0);
     server_->publishVolume(kVolumeDevice, d, u8, m, changed, wallSeconds(stamp));
     last_ = std::move(u8);
-    lastGrid_ = v.grid;
   }
 
   double volumePeriod_, viewPeriod_;
   std::optional<Mat4> probeToPixels_;  // inverse(ImageToProbe after preprocessing), when the source knows it
-  Grid grid_, lastGrid_;
   std::unique_ptr<igtl::Server> server_;
   std::unique_ptr<PlusCommands> commands_;  // after the server: ends before it
   std::shared_ptr<const std::vector<std::uint8_t>> last_;  // what the clients were last given
