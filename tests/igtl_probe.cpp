@@ -8,7 +8,7 @@
 // with their rate (one over the median time between two), and each update's latency
 // (when its last part arrived minus that timestamp: the latency of its
 // oldest frame, the longest of its frames'), median and p95. Other devices'
-// rates are over the whole connection.
+// rates are over the time from their first message to their last.
 //
 // Misbehaving on purpose, to show it slows nobody else:
 //   --silent-s S   read nothing for the first S seconds after connecting
@@ -79,6 +79,7 @@ int main(int argc, char** argv) {
   struct PerDevice {
     long messages = 0;
     double bytes = 0;
+    double first = 0, last = 0;  // when its first and last message came
   };
   std::map<std::string, PerDevice> devices;
   std::map<double, double> updateArrival;  // the volume's timestamp -> when its last part came
@@ -101,7 +102,8 @@ int main(int argc, char** argv) {
     last = wallNow();
     const std::string device = h->GetDeviceName();
     PerDevice& d = devices[std::string(h->GetDeviceType()) + ":" + device];
-    ++d.messages;
+    if (d.messages++ == 0) d.first = last;
+    d.last = last;
     d.bytes += static_cast<double>(n);
     if (device == "Volume_Reference") {
       igtlUint32 sec = 0, frac = 0;
@@ -131,8 +133,10 @@ int main(int argc, char** argv) {
               percentile(latencyMs, 0.5), percentile(latencyMs, 0.95), percentile(latencyMs, 1.0));
   bool first = true;
   for (const auto& [name, d] : devices) {
+    // The rate while it came: messages over the time from its first to its last.
+    const double span = d.last - d.first;
     std::printf("%s\"%s\": {\"messages\": %ld, \"per_s\": %.2f, \"MB\": %.2f}", first ? "" : ", ", name.c_str(),
-                d.messages, static_cast<double>(d.messages) / seconds, d.bytes / 1e6);
+                d.messages, span > 0 ? static_cast<double>(d.messages - 1) / span : 0.0, d.bytes / 1e6);
     first = false;
   }
   std::printf("}}\n");

@@ -17,6 +17,7 @@
 #include <functional>
 #include <map>
 #include <mutex>
+#include <random>
 #include <sstream>
 #include <string>
 #include <thread>
@@ -775,6 +776,21 @@ TEST(IgtlServe, AOneProcessRunServesItsVolumeViewsFramesAndCommands) { servesThe
 
 TEST(IgtlServe, AFourRankRunServesItsVolumeViewsFramesAndCommands) {
   servesTheRun(std::string(PP5_SOURCE_DIR) + "/scripts/mpirun.sh 4 ", "ranks");
+}
+
+// The codec's CRC-64 (eight bytes a step) against Debian's library's (a byte a
+// step), over every length to 300, odd starts, and chained calls.
+TEST(IgtlServe, TheCrcIsTheLibrarysForEveryLengthAndStart) {
+  std::vector<unsigned char> bytes(400);
+  std::mt19937 rng(3);
+  for (unsigned char& b : bytes) b = static_cast<unsigned char>(rng());
+  for (std::size_t start : {0u, 1u, 3u, 7u})
+    for (std::size_t n = 0; n <= 300; ++n) {
+      const std::uint64_t want = crc64(bytes.data() + start, n, 0);
+      ASSERT_EQ(pp5::igtl::codec::crc64(bytes.data() + start, n, 0), want) << "start " << start << ", " << n << " bytes";
+      const std::size_t cut = n / 3;
+      ASSERT_EQ(pp5::igtl::codec::crc64(bytes.data() + start + cut, n - cut, pp5::igtl::codec::crc64(bytes.data() + start, cut, 0)), want);
+    }
 }
 
 TEST(IgtlServe, ServeAddresses) {

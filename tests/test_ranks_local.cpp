@@ -360,6 +360,62 @@ TEST(RunLoop, BothPipelinesHandTheSinksTheSameEvents) {
   fs::remove_all(dir);
 }
 
+// A sink that asks for a snapshot every `every` frames and keeps its own
+// copy of the volume, updated only inside the boxes where the loop says the
+// snapshot may differ from the one it had: the copy must be the snapshot.
+class SnapshotCopy final : public host::Sink {
+public:
+  explicit SnapshotCopy(int every) : every_(every) {}
+  int snapshots = 0, withBoxes = 0;
+  void frame(const host::AcquiredFrame&, std::uint64_t) override { ++frames_; }
+  bool wantsVolume() const override {
+    if (asked_ || frames_ - at_ < every_) return false;
+    asked_ = true;
+    at_ = frames_;
+    return true;
+  }
+  void volume(const Volume& v, std::uint64_t, const host::VolumeChange& changed) override {
+    asked_ = false;
+    ++snapshots;
+    if (changed.all || copy_.bytes.size() != v.bytes.size()) {
+      copy_ = v;
+    } else {
+      ++withBoxes;
+      const std::size_t bpv = static_cast<std::size_t>(scalarBytes(v.type));
+      for (const gp::Box3& b : changed.boxes)
+        for (std::int64_t z = b.lo.z; z < b.hi.z; ++z)
+          for (std::int64_t y = b.lo.y; y < b.hi.y; ++y) {
+            const std::size_t at = v.grid.linear(b.lo.x, y, z) * bpv;
+            std::memcpy(copy_.bytes.data() + at, v.bytes.data() + at, static_cast<std::size_t>(b.hi.x - b.lo.x) * bpv);
+          }
+    }
+    EXPECT_TRUE(copy_.bytes == v.bytes) << "snapshot " << snapshots << " differs outside the boxes it named";
+  }
+
+private:
+  int every_;
+  int frames_ = 0;
+  mutable int at_ = 0;
+  mutable bool asked_ = false;
+  Volume copy_;
+};
+
+// Sinks that ask for snapshots at different rates are each told where a
+// snapshot may differ from the one they had last, across the snapshots asked
+// for by the other: a sink that updates only there has the whole volume.
+TEST(RunLoop, EachSinkLearnsWhereTheVolumeChangedSinceItsLastSnapshot) {
+  host::RunJob j = smallJob(parallel::GpPartition::Slab, false);
+  const fs::path dir = freshDir("changes");
+  j.outDir = dir.string();
+  SnapshotCopy often(1), seldom(3);
+  std::string out;
+  ASSERT_EQ(runDistributed(j, {&often, &seldom}, out), 0);
+  EXPECT_GE(seldom.snapshots, 2);
+  EXPECT_GT(often.snapshots, seldom.snapshots);
+  EXPECT_GE(seldom.withBoxes, 1);  // the boxes were used, not the whole volume each time
+  fs::remove_all(dir);
+}
+
 TEST(LocalJob, SlabRanksEqualTheSerialPipeline) { runJob(parallel::GpPartition::Slab, "slab"); }
 TEST(LocalJob, TileRanksEqualTheSerialPipeline) { runJob(parallel::GpPartition::Tile, "tile"); }
 TEST(LocalJob, TickSlabRanksEqualTheSerialPipeline) { runJob(parallel::GpPartition::Slab, "slab_tick", true); }

@@ -180,6 +180,36 @@ TEST(VolumeIo, ValuesClampAndRoundForIntegerTypes) {
   EXPECT_STREQ(scalarName(ScalarType::U16), "uint16");
 }
 
+// The float-to-uint8 conversion (volume.mha as uint8, the OpenIGTLink
+// volume) rounds as std::round does, halves away from zero, every float
+// next to a half and at the ends included.
+TEST(VolumeIo, FloatVoxelsToUint8RoundAsStdRound) {
+  std::vector<float> xs = {0.0f, -0.0f, -1.0f, 0.5f, 1.5f, 2.5f, 254.5f, 255.0f, 256.0f, 1e30f, -1e30f,
+                           NAN, INFINITY, -INFINITY, 1e-40f};
+  for (int k = 0; k <= 255; ++k) {
+    const float half = static_cast<float>(k) + 0.5f;
+    xs.push_back(half);
+    xs.push_back(std::nextafter(half, 0.0f));
+    xs.push_back(std::nextafter(half, 1000.0f));
+  }
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<float> any(-10.0f, 300.0f);
+  for (int i = 0; i < 10000; ++i) xs.push_back(any(rng));
+  Grid g;
+  g.dims = Index3(static_cast<std::int64_t>(xs.size()), 1, 1);
+  Volume v;
+  v.allocate(g, ScalarType::F32);
+  for (std::size_t i = 0; i < xs.size(); ++i) std::memcpy(v.bytes.data() + 4 * i, &xs[i], 4);
+  std::vector<std::uint8_t> out(xs.size());
+  v.toU8(0, xs.size(), out.data());
+  for (std::size_t i = 0; i < xs.size(); ++i) {
+    const double x = xs[i];
+    const double want = !(x > 0.0) ? 0.0 : x >= 255.0 ? 255.0 : std::round(x);
+    EXPECT_EQ(out[i], static_cast<std::uint8_t>(want)) << "voxel " << i << " = " << xs[i];
+  }
+  EXPECT_EQ(v.as(ScalarType::U8).bytes, out);
+}
+
 // ------------------------------------------------------------ pp5echo info
 
 nlohmann::json info(const std::string& path) {

@@ -217,15 +217,18 @@ struct EmptyMsg {
   Header h;
 };
 
-// kTagVolume. Payload: the voxels of box [lo, hi) in the reconstruction's
-// voxel type, x fastest.
+// kTagVolume. Payload: `boxes` VolumeBox, then the voxels of each box in
+// turn, in the reconstruction's voxel type, x fastest.
 struct VolumeMsg {
   Header h;
-  std::int64_t lo[3] = {}, hi[3] = {};  // the voxel box of this piece
   std::uint32_t gp = 0;
   std::uint32_t last = 0;        // 1: the GP's last piece
   std::uint32_t scalarType = 0;  // core ScalarType of the payload
-  std::uint32_t pad = 0;
+  std::uint32_t boxes = 0;       // how many boxes this piece holds
+};
+// A voxel box [lo, hi) of a VolumeMsg.
+struct VolumeBox {
+  std::int64_t lo[3] = {}, hi[3] = {};
 };
 
 // kTagReport.
@@ -261,6 +264,7 @@ static_assert(kIsMessage<FrameMsg> && kIsMessage<PreviousMsg> && kIsMessage<Cont
               kIsMessage<SamplesMsg> && kIsMessage<GpDoneMsg> && kIsMessage<TileMsg> && kIsMessage<PpDoneMsg> &&
               kIsMessage<RequestMsg> && kIsMessage<EmptyMsg> && kIsMessage<VolumeMsg> && kIsMessage<ReportMsg> &&
               kIsMessage<GridMsg>);
+static_assert(std::is_trivially_copyable_v<VolumeBox> && sizeof(VolumeBox) == 48);
 static_assert(sizeof(RaySample) == 24);
 
 }  // namespace pp5::comm

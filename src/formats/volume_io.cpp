@@ -66,7 +66,10 @@ void Volume::toU8(std::size_t first, std::size_t n, std::uint8_t* out) const {
     for (std::size_t i = 0; i < n; ++i) {  // a tight loop: float voxels stored little-endian, as this machine's
       float f;
       std::memcpy(&f, bytes.data() + 4 * (first + i), 4);
-      out[i] = static_cast<std::uint8_t>(clampRound(static_cast<double>(f), 255.0));
+      // clampRound's value without a call: a float plus one half is exact in
+      // a double, so below 255 its truncation is std::round's rounding.
+      const double x = f;
+      out[i] = !(x > 0.0) ? 0 : x >= 255.0 ? 255 : static_cast<std::uint8_t>(static_cast<int>(x + 0.5));
     }
     return;
   }

@@ -99,6 +99,7 @@ private:
   std::vector<Clock::time_point> lastHeard_;  // per rank: the last message from it (the heartbeat)
   Volume volume_;
   int volumesDone_ = 0;
+  VolumeChange volumeChange_;  // the boxes the pieces of the snapshot under way came in
   std::vector<comm::ReportMsg> reports_;
   // Sample bytes the GPs sent for frames' incremental updates and for full
   // re-samples after control changes (their credits' counts).

@@ -49,6 +49,7 @@ void DistributedPipeline::askVolume() {
   EmptyMsg rq;
   rq.h = {kTagVolumeRequest, epoch_, sent_ ? sent_ - 1 : 0};
   volumesDone_ = 0;
+  volumeChange_ = VolumeChange{false, {}};
   for (int g = 0; g < L_.gps; ++g) t_.send(L_.gpRank(g), rq);
 }
 
@@ -77,26 +78,30 @@ void DistributedPipeline::onVolume(const Message& m) {
   const auto type = static_cast<ScalarType>(vm.scalarType);
   if (volume_.bytes.empty()) volume_.allocate(j_.grid, type);
   if (volume_.type != type) throw CommError("graphics processors sent volume pieces of different voxel types");
-  const Index3 lo(vm.lo[0], vm.lo[1], vm.lo[2]), hi(vm.hi[0], vm.hi[1], vm.hi[2]);
   const auto bpv = static_cast<std::size_t>(scalarBytes(type));
   const auto payload = m.payload<VolumeMsg>();
-  const gp::Box3 box{lo, hi};
-  if (!box.empty()) {
-    if (glm::any(glm::lessThan(lo, Index3(0))) || glm::any(glm::greaterThan(hi, j_.grid.dims)) ||
-        payload.size() != box.voxelCount() * bpv)
-      throw CommError(fmt::format("a malformed volume piece from rank {}", m.source));
+  const auto malformed = [&] { return CommError(fmt::format("a malformed volume piece from rank {}", m.source)); };
+  if (payload.size() / sizeof(VolumeBox) < vm.boxes) throw malformed();
+  std::size_t off = vm.boxes * sizeof(VolumeBox);
+  for (std::uint32_t i = 0; i < vm.boxes; ++i) {
+    VolumeBox vb;
+    std::memcpy(&vb, payload.data() + i * sizeof(VolumeBox), sizeof vb);
+    const Index3 lo(vb.lo[0], vb.lo[1], vb.lo[2]), hi(vb.hi[0], vb.hi[1], vb.hi[2]);
+    const gp::Box3 box{lo, hi};
+    if (box.empty() || glm::any(glm::lessThan(lo, Index3(0))) || glm::any(glm::greaterThan(hi, j_.grid.dims)) ||
+        payload.size() - off < box.voxelCount() * bpv)
+      throw malformed();
     const std::size_t rowBytes = static_cast<std::size_t>(hi.x - lo.x) * bpv;
-    std::size_t off = 0;
     for (std::int64_t k = lo.z; k < hi.z; ++k)
-      for (std::int64_t jj = lo.y; jj < hi.y; ++jj) {
+      for (std::int64_t jj = lo.y; jj < hi.y; ++jj, off += rowBytes)
         std::memcpy(volume_.bytes.data() + j_.grid.linear(lo.x, jj, k) * bpv, payload.data() + off, rowBytes);
-        off += rowBytes;
-      }
+    volumeChange_.boxes.push_back(box);
   }
+  if (off != payload.size()) throw malformed();
   if (vm.last) ++volumesDone_;
   if (volumeOutstanding_ && volumesDone_ == L_.gps) {
     volumeOutstanding_ = false;
-    if (events_.volume) events_.volume(volume_);
+    if (events_.volume) events_.volume(volume_, volumeChange_);
   }
 }
 

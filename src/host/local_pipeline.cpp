@@ -99,7 +99,7 @@ std::vector<float> LocalPipeline::composite(pp::CompositeMode mode) {
 }
 
 bool LocalPipeline::requestVolume() {
-  if (events_.volume) events_.volume(pipe_->reconstructor().output());
+  if (events_.volume) events_.volume(pipe_->reconstructor().output(), VolumeChange{});
   return true;
 }
 

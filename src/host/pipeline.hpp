@@ -16,6 +16,7 @@
 #include "core/grid.hpp"
 #include "formats/volume_io.hpp"
 #include "host/acquisition.hpp"
+#include "reconstruction/dirty_region.hpp"
 #include "rendering/ray_cache.hpp"
 
 namespace pp5::host {
@@ -35,13 +36,33 @@ struct ImageView {
   bool latest = true;
 };
 
+// Where a volume snapshot may differ from the one before it: the voxel
+// boxes its pieces came in, or everything (the first, or a pipeline that does
+// not track them). Outside them the voxels are as they were.
+struct VolumeChange {
+  bool all = true;
+  std::vector<gp::Box3> boxes;
+
+  // This and then `c`; everything past kMostBoxes (a sink that seldom asks).
+  void add(const VolumeChange& c) {
+    constexpr std::size_t kMostBoxes = std::size_t{1} << 14;
+    if (all) return;
+    if (c.all || boxes.size() + c.boxes.size() > kMostBoxes) {
+      *this = VolumeChange{};
+      return;
+    }
+    boxes.insert(boxes.end(), c.boxes.begin(), c.boxes.end());
+  }
+};
+
 // What the pipeline tells the loop as it works; the loop passes it on to the sinks.
 struct PipelineEvents {
   // Frame k went in (after it was sent, before its image is in).
   std::function<void(const AcquiredFrame&, std::uint64_t k)> frame;
   std::function<void(const ImageView&)> image;
-  // A volume asked for with requestVolume().
-  std::function<void(const Volume&)> volume;
+  // A volume asked for with requestVolume(), and where it may differ from the
+  // snapshot before it.
+  std::function<void(const Volume&, const VolumeChange&)> volume;
   // A row of the statistics file (columns: statsColumns()).
   std::function<void(const std::vector<double>&)> stats;
 };

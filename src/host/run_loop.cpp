@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <deque>
 #include <filesystem>
+#include <map>
 #include <optional>
 #include <thread>
 
@@ -38,8 +39,15 @@ public:
     e.image = [this](const ImageView& im) {
       for (Sink* s : sinks_) s->image(im);
     };
-    e.volume = [this](const Volume& v) {
-      for (Sink* s : volumeTo_) s->volume(v, volumeFrames_);
+    e.volume = [this](const Volume& v, const VolumeChange& c) {
+      // Each sink is told where the volume may differ from the snapshot it
+      // had last: the changes of the snapshots it was not given are kept for it.
+      for (auto& [s, since] : changedSince_) since.add(c);
+      for (Sink* s : volumeTo_) {
+        const auto it = changedSince_.find(s);
+        s->volume(v, volumeFrames_, it == changedSince_.end() ? VolumeChange{} : it->second);
+        changedSince_[s] = VolumeChange{false, {}};
+      }
       volumeTo_.clear();
     };
     e.stats = [this](const std::vector<double>& row) {
@@ -59,6 +67,7 @@ private:
   Sink* steerSink_ = nullptr;
   std::vector<Sink*> volumeTo_;  // the sinks a snapshot on its way is for
   std::uint64_t volumeFrames_ = 0;  // ... and the frames it holds
+  std::map<Sink*, VolumeChange> changedSince_;  // per sink given a snapshot: the changes since
   ViewState state_;              // what the pipeline renders now
   std::uint64_t frames_ = 0;
   const Acquisition* acq_ = nullptr;
@@ -89,13 +98,7 @@ private:
   // so a drag does not queue views), an image, a volume for its slices; the
   // figures. True while it holds acquisition paused; `acted`: it did something.
   bool serveSteering(bool& acted) {
-    for (Sink* s : sinks_)
-      if (frames_ > 0 && s->wantsVolume() && std::find(volumeTo_.begin(), volumeTo_.end(), s) == volumeTo_.end()) {
-        const bool first = volumeTo_.empty();
-        volumeTo_.push_back(s);
-        if (first) volumeFrames_ = frames_;
-        if (first && p_.requestVolume()) acted = true;
-      }
+    askVolumes(acted);
     if (Clock::now() - lastFigures_ > std::chrono::milliseconds(250)) publishFigures();
     if (!steer_) return false;
     if (steer_->version() != wantedVersion_) {  // fetched (under the viewer's lock) only when it changed
@@ -111,6 +114,18 @@ private:
       steerSink_->image(p_.image());
     }
     return wanted_.paused;
+  }
+
+  // The sinks that want a volume snapshot now: one request for them all (a
+  // sink that asks while one is on its way joins it).
+  void askVolumes(bool& acted) {
+    for (Sink* s : sinks_)
+      if (frames_ > 0 && s->wantsVolume() && std::find(volumeTo_.begin(), volumeTo_.end(), s) == volumeTo_.end()) {
+        const bool first = volumeTo_.empty();
+        volumeTo_.push_back(s);
+        if (first) volumeFrames_ = frames_;
+        if (first && p_.requestVolume()) acted = true;
+      }
   }
 
   void publishFigures() {
@@ -202,7 +217,7 @@ void RunLoop::serveVolume() {
   RunStart rs{j_.grid, j_.pipeline.render.width, j_.pipeline.render.height, state_, p_.statsColumns()};
   for (Sink* s : sinks_) s->start(rs);
   const Volume& v = p_.volume();
-  for (Sink* s : sinks_) s->volume(v, 0);
+  for (Sink* s : sinks_) s->volume(v, 0, VolumeChange{});
   for (Sink* s : sinks_) s->inputEnded();
   if (steer_) serveFinal();
 }
@@ -255,6 +270,10 @@ int RunLoop::run() {
       const std::uint64_t sourceIndex = a.frame.index, k = frames_;
       p_.insert(a);
       ++frames_;
+      // A snapshot the frame made due goes out right behind it, not after the
+      // loop's next turn.
+      bool asked = false;
+      askVolumes(asked);
       if (p_.synchronous()) {
         p_.sync();
         p_.verify(*p_.image().rgba, nullptr, fmt::format("frame {}", k));

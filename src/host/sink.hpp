@@ -68,7 +68,10 @@ public:
   // A snapshot of the growing volume, asked for while the input runs; it
   // holds the first `frames` frames (those frame() was given with k < frames).
   virtual bool wantsVolume() const { return false; }
-  virtual void volume(const Volume& v, std::uint64_t frames) { (void)v, (void)frames; }
+  // `changed`: where it may differ from the snapshot this sink was given before.
+  virtual void volume(const Volume& v, std::uint64_t frames, const VolumeChange& changed) {
+    (void)v, (void)frames, (void)changed;
+  }
   virtual void figures(const LiveFigures& f) { (void)f; }
   virtual void inputEnded() {}
   // After the final passes: the image of every frame.

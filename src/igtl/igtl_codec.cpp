@@ -17,14 +17,21 @@ namespace {
 constexpr double kFracScale = 4294967296.0;  // 2^32
 constexpr std::size_t kExtendedHeaderBytes = 12;
 
-std::array<std::uint64_t, 256> crcTable() {
+// The CRC's tables, eight bytes at a time ("slicing by 8"): t[0][b] is the
+// CRC register after byte b went in at the top, t[k][b] after k more zero
+// bytes, so that a 64-bit word XORed into the register takes one look-up
+// per byte, all independent.
+using CrcTables = std::array<std::array<std::uint64_t, 256>, 8>;
+CrcTables crcTables() {
   constexpr std::uint64_t poly = 0x42F0E1EBA9EA3693ull;  // ECMA-182
-  std::array<std::uint64_t, 256> t{};
+  CrcTables t{};
   for (std::uint64_t i = 0; i < 256; ++i) {
     std::uint64_t c = i << 56;
     for (int b = 0; b < 8; ++b) c = (c & (1ull << 63)) ? (c << 1) ^ poly : c << 1;
-    t[i] = c;
+    t[0][i] = c;
   }
+  for (std::size_t k = 1; k < 8; ++k)
+    for (std::size_t i = 0; i < 256; ++i) t[k][i] = (t[k - 1][i] << 8) ^ t[0][t[k - 1][i] >> 56];
   return t;
 }
 
@@ -105,8 +112,14 @@ std::uint64_t be64(const std::uint8_t* p) {
 }  // namespace
 
 std::uint64_t crc64(const std::uint8_t* data, std::size_t n, std::uint64_t crc) {
-  static const std::array<std::uint64_t, 256> table = crcTable();
-  for (std::size_t i = 0; i < n; ++i) crc = table[((crc >> 56) ^ data[i]) & 0xff] ^ (crc << 8);
+  static const CrcTables t = crcTables();
+  std::size_t i = 0;
+  for (; i + 8 <= n; i += 8) {
+    const std::uint64_t w = crc ^ be64(data + i);
+    crc = t[7][w >> 56] ^ t[6][(w >> 48) & 0xff] ^ t[5][(w >> 40) & 0xff] ^ t[4][(w >> 32) & 0xff] ^
+          t[3][(w >> 24) & 0xff] ^ t[2][(w >> 16) & 0xff] ^ t[1][(w >> 8) & 0xff] ^ t[0][w & 0xff];
+  }
+  for (; i < n; ++i) crc = t[0][((crc >> 56) ^ data[i]) & 0xff] ^ (crc << 8);
   return crc;
 }
 

@@ -10,6 +10,9 @@
 
 #include <algorithm>
 #include <deque>
+#include <functional>
+#include <set>
+#include <tuple>
 #include <atomic>
 #include <cerrno>
 #include <chrono>
@@ -72,7 +75,8 @@ struct Server::Impl {
   // Under `m`: the newest message of each (type, device), `serial` ordering
   // them; the live volume; replies posted from other threads.
   struct Kept {
-    Bytes bytes;
+    Bytes bytes;                       // null while `pack` has not run
+    std::function<std::string()> pack;  // packs it on the server's thread (publishLater)
     std::uint64_t serial = 0;
   };
   struct LiveVolume {
@@ -110,6 +114,7 @@ struct Server::Impl {
   };
   std::vector<Client> clients;
   std::uint64_t nextId = 0;
+  std::set<std::pair<std::string, std::string>> unsendable;  // kinds whose packing failed, logged once
 
   void listen() {
     listenFd = listenTcp(options.address, options.port, 16, port, "OpenIGTLink server");
@@ -154,6 +159,30 @@ struct Server::Impl {
     c.volumeGeometry = v.geometry;
   }
 
+  // The messages published to be packed here, off the publisher's thread;
+  // one replaced before its turn is never packed.
+  void packPending() {
+    std::vector<std::tuple<std::pair<std::string, std::string>, std::uint64_t, std::function<std::string()>>> todo;
+    {
+      const std::lock_guard lock(m);
+      for (auto& [k, v] : latest)
+        if (v.pack) todo.emplace_back(k, v.serial, std::move(v.pack)), v.pack = nullptr;
+    }
+    for (auto& [key, serialOf, pack] : todo) {
+      Bytes bytes;
+      try {
+        bytes = std::make_shared<const std::string>(pack());
+      } catch (const InputError& e) {
+        if (unsendable.insert(key).second)
+          spdlog::warn("igtl: a {} '{}' cannot be sent ({}); such messages are not sent", key.first, key.second, e.what());
+        continue;
+      }
+      const std::lock_guard lock(m);
+      Kept& k = latest[key];
+      if (k.serial == serialOf) k.bytes = std::move(bytes);
+    }
+  }
+
   // What `c` gets next into c.out: its replies first, then the volume update
   // under way, then the oldest kind it has not had the newest of.
   void fill(Client& c) {
@@ -176,6 +205,7 @@ struct Server::Impl {
     const Kept* next = nullptr;
     const std::pair<std::string, std::string>* key = nullptr;
     for (const auto& [k, v] : latest) {
+      if (!v.bytes) continue;  // not packed yet
       const auto it = c.sent.find(k);
       if (it != c.sent.end() && it->second >= v.serial) continue;
       if (!next || v.serial < next->serial) next = &v, key = &k;
@@ -277,7 +307,7 @@ struct Server::Impl {
       {
         const std::lock_guard lock(m);
         for (const auto& [k, v] : latest)
-          if (k.first == wanted && (device.empty() || k.second == device)) found.push_back(v.bytes);
+          if (k.first == wanted && (device.empty() || k.second == device) && v.bytes) found.push_back(v.bytes);
         theVolume = wanted == "IMAGE" && volume.voxels && (device.empty() || device == volume.device);
       }
       if (theVolume) c.volumeSent = 0;  // the whole volume comes next
@@ -354,6 +384,7 @@ struct Server::Impl {
     // On quit, what is pending (the final volume) still goes out, for up to 2 s.
     std::chrono::steady_clock::time_point flushUntil{};
     while (true) {
+      packPending();
       if (quit) {
         if (flushUntil == std::chrono::steady_clock::time_point{})
           flushUntil = std::chrono::steady_clock::now() + std::chrono::seconds(2);
@@ -419,7 +450,21 @@ Index3 Server::bricks(const Index3& dims) { return (dims + Index3(kVolumeBrick -
 
 void Server::publishImage(const std::string& device, const Index3& dims, const std::uint8_t* voxels,
                           const Mat4& pixelToFrame, double timeS, int components) {
-  publish("IMAGE", device, wire::packCentredImage(device, dims, voxels, pixelToFrame, timeS, components));
+  const std::size_t n = static_cast<std::size_t>(dims.x * dims.y * dims.z) * static_cast<std::size_t>(components);
+  publishLater("IMAGE", device, [device, dims, pixelToFrame, timeS, components, v = std::vector<std::uint8_t>(voxels, voxels + n)] {
+    return wire::packCentredImage(device, dims, v.data(), pixelToFrame, timeS, components);
+  });
+}
+
+void Server::publishLater(const std::string& type, const std::string& device, std::function<std::string()> pack) {
+  {
+    const std::lock_guard lock(impl_->m);
+    Impl::Kept& k = impl_->latest[{type, device}];
+    k.bytes = nullptr;
+    k.pack = std::move(pack);
+    k.serial = ++impl_->serial;
+  }
+  impl_->wakeUp();
 }
 
 void Server::publishVolume(const std::string& device, const Index3& dims,
@@ -457,6 +502,7 @@ void Server::publish(const std::string& type, const std::string& device, std::st
     const std::lock_guard lock(impl_->m);
     Impl::Kept& k = impl_->latest[{type, device}];
     k.bytes = std::make_shared<const std::string>(std::move(bytes));
+    k.pack = nullptr;
     k.serial = ++impl_->serial;
   }
   impl_->wakeUp();

@@ -73,10 +73,15 @@ public:
   // A packed message (header and body, as igtl::MessageBase::Pack leaves it)
   // of `type` ("IMAGE", "TRANSFORM", ...) and `device`: the newest of its kind.
   void publish(const std::string& type, const std::string& device, std::string packed);
+  // A message of `type` and `device` that `pack` packs on the server's thread
+  // when its turn comes (a newer one published first replaces it unpacked),
+  // so that the publisher does not pay for the packing. An InputError from
+  // `pack` is logged once for that kind, and the message is not sent.
+  void publishLater(const std::string& type, const std::string& device, std::function<std::string()> pack);
   // A uint8 IMAGE of `dims` (x fastest; z = 1 for a 2D image) whose voxel
   // (i, j, k) lies at pixelToFrame * (i, j, k, 1), its origin the voxels'
   // centre as OpenIGTLink defines it; `components` bytes a voxel (3: RGB).
-  // InputError when it cannot be sent.
+  // The pixels are copied and packed as publishLater packs.
   void publishImage(const std::string& device, const Index3& dims, const std::uint8_t* voxels, const Mat4& pixelToFrame,
                     double timeS, int components = 1);
   // The live volume (uint8, x fastest) of `dims` at `pixelToFrame` (as

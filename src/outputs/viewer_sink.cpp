@@ -27,7 +27,7 @@ public:
   }
   void image(const host::ImageView& im) override { live_.image(*im.rgba, im.width, im.height, im.epoch, im.frame); }
   bool wantsVolume() const override { return live_.wantsVolume(); }
-  void volume(const Volume& v, std::uint64_t) override { live_.volume(v); }
+  void volume(const Volume& v, std::uint64_t, const host::VolumeChange&) override { live_.volume(v); }
   void figures(const host::LiveFigures& f) override { live_.figures(f); }
   void inputEnded() override { live_.inputEnded(); }
   host::Steering* steering() override { return this; }

@@ -218,6 +218,14 @@ private:
           break;
         }
       }
+    // A volume snapshot asked for right behind these frames holds them, and
+    // shading and sampling do not change the grid: it goes before them, so
+    // that the host has it a frame's shading and sampling sooner.
+    if (!held_) held_ = t_.poll();
+    if (held_ && held_->source == 0 && held_->tag == kTagVolumeRequest) {
+      sendVolume(held_->header());
+      held_.reset();
+    }
     const Header& last = frames.back();
 
     std::uint64_t samples = 0;
@@ -365,18 +373,28 @@ private:
     t_.send(0, cr);
   }
 
-  // This GP's part of the reconstructed volume, in runs of z planes.
   // This GP's part of the volume: whole the first time and after the final
   // passes (which change voxels no frame's dirty region names), then only the
   // runs of bricks along x that frames changed since the last request (the
-  // host keeps the volume it assembled).
+  // host keeps the volume it assembled). The boxes go together, as few
+  // messages of at most 64 MiB as they fit in (one for a frame's changes),
+  // a box too large for one split into runs of z planes; the sends complete
+  // before the GP goes on, so that the host does not wait for its next turn.
   void sendVolume(const Header& h) {
-    const Grid& g = c_.grid;
+    constexpr std::size_t kMessageBytes = std::size_t{64} << 20;
     const Box3 part = partition_->volumePart(g_);
+    const Volume& v = update_->reconstructor().output();
+    const auto bpv = static_cast<std::size_t>(scalarBytes(v.type));
     std::vector<Box3> boxes;
-    if (volumeWhole_ || part.empty()) {
-      boxes.push_back(part);
-    } else {
+    auto add = [&](const Box3& b) {
+      const std::size_t planeBytes = static_cast<std::size_t>((b.hi.x - b.lo.x) * (b.hi.y - b.lo.y)) * bpv;
+      const std::int64_t planes = std::max<std::int64_t>(1, static_cast<std::int64_t>(kMessageBytes / planeBytes));
+      for (std::int64_t z = b.lo.z; z < b.hi.z; z += planes)
+        boxes.push_back(Box3{Index3(b.lo.x, b.lo.y, z), Index3(b.hi.x, b.hi.y, std::min(b.hi.z, z + planes))});
+    };
+    if (volumeWhole_) {
+      if (!part.empty()) add(part);
+    } else if (!part.empty()) {
       const Index3 bd = sinceVolume_.brickDims();
       const auto& ids = sinceVolume_.bricks();
       for (std::size_t i = 0; i < ids.size();) {
@@ -386,45 +404,42 @@ private:
         b.hi = sinceVolume_.brickBox(ids[e - 1]).hi;
         b.lo = glm::max(b.lo, part.lo);
         b.hi = glm::min(b.hi, part.hi);
-        if (!b.empty()) boxes.push_back(b);
+        if (!b.empty()) add(b);
         i = e;
       }
-      if (boxes.empty()) boxes.push_back(Box3{});  // nothing changed: the last message alone
     }
     volumeWhole_ = false;
     sinceVolume_.clear();
-    const Volume& v = update_->reconstructor().output();
-    const auto bpv = static_cast<std::size_t>(scalarBytes(v.type));
-    for (std::size_t bi = 0; bi < boxes.size(); ++bi) {
-      const Box3& box = boxes[bi];
-      const std::int64_t nx = box.hi.x - box.lo.x, ny = box.hi.y - box.lo.y;
-      const std::size_t planeBytes = static_cast<std::size_t>(std::max<std::int64_t>(0, nx * ny)) * bpv;
-      const std::int64_t planesPerMsg =
-          planeBytes ? std::max<std::int64_t>(1, static_cast<std::int64_t>((std::size_t{64} << 20) / planeBytes)) : 1;
-      std::int64_t z = box.lo.z;
-      do {
-        const std::int64_t z1 = box.empty() ? z : std::min(box.hi.z, z + planesPerMsg);
-        VolumeMsg vm;
-        vm.h = {kTagVolume, h.epoch, h.frame};
-        vm.gp = static_cast<std::uint32_t>(g_);
-        vm.scalarType = static_cast<std::uint32_t>(v.type);
-        vm.lo[0] = box.lo.x, vm.lo[1] = box.lo.y, vm.lo[2] = z;
-        vm.hi[0] = box.hi.x, vm.hi[1] = box.hi.y, vm.hi[2] = z1;
-        const bool lastOfBox = z1 >= box.hi.z || box.empty();
-        vm.last = lastOfBox && bi + 1 == boxes.size();
-        std::vector<std::byte> buf(sizeof vm + planeBytes * static_cast<std::size_t>(std::max<std::int64_t>(0, z1 - z)));
-        std::memcpy(buf.data(), &vm, sizeof vm);
-        std::byte* out = buf.data() + sizeof vm;
-        for (std::int64_t k = z; k < z1; ++k)
-          for (std::int64_t j = box.lo.y; j < box.hi.y; ++j) {
-            std::memcpy(out, v.bytes.data() + g.linear(box.lo.x, j, k) * bpv, static_cast<std::size_t>(nx) * bpv);
-            out += static_cast<std::size_t>(nx) * bpv;
-          }
-        t_.sendBuffer(0, kTagVolume, std::move(buf));
-        z = z1;
-        if (lastOfBox) break;
-      } while (true);
-    }
+    const Grid& g = c_.grid;
+    std::size_t next = 0;
+    do {  // at least one message: the last says this GP is done
+      std::size_t end = next, bytes = 0;
+      while (end < boxes.size() && (end == next || bytes + boxes[end].voxelCount() * bpv <= kMessageBytes))
+        bytes += boxes[end++].voxelCount() * bpv;
+      VolumeMsg vm;
+      vm.h = {kTagVolume, h.epoch, h.frame};
+      vm.gp = static_cast<std::uint32_t>(g_);
+      vm.scalarType = static_cast<std::uint32_t>(v.type);
+      vm.boxes = static_cast<std::uint32_t>(end - next);
+      vm.last = end == boxes.size();
+      std::vector<std::byte> buf(sizeof vm + (end - next) * sizeof(VolumeBox) + bytes);
+      std::memcpy(buf.data(), &vm, sizeof vm);
+      std::byte* out = buf.data() + sizeof vm;
+      for (std::size_t i = next; i < end; ++i, out += sizeof(VolumeBox)) {
+        VolumeBox vb;
+        for (int a = 0; a < 3; ++a) vb.lo[a] = boxes[i].lo[a], vb.hi[a] = boxes[i].hi[a];
+        std::memcpy(out, &vb, sizeof vb);
+      }
+      for (std::size_t i = next; i < end; ++i) {
+        const Box3& box = boxes[i];
+        const auto rowBytes = static_cast<std::size_t>(box.hi.x - box.lo.x) * bpv;
+        for (std::int64_t k = box.lo.z; k < box.hi.z; ++k)
+          for (std::int64_t j = box.lo.y; j < box.hi.y; ++j, out += rowBytes)
+            std::memcpy(out, v.bytes.data() + g.linear(box.lo.x, j, k) * bpv, rowBytes);
+      }
+      t_.sendBuffer(0, kTagVolume, std::move(buf));
+      next = end;
+    } while (next < boxes.size());
   }
 
   // The bricks frames changed since the last volume request; whether the
