@@ -376,10 +376,10 @@ private:
   // This GP's part of the volume: whole the first time and after the final
   // passes (which change voxels no frame's dirty region names), then only the
   // runs of bricks along x that frames changed since the last request (the
-  // host keeps the volume it assembled). The boxes go together, as few
-  // messages of at most 64 MiB as they fit in (one for a frame's changes),
-  // a box too large for one split into runs of z planes; the sends complete
-  // before the GP goes on, so that the host does not wait for its next turn.
+  // host keeps the volume it assembled). The boxes go together, in as few
+  // messages of at most 64 MiB as they fit in (one for a few frames'
+  // changes: a message each took the host a loop turn), a box too large for
+  // one split into runs of z planes.
   void sendVolume(const Header& h) {
     constexpr std::size_t kMessageBytes = std::size_t{64} << 20;
     const Box3 part = partition_->volumePart(g_);
