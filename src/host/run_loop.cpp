@@ -98,7 +98,7 @@ private:
   // so a drag does not queue views), an image, a volume for its slices; the
   // figures. True while it holds acquisition paused; `acted`: it did something.
   bool serveSteering(bool& acted) {
-    askVolumes(acted);
+    if (askVolumes()) acted = true;
     if (Clock::now() - lastFigures_ > std::chrono::milliseconds(250)) publishFigures();
     if (!steer_) return false;
     if (steer_->version() != wantedVersion_) {  // fetched (under the viewer's lock) only when it changed
@@ -117,15 +117,17 @@ private:
   }
 
   // The sinks that want a volume snapshot now: one request for them all (a
-  // sink that asks while one is on its way joins it).
-  void askVolumes(bool& acted) {
+  // sink that asks while one is on its way joins it). True when it asked.
+  bool askVolumes() {
+    bool asked = false;
     for (Sink* s : sinks_)
       if (frames_ > 0 && s->wantsVolume() && std::find(volumeTo_.begin(), volumeTo_.end(), s) == volumeTo_.end()) {
         const bool first = volumeTo_.empty();
         volumeTo_.push_back(s);
         if (first) volumeFrames_ = frames_;
-        if (first && p_.requestVolume()) acted = true;
+        if (first && p_.requestVolume()) asked = true;
       }
+    return asked;
   }
 
   void publishFigures() {
@@ -272,8 +274,7 @@ int RunLoop::run() {
       ++frames_;
       // A snapshot the frame made due goes out right behind it, not after the
       // loop's next turn.
-      bool asked = false;
-      askVolumes(asked);
+      askVolumes();
       if (p_.synchronous()) {
         p_.sync();
         p_.verify(*p_.image().rgba, nullptr, fmt::format("frame {}", k));

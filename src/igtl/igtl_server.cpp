@@ -159,6 +159,18 @@ struct Server::Impl {
     c.volumeGeometry = v.geometry;
   }
 
+  // The newest message of (type, device): packed, or to be packed here.
+  void keep(const std::string& type, const std::string& device, Bytes bytes, std::function<std::string()> pack) {
+    {
+      const std::lock_guard lock(m);
+      Kept& k = latest[{type, device}];
+      k.bytes = std::move(bytes);
+      k.pack = std::move(pack);
+      k.serial = ++serial;
+    }
+    wakeUp();
+  }
+
   // The messages published to be packed here, off the publisher's thread;
   // one replaced before its turn is never packed.
   void packPending() {
@@ -457,14 +469,7 @@ void Server::publishImage(const std::string& device, const Index3& dims, const s
 }
 
 void Server::publishLater(const std::string& type, const std::string& device, std::function<std::string()> pack) {
-  {
-    const std::lock_guard lock(impl_->m);
-    Impl::Kept& k = impl_->latest[{type, device}];
-    k.bytes = nullptr;
-    k.pack = std::move(pack);
-    k.serial = ++impl_->serial;
-  }
-  impl_->wakeUp();
+  impl_->keep(type, device, nullptr, std::move(pack));
 }
 
 void Server::publishVolume(const std::string& device, const Index3& dims,
@@ -498,14 +503,7 @@ void Server::publishVolume(const std::string& device, const Index3& dims,
 }
 
 void Server::publish(const std::string& type, const std::string& device, std::string bytes) {
-  {
-    const std::lock_guard lock(impl_->m);
-    Impl::Kept& k = impl_->latest[{type, device}];
-    k.bytes = std::make_shared<const std::string>(std::move(bytes));
-    k.pack = nullptr;
-    k.serial = ++impl_->serial;
-  }
-  impl_->wakeUp();
+  impl_->keep(type, device, std::make_shared<const std::string>(std::move(bytes)), nullptr);
 }
 
 }  // namespace pp5::igtl
