@@ -8,22 +8,16 @@
 # holds at least those 60 frames, and they are the first frames the server
 # sent, pixel and pose alike, read by an independent reader of PLUS's format
 # (tests/plus_mha.py) and by pp5echo; nothing half-written is left beside it.
+# The three kills run side by side (tests/mpi/cases.sh), each with its own
+# server, job and folder.
 # Usage: killed_recording.sh PP5ECHO IGTL_SERVER SRCDIR WORKDIR
 set -uo pipefail
 bin=$1 server=$2 src=$3 work=$4
+source "$src/tests/mpi/cases.sh"
 export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 OMPI_MCA_rmaps_base_oversubscribe=1
 rm -rf "$work" && mkdir -p "$work"
 cfg=$src/tests/configs/board_small.toml
 fail=0
-check() {  # check NAME CONDITION-STATUS MESSAGE
-  if [[ "$2" == 0 ]]; then echo "ok:   $1"; else echo "FAIL: $1: $3"; fail=1; fi
-}
-rank_pid() {  # rank_pid MPIRUN_PID RANK
-  local p
-  for p in $(pgrep -P "$1"); do
-    if tr '\0' '\n' 2>/dev/null < "/proc/$p/environ" | grep -qx "OMPI_COMM_WORLD_RANK=$2"; then echo "$p"; return; fi
-  done
-}
 complete_frames() {  # what pp5echo reads from a journal now, while it is written
   "$bin" info "$1" 2>/dev/null | grep -o '"complete_frames": [0-9]*' | grep -o '[0-9]*$'
 }
@@ -31,8 +25,8 @@ complete_frames() {  # what pp5echo reads from a journal now, while it is writte
 "$bin" simulate "$cfg" -o "$work/sim" > "$work/simulate.log" 2>&1 || { echo "FAIL: simulate"; exit 1; }
 seq=$work/sim/doll_sweep.igs.mha
 
-for victim in 0 1 3; do
-  name=("host" "graphics processor" "" "pixel processor")
+kill_rank() {  # kill_rank RANK
+  local victim=$1 name=("host" "graphics processor" "" "pixel processor") what w spid mp journal before n pid st rec kept left
   what="kill -9 ${name[$victim]} (rank $victim)"
   w=$work/rank$victim
   mkdir -p "$w"
@@ -74,5 +68,10 @@ for victim in 0 1 3; do
     "$(ls "$w/out")"
   left=$(find "$w/out" -name '.recording.mha.tmp-*' | wc -l)
   check "$what: nothing half-written left beside it" "$([[ $left -eq 0 ]]; echo $?)" "$(ls -a "$w/out")"
-done
+}
+kill_host() { kill_rank 0; }
+kill_graphics_processor() { kill_rank 1; }
+kill_pixel_processor() { kill_rank 3; }
+
+run_cases "$work" kill_host kill_graphics_processor kill_pixel_processor
 exit $fail
