@@ -21,7 +21,9 @@ ctest --test-dir "$dir" --output-on-failure -j "$(nproc 2>/dev/null || echo 2)" 
 t2=$(date +%s)
 # The sanitizer stage after CTest, not beside it: its build, even in the idle
 # scheduling class (chrt --idle), slowed CTest's streaming tests by up to
-# half and made mpi_clean_ends miss mpirun's 1 s grace (2026-12-02).
+# half and made mpi_clean_ends miss mpirun's 1 s grace (2026-12-02); from a
+# fresh clone it took CTest from 348 to 545 s, with a one-process OpenIGTLink
+# run ending before its client's commands were all answered (2026-12-04).
 if [ "${PP5_SKIP_SANITIZE:-0}" != 1 ]; then
   rc=0
   PP5_TEST_BUILD_DIR="$PWD/$dir" bash scripts/sanitize.sh "${PP5_FUZZ_SECONDS:-10}" || rc=$?
