@@ -563,12 +563,16 @@ struct Step {
 // Runs the doll (paced, so that the commands land while it streams) with
 // run.igtl_serve and a client that sends the Plus Remote workflow's commands
 // one after the other, each after the reply to the one before.
+// The commands are spaced by the frames the client receives (28 after the
+// first whole volume); a loaded machine drops frames and sends the volume
+// later, so the run has 90 frames, not the 60 after which a one-process run
+// under a concurrent build had answered only 4 of its 9 commands (2026-12-04).
 Seen runWithClient(const std::string& launcher, const std::string& dir, const std::vector<Step>& commands) {
   std::filesystem::remove_all(dir);
   const int port = freePort();
   const std::string cmd = launcher + std::string(PP5_BINARY) + " run " + PP5_SOURCE_DIR + "/configs/doll.toml" +
                           (launcher.empty() ? " --serial" : " --verify") + " -o " + dir + " --igtl-serve 127.0.0.1:" + std::to_string(port) +
-                          " --set sim.sweep.max_frames=60 --set run.pace_fps=20 --set run.orbit_frames=0 "
+                          " --set sim.sweep.max_frames=90 --set run.pace_fps=20 --set run.orbit_frames=0 "
                           "--set run.mpr=false > " + dir + ".log 2>&1";
   std::thread runner([&] { EXPECT_EQ(std::system(cmd.c_str()), 0) << cmd << "\n(see " << dir << ".log)"; });
   Seen seen;
