@@ -4,8 +4,8 @@
 #   --asan          Debug build with AddressSanitizer + UndefinedBehaviorSanitizer in build-asan/
 #   --debug         plain Debug build in build-debug/
 #   --only TARGET   build that target alone (scripts/main.sh: pp5echo, without the
-#                   tests and benchmarks: 114 of 174 steps; main.sh took 350 s from a
-#                   fresh clone on a 2-core machine, build and run, 2026-12-02)
+#                   tests and benchmarks: 114 of 178 steps; main.sh took 227 s from a
+#                   fresh clone on a 2-core machine, build and run, 2026-12-04)
 # Shows the configure and build progress on stderr, so that a caller that
 # captures stdout still shows it; prints the build folder as its last line on
 # stdout.
